@@ -1,0 +1,1 @@
+"""Scenarios, the sweep runner, the CLI and the report of attopt."""

@@ -1,0 +1,62 @@
+"""What an experiment declares to the sweep runner.
+
+An experiment is plain data plus two top-level (picklable) functions:
+
+* ``grid(parameters)`` expands the parameters into a list of *settings*
+  (plain dicts, e.g. one per input SNR x snapshot count);
+* ``trial(setting, seed)`` simulates one Monte Carlo trial of one setting from
+  ``seed`` (a :class:`numpy.random.SeedSequence` derived per trial by the
+  runner) and returns rows of metrics, one per method (and per group such as
+  an eclipse interval or an epoch).  Every method in a trial sees the same
+  simulated data.
+
+Row columns understood by the aggregation:
+
+* ``method`` (str), and the experiment's ``group_by`` columns;
+* ``err_x_deg``, ``err_y_deg``, ``err_z_deg``: body-axis components of the
+  attitude error (roll, pitch, yaw axes), NaN where the method gave no valid
+  attitude;
+* ``valid`` (bool) and ``reason`` (str, empty when valid);
+* optional ``bound_x_deg``, ``bound_y_deg``, ``bound_z_deg``: the standard
+  deviation a bound (e.g. the Cramer-Rao bound or the method's own
+  covariance) predicts for that row, for RMS-to-bound ratios.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+Setting = dict[str, Any]
+Row = dict[str, Any]
+
+
+@dataclass(frozen=True)
+class ReportContext:
+    """What an experiment's report hook receives after a sweep."""
+
+    parameters: Mapping[str, Any]
+    rows: pd.DataFrame
+    summary: pd.DataFrame
+    out_dir: Path
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A named Monte Carlo experiment the runner can execute."""
+
+    name: str
+    summary: str
+    parameters: Mapping[str, Any]
+    grid: Callable[[Mapping[str, Any]], list[Setting]]
+    trial: Callable[[Setting, np.random.SeedSequence], list[Row]]
+    default_trials: int
+    quick_trials: int
+    quick_parameters: Mapping[str, Any] = field(default_factory=dict)
+    group_by: tuple[str, ...] = ("method",)
+    report: Callable[[ReportContext], str] | None = None
