@@ -1,0 +1,161 @@
+"""Vector observations for Wahba's problem (seed 002 sec. 2.3), validated.
+
+A batch holds ``N`` epochs of up to ``n`` observation pairs: body-frame
+measurements ``b_i`` and reference-frame directions ``r_i`` with weights
+``a_i = 1 / sigma_i^2`` (seed 002 eq. 14).  An observation missing at an epoch
+(e.g. the Sun sensor in eclipse) is marked absent with the ``present`` mask.
+
+Policy on bad input:
+
+* malformed input as a whole (wrong shapes) raises
+  :class:`~formulations.errors.InvalidObservationError` immediately;
+* per-epoch problems (NaN/inf components, zero-length vectors, zero, negative
+  or NaN weights, fewer than two observations, (anti)parallel directions) mark
+  that epoch invalid with a reason and the exception class a single-epoch call
+  raises, so one bad epoch does not sink a whole pass.
+
+Non-unit vectors are normalised (a magnetometer measures a full field vector);
+vectors shorter than ``MIN_NORM`` are rejected as zero-length.  Directions are
+(anti)parallel when every pair has ``|b_i x b_j| < parallel_tolerance``
+(default ``PARALLEL_TOLERANCE``, about 0.057 deg); the check runs on body and
+reference vectors alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from formulations.errors import AttoptError, InvalidObservationError, UnobservableError
+
+MIN_NORM = 1e-12
+PARALLEL_TOLERANCE = 1e-3
+
+# A well-conditioned stand-in for invalid epochs so vectorised solvers never
+# see NaN; their results are masked out afterwards.
+_PLACEHOLDER = np.eye(3)
+
+
+@dataclass(frozen=True)
+class ObservationBatch:
+    """Validated, normalised observations of ``N`` epochs.
+
+    Attributes:
+        body: ``(N, n, 3)`` unit body-frame vectors ``b_i``.
+        reference: ``(N, n, 3)`` unit reference-frame vectors ``r_i``.
+        weights: ``(N, n)`` weights ``a_i``; zero where an observation is absent.
+        valid: ``(N,)`` whether the epoch determines an attitude.
+        reason: ``(N,)`` why an epoch is invalid (empty string when valid).
+        error: ``(N,)`` exception class a single-epoch call raises (None when valid).
+    """
+
+    body: NDArray[np.float64]
+    reference: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+    reason: NDArray[np.object_]
+    error: NDArray[np.object_]
+
+    @property
+    def n_epochs(self) -> int:
+        return self.body.shape[0]
+
+    def raise_if_invalid(self, epoch: int = 0) -> None:
+        """Raise the specific exception recorded for ``epoch``, if any."""
+        if not self.valid[epoch]:
+            raise self.error[epoch](self.reason[epoch])
+
+
+def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present: ArrayLike | None):
+    b = np.asarray(body, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    a = np.asarray(weights, dtype=float)
+    if b.ndim not in (2, 3) or b.shape[-1] != 3:
+        raise InvalidObservationError(f"body vectors must have shape (n, 3) or (N, n, 3), got {b.shape}")
+    if r.shape != b.shape:
+        raise InvalidObservationError(
+            f"reference vectors have shape {r.shape}, body vectors {b.shape}: they must match"
+        )
+    if b.ndim == 2:
+        b, r = b[None], r[None]
+        a = a[None] if a.ndim == 1 else a
+    if a.shape != b.shape[:2]:
+        raise InvalidObservationError(
+            f"weights must have one entry per observation, shape {b.shape[:2]}, got {a.shape}"
+        )
+    p = np.ones(a.shape, dtype=bool) if present is None else np.asarray(present, dtype=bool)
+    if p.ndim == 1 and np.asarray(body).ndim == 2:
+        p = p[None]
+    if p.shape != a.shape:
+        raise InvalidObservationError(f"present mask must have shape {a.shape}, got {p.shape}")
+    return b, r, a, p
+
+
+def _max_pairwise_cross(u: NDArray, present: NDArray) -> NDArray:
+    """Per epoch, the largest ``|u_i x u_j|`` over present pairs (unit vectors)."""
+    gram = np.einsum("eik,ejk->eij", u, u)
+    cross_sq = np.clip(1.0 - gram**2, 0.0, None)
+    pair = present[:, :, None] & present[:, None, :]
+    cross_sq = np.where(pair, cross_sq, 0.0)
+    return np.sqrt(cross_sq.max(axis=(1, 2)))
+
+
+def prepare_observations(
+    body: ArrayLike,
+    reference: ArrayLike,
+    weights: ArrayLike,
+    present: ArrayLike | None = None,
+    *,
+    parallel_tolerance: float = PARALLEL_TOLERANCE,
+) -> ObservationBatch:
+    """Validate and normalise vector observations (one epoch ``(n, 3)`` or ``(N, n, 3)``)."""
+    b, r, a, p = _as_batch(body, reference, weights, present)
+    n_epochs, n_obs = a.shape
+    reason = np.full(n_epochs, "", dtype=object)
+    error = np.full(n_epochs, None, dtype=object)
+
+    def flag(mask: NDArray, text: str, exc: type[AttoptError]) -> None:
+        new = mask & (reason == "")
+        reason[new] = text
+        error[new] = exc
+
+    finite = np.isfinite(b).all(-1) & np.isfinite(r).all(-1)
+    flag(((~finite) & p).any(1), "NaN or inf in an observation vector", InvalidObservationError)
+    with np.errstate(invalid="ignore"):
+        nb = np.linalg.norm(b, axis=-1)
+        nr = np.linalg.norm(r, axis=-1)
+        short = (nb < MIN_NORM) | (nr < MIN_NORM)
+    flag((short & finite & p).any(1), "zero-length observation vector", InvalidObservationError)
+    with np.errstate(invalid="ignore"):
+        bad_weight = ~(a > 0) | ~np.isfinite(a)
+    flag((bad_weight & p).any(1), "weights must be finite and positive", InvalidObservationError)
+    flag(p.sum(1) < 2, "fewer than two vector observations", UnobservableError)
+
+    ok = reason == ""
+    safe = p & ok[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bu = np.where(safe[..., None], b / nb[..., None], 0.0)
+        ru = np.where(safe[..., None], r / nr[..., None], 0.0)
+    flag(
+        ok & (_max_pairwise_cross(bu, safe) < parallel_tolerance),
+        f"body vectors are (anti)parallel: |b_i x b_j| < {parallel_tolerance:g}",
+        UnobservableError,
+    )
+    flag(
+        ok & (_max_pairwise_cross(ru, safe) < parallel_tolerance),
+        f"reference vectors are (anti)parallel: |r_i x r_j| < {parallel_tolerance:g}",
+        UnobservableError,
+    )
+
+    valid = reason == ""
+    use = p & valid[:, None]
+    placeholder = np.broadcast_to(_PLACEHOLDER[np.arange(n_obs) % 3], b.shape)
+    body_out = np.where(use[..., None], bu, placeholder)
+    ref_out = np.where(use[..., None], ru, placeholder)
+    weights_out = np.where(use, a, 0.0)
+    # Invalid epochs get a well-posed placeholder (identity attitude) so that
+    # vectorised solvers stay finite; their results are masked afterwards.
+    weights_out[~valid, : min(n_obs, 3)] = 1.0
+    return ObservationBatch(body_out, ref_out, weights_out, valid, reason, error)

@@ -1,0 +1,104 @@
+"""Wahba's problem (seed 002 sec. 2.3-2.6), vectorised over epochs.
+
+All functions take a leading epoch axis: body and reference vectors ``(N, n, 3)``
+and weights ``(N, n)``.  The attitude convention is ``b = A r``
+(``formulations.conventions``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+def wahba_loss(attitude_matrix: Array, body: Array, reference: Array, weights: Array) -> Array:
+    """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14)."""
+    residual = body - np.einsum("eij,enj->eni", attitude_matrix, reference)
+    return 0.5 * np.einsum("en,eni,eni->e", weights, residual, residual)
+
+
+def attitude_profile_matrix(body: Array, reference: Array, weights: Array) -> Array:
+    """``B = sum_i a_i b_i r_i^T`` (seed 002 eq. 15), shape ``(N, 3, 3)``."""
+    return np.einsum("en,eni,enj->eij", weights, body, reference)
+
+
+def skew_axial(b_matrix: Array) -> Array:
+    """``z = [B23 - B32, B31 - B13, B12 - B21] = sum_i a_i b_i x r_i`` (seed 002 eq. 25)."""
+    return np.stack(
+        [
+            b_matrix[:, 1, 2] - b_matrix[:, 2, 1],
+            b_matrix[:, 2, 0] - b_matrix[:, 0, 2],
+            b_matrix[:, 0, 1] - b_matrix[:, 1, 0],
+        ],
+        axis=-1,
+    )
+
+
+def davenport_matrix(b_matrix: Array) -> Array:
+    """Davenport's ``K = [[S - I tr B, z], [z^T, tr B]]`` (seed 002 eqs. 23-25).
+
+    ``q^T K q = tr(A(q) B^T)`` (eq. 22) for the Shuster quaternion ``q``
+    (scalar last), so the optimal quaternion is the eigenvector of the largest
+    eigenvalue of ``K`` (eq. 26).
+    """
+    n = b_matrix.shape[0]
+    trace = np.trace(b_matrix, axis1=1, axis2=2)
+    s = b_matrix + np.swapaxes(b_matrix, 1, 2)
+    k = np.empty((n, 4, 4))
+    k[:, :3, :3] = s - trace[:, None, None] * np.eye(3)
+    k[:, :3, 3] = k[:, 3, :3] = skew_axial(b_matrix)
+    k[:, 3, 3] = trace
+    return k
+
+
+def davenport_characteristic(b_matrix: Array) -> Array:
+    """Coefficients ``(c4..c0)`` of ``det(lambda I - K) = 0`` in Shuster's form.
+
+    ``lambda^4 - (a + b) lambda^2 - c lambda + (a b + c sigma - d)`` with
+    ``sigma = tr B``, ``S = B + B^T``, ``kappa = tr adj S``, ``a = sigma^2 - kappa``,
+    ``b = sigma^2 + z^T z``, ``c = det S + z^T S z``, ``d = z^T S^2 z``: the
+    characteristic equation QUEST solves (seed 002 sec. 2.5).  Shape ``(N, 5)``.
+    """
+    sigma = np.trace(b_matrix, axis1=1, axis2=2)
+    s = b_matrix + np.swapaxes(b_matrix, 1, 2)
+    z = skew_axial(b_matrix)
+    kappa = _trace_adjugate(s)
+    sz = np.einsum("eij,ej->ei", s, z)
+    a = sigma**2 - kappa
+    b = sigma**2 + np.einsum("ei,ei->e", z, z)
+    c = np.linalg.det(s) + np.einsum("ei,ei->e", z, sz)
+    d = np.einsum("ei,ei->e", sz, sz)
+    one = np.ones_like(sigma)
+    return np.stack([one, 0.0 * one, -(a + b), -c, a * b + c * sigma - d], axis=-1)
+
+
+def foam_characteristic(b_matrix: Array) -> Array:
+    """Coefficients of FOAM's ``(lambda^2 - |B|_F^2)^2 - 8 lambda det B - 4 |adj B|_F^2``.
+
+    Markley's characteristic equation behind seed 002 eqs. 34-36; its largest
+    root is the same ``lambda_max`` as Davenport's.  Shape ``(N, 5)``.
+    """
+    fro2 = np.einsum("eij,eij->e", b_matrix, b_matrix)
+    adj = adjugate(b_matrix)
+    adj2 = np.einsum("eij,eij->e", adj, adj)
+    one = np.ones_like(fro2)
+    det = np.linalg.det(b_matrix)
+    return np.stack([one, 0.0 * one, -2.0 * fro2, -8.0 * det, fro2**2 - 4.0 * adj2], axis=-1)
+
+
+def adjugate(m: Array) -> Array:
+    """Adjugate (transpose of the cofactor matrix) of each ``(3, 3)`` matrix."""
+    c0, c1, c2 = m[..., :, 0], m[..., :, 1], m[..., :, 2]
+    return np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=-2)
+
+
+def _trace_adjugate(m: Array) -> Array:
+    return np.trace(adjugate(m), axis1=-2, axis2=-1)
+
+
+def proper_svd(b_matrix: Array) -> tuple[Array, Array, Array, Array]:
+    """``B = U Sigma V^T`` (seed 002 eq. 17) and ``d = det U det V``."""
+    u, s, vt = np.linalg.svd(b_matrix)
+    return u, s, vt, np.linalg.det(u) * np.linalg.det(vt)

@@ -1,0 +1,67 @@
+"""Attitude-error covariances of the single-frame methods (seed 002).
+
+All are ``(N, 3, 3)`` in rad^2, body frame, for weights ``a_i = 1 / sigma_i^2``
+with ``sigma_i`` the per-axis (direction-cosine) noise of observation ``i``.
+The error they describe is the body-frame rotation vector of
+``A_est * A_true.inv()`` (``formulations.conventions.attitude_error``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from formulations.wahba import proper_svd
+
+
+Array = NDArray[np.float64]
+
+
+def triad_covariance(anchor: Array, partner: Array, var_anchor: Array, var_partner: Array) -> Array:
+    """TRIAD covariance (seed 002 eq. 11; Shuster and Oh 1981).
+
+    ``P = s1^2 I + [(s2^2 - s1^2) u u^T + s1^2 (u.v)(u v^T + v u^T)] / |u x v|^2``
+    with ``u`` the anchor body vector (``s1^2`` its variance) and ``v`` the
+    partner (``s2^2``).  Seed 002 labels ``s1`` as the magnetometer while
+    anchoring on the Sun vector; the variance belongs to the anchor, which the
+    Monte Carlo test in ``tests/test_wahba_covariance.py`` confirms.
+    """
+    u, v = anchor, partner
+    s1 = var_anchor[:, None, None]
+    s2 = var_partner[:, None, None]
+    cross2 = np.sum(np.cross(u, v) ** 2, axis=-1)[:, None, None]
+    dot = np.sum(u * v, axis=-1)[:, None, None]
+    uu = np.einsum("ei,ej->eij", u, u)
+    uv = np.einsum("ei,ej->eij", u, v)
+    return s1 * np.eye(3) + ((s2 - s1) * uu + s1 * dot * (uv + np.swapaxes(uv, 1, 2))) / cross2
+
+
+def svd_covariance(b_matrix: Array) -> Array:
+    """``P = U diag[(s2+s3)^-1, (s3+s1)^-1, (s1+s2)^-1] U^T`` (seed 002 eq. 19).
+
+    ``s1, s2 = Sigma11, Sigma22`` and ``s3 = det(U) det(V) Sigma33`` for
+    ``B = U Sigma V^T`` (eq. 17).
+    """
+    u, singular_values, _, det_uv = proper_svd(b_matrix)
+    s1, s2, s3 = singular_values[:, 0], singular_values[:, 1], det_uv * singular_values[:, 2]
+    diag = np.stack([1.0 / (s2 + s3), 1.0 / (s3 + s1), 1.0 / (s1 + s2)], axis=-1)
+    return np.einsum("eij,ej,ekj->eik", u, diag, u)
+
+
+def quest_covariance(body: Array, weights: Array) -> Array:
+    """``P = [sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32)."""
+    info = np.einsum("en,ij->eij", weights, np.eye(3)) - np.einsum(
+        "en,eni,enj->eij", weights, body, body
+    )
+    return np.linalg.inv(info)
+
+
+def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
+    """``P = [kappa lambda - det B]^-1 (kappa I + B B^T)`` (seed 002 eqs. 34, 37)."""
+    fro2 = np.einsum("eij,eij->e", b_matrix, b_matrix)
+    kappa = 0.5 * (lambda_max**2 - fro2)
+    zeta = kappa * lambda_max - np.linalg.det(b_matrix)
+    bbt = np.einsum("eij,ekj->eik", b_matrix, b_matrix)
+    return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
+
+

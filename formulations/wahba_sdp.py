@@ -1,0 +1,53 @@
+"""Semidefinite relaxation of Wahba's problem, as a parametrised cvxpy problem.
+
+``max tr(K X)  s.t.  tr X = 1,  X PSD`` with Davenport's ``K`` (seed 002
+eqs. 22-26) as a cvxpy ``Parameter``.  ``X = q q^T`` for the optimal Shuster
+quaternion whenever ``lambda_max(K)`` is simple, so the relaxation is tight and
+its value equals ``lambda_max(K)``.  The problem is DPP: repeated solves with a
+new ``K`` reuse the compiled problem.  Its dual is ``min nu  s.t.  nu I - K PSD``,
+so the multiplier of ``tr X = 1`` is a certificate of optimality.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True)
+class SDPSolution:
+    """Primal matrix, primal value and the dual value (certificate) of one solve."""
+
+    x: NDArray[np.float64]
+    value: float
+    dual_value: float
+    status: str
+
+
+class WahbaSDP:
+    """The compiled-once relaxation; call :meth:`solve` with each ``K``."""
+
+    def __init__(self, solver: str = cp.CLARABEL) -> None:
+        self.k = cp.Parameter((4, 4), symmetric=True)
+        self.x = cp.Variable((4, 4), symmetric=True)
+        self.unit_trace = cp.trace(self.x) == 1
+        self.problem = cp.Problem(
+            cp.Maximize(cp.trace(self.k @ self.x)), [self.unit_trace, self.x >> 0]
+        )
+        self.solver = solver
+
+    def solve(self, k: NDArray[np.float64]) -> SDPSolution:
+        """Solve for one (symmetric) Davenport matrix ``k``."""
+        self.k.value = 0.5 * (k + k.T)
+        self.problem.solve(solver=self.solver)
+        x = self.x.value
+        dual = self.unit_trace.dual_value
+        return SDPSolution(
+            x=np.full((4, 4), np.nan) if x is None else np.asarray(x),
+            value=np.nan if self.problem.value is None else float(self.problem.value),
+            dual_value=np.nan if dual is None else abs(float(dual)),
+            status=str(self.problem.status),
+        )

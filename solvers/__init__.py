@@ -1,0 +1,1 @@
+"""Solvers of the problems in ``formulations``."""

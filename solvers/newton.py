@@ -1,0 +1,43 @@
+"""Vectorised Newton-Raphson for the largest root of quartic characteristic equations.
+
+Shared by QUEST and FOAM (seed 002 secs. 2.5-2.6): both start from
+``lambda_0 = sum_i a_i``, which bounds ``lambda_max`` from above, and iterate
+until the step is below ``rtol * lambda_0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def largest_root_newton(
+    coefficients: NDArray[np.float64],
+    start: NDArray[np.float64],
+    *,
+    rtol: float = 1e-14,
+    max_iterations: int = 50,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
+    """Newton iterations on ``sum_k c_k x^(4-k)`` per row of ``coefficients`` ``(N, 5)``.
+
+    Returns the root, the iteration count of each row and whether it converged.
+    """
+    c = coefficients
+    derivative = c[:, :4] * np.array([4.0, 3.0, 2.0, 1.0])
+    x = np.array(start, dtype=float)
+    iterations = np.zeros(x.shape, dtype=np.int64)
+    active = np.ones(x.shape, dtype=bool)
+    scale = np.abs(start)
+    for _ in range(max_iterations):
+        if not active.any():
+            break
+        xa = x[active]
+        f = np.polynomial.polynomial.polyval(xa, c[active, ::-1].T, tensor=False)
+        df = np.polynomial.polynomial.polyval(xa, derivative[active, ::-1].T, tensor=False)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(df != 0.0, f / df, 0.0)
+        x[active] = xa - step
+        iterations[active] += 1
+        done = ~(np.abs(step) > rtol * scale[active])
+        active[np.flatnonzero(active)[done]] = False
+    return x, iterations, ~active

@@ -1,0 +1,67 @@
+"""The part every Wahba solver shares: validate, estimate, mask, score.
+
+A solver supplies only an *estimator*: a function from validated
+observations (:class:`formulations.vector_observations.ObservationBatch`) to an
+:class:`Estimate` for every epoch.  This module turns that into a
+:class:`solvers.result.BatchSolution` with Wahba's loss (seed 002 eq. 14), the
+validity mask and reasons.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.errors import ConvergenceError
+from formulations.vector_observations import ObservationBatch
+from formulations.wahba import wahba_loss
+from solvers.result import BatchSolution
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What an estimator returns for all ``N`` epochs of a batch.
+
+    ``failed`` marks epochs where the method itself did not converge (with
+    ``failure`` the reason); their attitude is ignored.
+    """
+
+    attitude: Rotation
+    covariance: NDArray[np.float64]
+    diagnostics: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
+    failed: NDArray[np.bool_] | None = None
+    failure: NDArray[np.object_] | None = None
+
+
+Estimator = Callable[[ObservationBatch], Estimate]
+
+
+def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> BatchSolution:
+    """Run ``estimator`` on validated observations and assemble the batch result."""
+    n = obs.n_epochs
+    valid = obs.valid.copy()
+    reason = obs.reason.copy()
+    error = obs.error.copy()
+    if not valid.any():
+        nan = np.full(n, np.nan)
+        return BatchSolution(
+            method, np.full((n, 4), np.nan), np.full((n, 3, 3), np.nan), nan, valid, reason, error, {}
+        )
+    est = estimator(obs)
+    if est.failed is not None:
+        newly = est.failed & valid
+        valid &= ~est.failed
+        reason[newly] = est.failure[newly]
+        error[newly] = ConvergenceError
+    quaternion = est.attitude.as_quat(canonical=True)
+    loss = wahba_loss(est.attitude.as_matrix(), obs.body, obs.reference, obs.weights)
+    covariance = np.array(est.covariance, dtype=float)
+    quaternion[~valid] = np.nan
+    covariance[~valid] = np.nan
+    loss[~valid] = np.nan
+    diagnostics = {k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()}
+    return BatchSolution(method, quaternion, covariance, loss, valid, reason, error, diagnostics)

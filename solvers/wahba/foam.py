@@ -1,0 +1,36 @@
+"""FOAM, Markley's fast optimal attitude matrix (seed 002 eqs. 33-37)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from formulations.vector_observations import ObservationBatch
+from formulations.wahba import adjugate, attitude_profile_matrix, foam_characteristic
+from formulations.wahba_covariance import foam_covariance
+from solvers.newton import largest_root_newton
+from solvers.wahba.driver import Estimate
+
+
+def estimate(obs: ObservationBatch) -> Estimate:
+    """``A = [(kappa + |B|^2) B + lambda adj(B^T) - B B^T B] / (kappa lambda - det B)`` (eq. 35)."""
+    b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    lambda_0 = obs.weights.sum(axis=1)
+    lam, iterations, converged = largest_root_newton(foam_characteristic(b), lambda_0)
+    fro2 = np.einsum("eij,eij->e", b, b)
+    kappa = 0.5 * (lam**2 - fro2)
+    zeta = kappa * lam - np.linalg.det(b)
+    bbtb = np.einsum("eij,ekj,ekl->eil", b, b, b)
+    a = (
+        (kappa + fro2)[:, None, None] * b
+        + lam[:, None, None] * adjugate(np.swapaxes(b, 1, 2))
+        - bbtb
+    ) / zeta[:, None, None]
+    failure = np.full(b.shape[0], "FOAM Newton-Raphson on lambda_max did not converge", dtype=object)
+    return Estimate(
+        Rotation.from_matrix(a),
+        foam_covariance(b, lam),
+        {"iterations": iterations, "lambda_max": lam},
+        failed=~converged,
+        failure=failure,
+    )
