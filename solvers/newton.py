@@ -1,8 +1,13 @@
 """Vectorised Newton-Raphson for the largest root of quartic characteristic equations.
 
 Shared by QUEST and FOAM (seed 002 secs. 2.5-2.6): both start from
-``lambda_0 = sum_i a_i``, which bounds ``lambda_max`` from above, and iterate
-until the step is below ``rtol * lambda_0``.
+``lambda_0 = sum_i a_i``, which bounds ``lambda_max`` from above.  All roots
+of these polynomials are real (they are characteristic polynomials of
+symmetric matrices), so from above the largest root Newton's steps decrease
+monotonically; iteration stops when the step is below ``rtol * lambda_0`` or
+when rounding makes the step change sign (the root is then as accurate as the
+polynomial's evaluation allows).  A row still stepping after
+``max_iterations`` has not converged.
 """
 
 from __future__ import annotations
@@ -38,6 +43,6 @@ def largest_root_newton(
             step = np.where(df != 0.0, f / df, 0.0)
         x[active] = xa - step
         iterations[active] += 1
-        done = ~(np.abs(step) > rtol * scale[active])
+        done = ~(np.abs(step) > rtol * scale[active]) | (step < 0.0)
         active[np.flatnonzero(active)[done]] = False
     return x, iterations, ~active

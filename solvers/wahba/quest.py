@@ -5,7 +5,7 @@ equation started at ``lambda_0 = sum a_i``; the quaternion from eqs. 27-31.
 Eq. 31 loses accuracy as the rotation approaches 180 degrees (``gamma -> 0``),
 so the solution is also computed with the reference frame turned by 180
 degrees about x, y and z (Shuster and Oh 1981), and per epoch the frame with
-the largest ``|q4|`` is kept and turned back: attitudes near 180 degrees are
+the largest ``|gamma|`` (largest ``|q4|``) is kept and turned back: attitudes near 180 degrees are
 exact.
 """
 
@@ -47,7 +47,9 @@ def estimate(obs: ObservationBatch) -> Estimate:
     candidates = np.stack(
         [_quest_quaternion(b @ turn, lambda_max) for turn in _TURNS], axis=1
     )  # (N, 4 turns, 4)
-    candidates /= np.linalg.norm(candidates, axis=-1, keepdims=True)
+    # [x; gamma] is the q4-column of adj(lambda I - K), proportional to q4 * q
+    # with a factor the turns do not change, so the largest gamma marks the
+    # frame with the largest |q4|; gamma is tiny and inaccurate in the others.
     best = np.argmax(np.abs(candidates[:, :, 3]), axis=1)
     epochs = np.arange(b.shape[0])
     turned = attitude_from_shuster_quaternion(candidates[epochs, best])
