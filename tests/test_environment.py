@@ -72,10 +72,17 @@ def test_enu_up_is_the_wgs84_normal_and_basis_is_right_handed() -> None:
         basis @ np.swapaxes(basis, -1, -2), np.broadcast_to(np.eye(3), (3, 3, 3)), atol=1e-12
     )
     np.testing.assert_allclose(np.linalg.det(basis), 1.0)
-    low = EarthLocation.from_geodetic(lon, lat, 0.0 * u.km)
-    high = EarthLocation.from_geodetic(lon, lat, 1.0 * u.km)
-    up = (high.get_itrs().cartesian.xyz - low.get_itrs().cartesian.xyz).to_value(u.km).T
-    np.testing.assert_allclose(basis[..., 2], up, atol=1e-9)
+
+    def displacement(d_lon: float, d_lat: float, d_height: float) -> np.ndarray:
+        """Unit ECEF displacement of a small geodetic step, from astropy."""
+        here = EarthLocation.from_geodetic(lon, lat, 0.0 * u.km)
+        there = EarthLocation.from_geodetic(lon + d_lon, lat + d_lat, d_height * u.km)
+        step = (there.get_itrs().cartesian.xyz - here.get_itrs().cartesian.xyz).to_value(u.km).T
+        return step / np.linalg.norm(step, axis=-1, keepdims=True)
+
+    np.testing.assert_allclose(basis[..., 0], displacement(1e-6, 0.0, 0.0), atol=1e-6)
+    np.testing.assert_allclose(basis[..., 1], displacement(0.0, 1e-6, 0.0), atol=1e-6)
+    np.testing.assert_allclose(basis[..., 2], displacement(0.0, 0.0, 1.0), atol=1e-9)
 
 
 # --- Sun ---------------------------------------------------------------------------------

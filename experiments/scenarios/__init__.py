@@ -1,0 +1,1 @@
+"""Simulation scenarios: true geometry and simulated sensor measurements."""
