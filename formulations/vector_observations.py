@@ -73,7 +73,9 @@ def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present
     r = np.asarray(reference, dtype=float)
     a = np.asarray(weights, dtype=float)
     if b.ndim not in (2, 3) or b.shape[-1] != 3:
-        raise InvalidObservationError(f"body vectors must have shape (n, 3) or (N, n, 3), got {b.shape}")
+        raise InvalidObservationError(
+            f"body vectors must have shape (n, 3) or (N, n, 3), got {b.shape}"
+        )
     if r.shape != b.shape:
         raise InvalidObservationError(
             f"reference vectors have shape {r.shape}, body vectors {b.shape}: they must match"
@@ -99,7 +101,7 @@ def _max_pairwise_cross(u: NDArray, present: NDArray) -> NDArray:
     cross_sq = np.clip(1.0 - gram**2, 0.0, None)
     pair = present[:, :, None] & present[:, None, :]
     cross_sq = np.where(pair, cross_sq, 0.0)
-    return np.sqrt(cross_sq.max(axis=(1, 2)))
+    return np.sqrt(cross_sq.max(axis=(1, 2), initial=0.0))
 
 
 def prepare_observations(

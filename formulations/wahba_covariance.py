@@ -13,7 +13,6 @@ from numpy.typing import NDArray
 
 from formulations.wahba import proper_svd
 
-
 Array = NDArray[np.float64]
 
 
@@ -63,5 +62,3 @@ def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     zeta = kappa * lambda_max - np.linalg.det(b_matrix)
     bbt = np.einsum("eij,ekj->eik", b_matrix, b_matrix)
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
-
-

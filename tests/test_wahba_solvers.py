@@ -47,11 +47,13 @@ def test_noise_free_recovery(solver, data):
 @FAST
 @given(problem=wahba_problems(max_vectors=8, sigma_decades=1.0))
 def test_batch_equals_single_epochs(solver, problem):
-    truth, body, reference, weights = problem
+    truth, _, reference, weights = problem
     rng = np.random.default_rng(7)
     sig = weights**-0.5
     bodies = np.stack([noisy_body(truth, reference, sig, rng) for _ in range(3)])
-    batch = solver.solve_batch(bodies, np.broadcast_to(reference, bodies.shape), np.tile(weights, (3, 1)))
+    batch = solver.solve_batch(
+        bodies, np.broadcast_to(reference, bodies.shape), np.tile(weights, (3, 1))
+    )
     assert batch.valid.all()
     for i in range(3):
         single = solver.solve(bodies[i], reference, weights)
@@ -79,6 +81,7 @@ def test_triad_equals_optimal_for_two_noise_free_vectors(problem):
     triad = WAHBA_SOLVERS["triad"].solve(body, reference, weights)
     q = WAHBA_SOLVERS["q_method"].solve(body, reference, weights)
     assert angle(triad.attitude, q.attitude) < 1e-10
+    assert angle(triad.attitude, truth) < 1e-10
 
 
 def test_triad_is_suboptimal_with_noise():
@@ -111,7 +114,9 @@ def test_sdp_is_tight_and_equals_lambda_max(problem):
 
 
 def test_sdp_reports_certificate():
-    solution = WAHBA_SOLVERS["sdp"].solve(np.eye(3), Rotation.random(random_state=2).inv().apply(np.eye(3)), np.ones(3))
+    solution = WAHBA_SOLVERS["sdp"].solve(
+        np.eye(3), Rotation.random(random_state=2).inv().apply(np.eye(3)), np.ones(3)
+    )
     assert solution.diagnostics["duality_gap"] < 1e-7
     assert solution.diagnostics["rank_one_ratio"] < 1e-6
     assert solution.diagnostics["sdp_value"] == pytest.approx(3.0, rel=1e-7)

@@ -69,9 +69,13 @@ WAHBA_SOLVERS: dict[str, WahbaSolver] = {
     for s in (
         WahbaSolver("triad", triad.estimate, False, True, "TRIAD/algebraic, seed 002 eqs. 5-11"),
         WahbaSolver("svd", svd.estimate, True, True, "SVD, seed 002 eqs. 17-19"),
-        WahbaSolver("q_method", qmethod.estimate, True, True, "Davenport q-method, seed 002 eqs. 20-26"),
+        WahbaSolver(
+            "q_method", qmethod.estimate, True, True, "Davenport q-method, seed 002 eqs. 20-26"
+        ),
         WahbaSolver("quest", quest.estimate, True, True, "QUEST, seed 002 eqs. 27-32"),
         WahbaSolver("foam", foam.estimate, True, True, "FOAM, seed 002 eqs. 33-37"),
-        WahbaSolver("sdp", sdp.estimate, True, False, "SDP relaxation (cvxpy + Clarabel), eqs. 22-26"),
+        WahbaSolver(
+            "sdp", sdp.estimate, True, False, "SDP relaxation (cvxpy + Clarabel), eqs. 22-26"
+        ),
     )
 }

@@ -49,7 +49,14 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     if not valid.any():
         nan = np.full(n, np.nan)
         return BatchSolution(
-            method, np.full((n, 4), np.nan), np.full((n, 3, 3), np.nan), nan, valid, reason, error, {}
+            method,
+            np.full((n, 4), np.nan),
+            np.full((n, 3, 3), np.nan),
+            nan,
+            valid,
+            reason,
+            error,
+            {},
         )
     est = estimator(obs)
     if est.failed is not None:
@@ -63,5 +70,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     quaternion[~valid] = np.nan
     covariance[~valid] = np.nan
     loss[~valid] = np.nan
-    diagnostics = {k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()}
+    diagnostics = {
+        k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()
+    }
     return BatchSolution(method, quaternion, covariance, loss, valid, reason, error, diagnostics)

@@ -26,7 +26,9 @@ def estimate(obs: ObservationBatch) -> Estimate:
         + lam[:, None, None] * adjugate(np.swapaxes(b, 1, 2))
         - bbtb
     ) / zeta[:, None, None]
-    failure = np.full(b.shape[0], "FOAM Newton-Raphson on lambda_max did not converge", dtype=object)
+    failure = np.full(
+        b.shape[0], "FOAM Newton-Raphson on lambda_max did not converge", dtype=object
+    )
     return Estimate(
         Rotation.from_matrix(a),
         foam_covariance(b, lam),

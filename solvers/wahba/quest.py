@@ -54,7 +54,9 @@ def estimate(obs: ObservationBatch) -> Estimate:
     epochs = np.arange(b.shape[0])
     turned = attitude_from_shuster_quaternion(candidates[epochs, best])
     attitude = turned * Rotation.from_matrix(_TURNS[best])
-    failure = np.full(b.shape[0], "QUEST Newton-Raphson on lambda_max did not converge", dtype=object)
+    failure = np.full(
+        b.shape[0], "QUEST Newton-Raphson on lambda_max did not converge", dtype=object
+    )
     return Estimate(
         attitude,
         quest_covariance(obs.body, obs.weights),

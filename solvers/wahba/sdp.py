@@ -3,8 +3,14 @@
 The quaternion is the top eigenvector of the optimal ``X``.  The certificate
 is reported per epoch: the duality gap ``|tr(K X) - nu|`` and the rank-one
 ratio ``lambda_2 / lambda_1`` of ``X`` (both for ``K`` scaled by
-``1 / sum a_i``).  An epoch whose solve is not optimal, or whose ``X`` is not
-rank one to ``RANK_ONE_TOLERANCE``, is flagged as a convergence failure.
+``1 / sum a_i``).  A solve Clarabel calls optimal or "optimal_inaccurate"
+(its tight tolerances are sometimes just missed) is accepted when that
+certificate holds: ``X`` rank one to ``RANK_ONE_TOLERANCE`` and the gap below
+``GAP_TOLERANCE``; any other epoch is flagged as a convergence failure.
+
+Accuracy: the eigenvector error is about the solver tolerance divided by the
+eigen-gap of ``K``, so it grows with the dynamic range of the weights (the
+contract tests hold it to 1e-10 rad over a 100:1 weight range).
 """
 
 from __future__ import annotations
@@ -21,6 +27,8 @@ from formulations.wahba_sdp import WahbaSDP
 from solvers.wahba.driver import Estimate
 
 RANK_ONE_TOLERANCE = 1e-6
+GAP_TOLERANCE = 1e-8
+_ACCEPTED = ("optimal", "optimal_inaccurate")
 
 
 @lru_cache(maxsize=1)
@@ -41,7 +49,7 @@ def estimate(obs: ObservationBatch) -> Estimate:
     failure = np.full(n, "", dtype=object)
     for i in np.flatnonzero(obs.valid):
         sol = _problem().solve(k[i] / lambda_0[i])
-        if sol.status != "optimal" or not np.isfinite(sol.x).all():
+        if sol.status not in _ACCEPTED or not np.isfinite(sol.x).all():
             failure[i] = f"SDP solver status {sol.status}"
             continue
         w, v = np.linalg.eigh(sol.x)
@@ -51,6 +59,8 @@ def estimate(obs: ObservationBatch) -> Estimate:
         value[i] = sol.value * lambda_0[i]
         if not ratio[i] < RANK_ONE_TOLERANCE:
             failure[i] = f"SDP relaxation not rank one (lambda2/lambda1 = {ratio[i]:.2e})"
+        elif not gap[i] < GAP_TOLERANCE:
+            failure[i] = f"SDP duality gap {gap[i]:.2e} above {GAP_TOLERANCE:g}"
     return Estimate(
         attitude_from_shuster_quaternion(q),
         quest_covariance(obs.body, obs.weights),
