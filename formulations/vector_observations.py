@@ -96,12 +96,11 @@ def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present
 
 
 def _max_pairwise_cross(u: NDArray, present: NDArray) -> NDArray:
-    """Per epoch, the largest ``|u_i x u_j|`` over present pairs (unit vectors)."""
-    gram = np.einsum("eik,ejk->eij", u, u)
-    cross_sq = np.clip(1.0 - gram**2, 0.0, None)
-    pair = present[:, :, None] & present[:, None, :]
-    cross_sq = np.where(pair, cross_sq, 0.0)
-    return np.sqrt(cross_sq.max(axis=(1, 2), initial=0.0))
+    """Per epoch, the largest ``|u_i x u_j| = sqrt(1 - (u_i . u_j)^2)`` over present pairs."""
+    i, j = np.triu_indices(u.shape[1], 1)
+    dot = np.sum(u[:, i] * u[:, j], axis=-1)
+    cross_sq = np.where(present[:, i] & present[:, j], 1.0 - dot * dot, 0.0)
+    return np.sqrt(np.clip(cross_sq.max(axis=1, initial=0.0), 0.0, None))
 
 
 def prepare_observations(
@@ -115,19 +114,19 @@ def prepare_observations(
     """Validate and normalise vector observations (one epoch ``(n, 3)`` or ``(N, n, 3)``)."""
     b, r, a, p = _as_batch(body, reference, weights, present)
     n_epochs, n_obs = a.shape
-    reason = np.full(n_epochs, "", dtype=object)
-    error = np.full(n_epochs, None, dtype=object)
+    # Per epoch, the index of the first failed check in ``checks`` (0: none).
+    code = np.zeros(n_epochs, dtype=np.intp)
+    checks: list[tuple[str, type[AttoptError] | None]] = [("", None)]
 
     def flag(mask: NDArray, text: str, exc: type[AttoptError]) -> None:
-        new = mask & (reason == "")
-        reason[new] = text
-        error[new] = exc
+        checks.append((text, exc))
+        code[mask & (code == 0)] = len(checks) - 1
 
     finite = np.isfinite(b).all(-1) & np.isfinite(r).all(-1)
     flag(((~finite) & p).any(1), "NaN or inf in an observation vector", InvalidObservationError)
-    with np.errstate(invalid="ignore"):
-        nb = np.linalg.norm(b, axis=-1)
-        nr = np.linalg.norm(r, axis=-1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        nb = np.sqrt(np.sum(b * b, axis=-1))
+        nr = np.sqrt(np.sum(r * r, axis=-1))
         short = (nb < MIN_NORM) | (nr < MIN_NORM)
     flag((short & finite & p).any(1), "zero-length observation vector", InvalidObservationError)
     with np.errstate(invalid="ignore"):
@@ -135,11 +134,14 @@ def prepare_observations(
     flag((bad_weight & p).any(1), "weights must be finite and positive", InvalidObservationError)
     flag(p.sum(1) < 2, "fewer than two vector observations", UnobservableError)
 
-    ok = reason == ""
+    ok = code == 0
     safe = p & ok[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        bu = np.where(safe[..., None], b / nb[..., None], 0.0)
-        ru = np.where(safe[..., None], r / nr[..., None], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        bu = b / nb[..., None]
+        ru = r / nr[..., None]
+    if not safe.all():
+        bu = np.where(safe[..., None], bu, 0.0)
+        ru = np.where(safe[..., None], ru, 0.0)
     flag(
         ok & (_max_pairwise_cross(bu, safe) < parallel_tolerance),
         f"body vectors are (anti)parallel: |b_i x b_j| < {parallel_tolerance:g}",
@@ -150,14 +152,22 @@ def prepare_observations(
         f"reference vectors are (anti)parallel: |r_i x r_j| < {parallel_tolerance:g}",
         UnobservableError,
     )
+    texts = np.empty(len(checks), dtype=object)
+    texts[:] = [text for text, _ in checks]
+    errors = np.empty(len(checks), dtype=object)
+    errors[:] = [exc for _, exc in checks]
+    reason, error = texts[code], errors[code]
 
-    valid = reason == ""
+    valid = code == 0
     use = p & valid[:, None]
+    if use.all():
+        return ObservationBatch(bu, ru, a.copy(), valid, reason, error)
+    # Absent observations get weight 0, invalid epochs a well-posed placeholder
+    # (identity attitude) so that vectorised solvers stay finite; their results
+    # are masked afterwards.
     placeholder = np.broadcast_to(_PLACEHOLDER[np.arange(n_obs) % 3], b.shape)
     body_out = np.where(use[..., None], bu, placeholder)
     ref_out = np.where(use[..., None], ru, placeholder)
     weights_out = np.where(use, a, 0.0)
-    # Invalid epochs get a well-posed placeholder (identity attitude) so that
-    # vectorised solvers stay finite; their results are masked afterwards.
     weights_out[~valid, : min(n_obs, 3)] = 1.0
     return ObservationBatch(body_out, ref_out, weights_out, valid, reason, error)

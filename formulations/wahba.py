@@ -15,13 +15,13 @@ Array = NDArray[np.float64]
 
 def wahba_loss(attitude_matrix: Array, body: Array, reference: Array, weights: Array) -> Array:
     """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14)."""
-    residual = body - np.einsum("eij,enj->eni", attitude_matrix, reference)
-    return 0.5 * np.einsum("en,eni,eni->e", weights, residual, residual)
+    residual = body - reference @ np.swapaxes(attitude_matrix, 1, 2)
+    return 0.5 * np.sum(weights * np.sum(residual**2, axis=-1), axis=-1)
 
 
 def attitude_profile_matrix(body: Array, reference: Array, weights: Array) -> Array:
     """``B = sum_i a_i b_i r_i^T`` (seed 002 eq. 15), shape ``(N, 3, 3)``."""
-    return np.einsum("en,eni,enj->eij", weights, body, reference)
+    return np.swapaxes(weights[..., None] * body, 1, 2) @ reference
 
 
 def skew_axial(b_matrix: Array) -> Array:
@@ -44,7 +44,7 @@ def davenport_matrix(b_matrix: Array) -> Array:
     eigenvalue of ``K`` (eq. 26).
     """
     n = b_matrix.shape[0]
-    trace = np.trace(b_matrix, axis1=1, axis2=2)
+    trace = trace3(b_matrix)
     s = b_matrix + np.swapaxes(b_matrix, 1, 2)
     k = np.empty((n, 4, 4))
     k[:, :3, :3] = s - trace[:, None, None] * np.eye(3)
@@ -61,15 +61,15 @@ def davenport_characteristic(b_matrix: Array) -> Array:
     ``b = sigma^2 + z^T z``, ``c = det S + z^T S z``, ``d = z^T S^2 z``: the
     characteristic equation QUEST solves (seed 002 sec. 2.5).  Shape ``(N, 5)``.
     """
-    sigma = np.trace(b_matrix, axis1=1, axis2=2)
+    sigma = trace3(b_matrix)
     s = b_matrix + np.swapaxes(b_matrix, 1, 2)
     z = skew_axial(b_matrix)
     kappa = _trace_adjugate(s)
-    sz = np.einsum("eij,ej->ei", s, z)
+    sz = (s @ z[:, :, None])[:, :, 0]
     a = sigma**2 - kappa
-    b = sigma**2 + np.einsum("ei,ei->e", z, z)
-    c = np.linalg.det(s) + np.einsum("ei,ei->e", z, sz)
-    d = np.einsum("ei,ei->e", sz, sz)
+    b = sigma**2 + np.sum(z * z, axis=1)
+    c = det3(s) + np.sum(z * sz, axis=1)
+    d = np.sum(sz * sz, axis=1)
     one = np.ones_like(sigma)
     return np.stack([one, 0.0 * one, -(a + b), -c, a * b + c * sigma - d], axis=-1)
 
@@ -84,8 +84,9 @@ def foam_characteristic(b_matrix: Array) -> Array:
     adj = adjugate(b_matrix)
     adj2 = np.einsum("eij,eij->e", adj, adj)
     one = np.ones_like(fro2)
-    det = np.linalg.det(b_matrix)
-    return np.stack([one, 0.0 * one, -2.0 * fro2, -8.0 * det, fro2**2 - 4.0 * adj2], axis=-1)
+    return np.stack(
+        [one, 0.0 * one, -2.0 * fro2, -8.0 * det3(b_matrix), fro2**2 - 4.0 * adj2], axis=-1
+    )
 
 
 def adjugate(m: Array) -> Array:
@@ -94,11 +95,25 @@ def adjugate(m: Array) -> Array:
     return np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=-2)
 
 
+def det3(m: Array) -> Array:
+    """Determinant of each ``(3, 3)`` matrix (rule of Sarrus; faster than LU for stacks)."""
+    return (
+        m[..., 0, 0] * (m[..., 1, 1] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 1])
+        - m[..., 0, 1] * (m[..., 1, 0] * m[..., 2, 2] - m[..., 1, 2] * m[..., 2, 0])
+        + m[..., 0, 2] * (m[..., 1, 0] * m[..., 2, 1] - m[..., 1, 1] * m[..., 2, 0])
+    )
+
+
 def _trace_adjugate(m: Array) -> Array:
-    return np.trace(adjugate(m), axis1=-2, axis2=-1)
+    return trace3(adjugate(m))
+
+
+def trace3(m: Array) -> Array:
+    """Trace of each ``(3, 3)`` matrix (faster than ``np.trace`` for stacks)."""
+    return m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
 
 
 def proper_svd(b_matrix: Array) -> tuple[Array, Array, Array, Array]:
     """``B = U Sigma V^T`` (seed 002 eq. 17) and ``d = det U det V``."""
     u, s, vt = np.linalg.svd(b_matrix)
-    return u, s, vt, np.linalg.det(u) * np.linalg.det(vt)
+    return u, s, vt, det3(u) * det3(vt)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from formulations.wahba import proper_svd
+from formulations.wahba import adjugate, det3, trace3
 
 Array = NDArray[np.float64]
 
@@ -35,30 +35,34 @@ def triad_covariance(anchor: Array, partner: Array, var_anchor: Array, var_partn
     return s1 * np.eye(3) + ((s2 - s1) * uu + s1 * dot * (uv + np.swapaxes(uv, 1, 2))) / cross2
 
 
-def svd_covariance(b_matrix: Array) -> Array:
+def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
     """``P = U diag[(s2+s3)^-1, (s3+s1)^-1, (s1+s2)^-1] U^T`` (seed 002 eq. 19).
 
     ``s1, s2 = Sigma11, Sigma22`` and ``s3 = det(U) det(V) Sigma33`` for
-    ``B = U Sigma V^T`` (eq. 17).
+    ``B = U Sigma V^T`` (eq. 17).  At the optimal ``A`` (eq. 18),
+    ``B A^T = U diag(s1, s2, s3) U^T``, so eq. 19 equals
+    ``[tr(B A^T) I - B A^T]^-1``, which is evaluated here without a second SVD
+    (``tests/test_wahba_covariance.py`` checks the identity).
     """
-    u, singular_values, _, det_uv = proper_svd(b_matrix)
-    s1, s2, s3 = singular_values[:, 0], singular_values[:, 1], det_uv * singular_values[:, 2]
-    diag = np.stack([1.0 / (s2 + s3), 1.0 / (s3 + s1), 1.0 / (s1 + s2)], axis=-1)
-    return np.einsum("eij,ej,ekj->eik", u, diag, u)
+    bat = b_matrix @ np.swapaxes(attitude_matrix, 1, 2)
+    bat = 0.5 * (bat + np.swapaxes(bat, 1, 2))
+    info = trace3(bat)[:, None, None] * np.eye(3) - bat
+    return adjugate(info) / det3(info)[:, None, None]
 
 
 def quest_covariance(body: Array, weights: Array) -> Array:
     """``P = [sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32)."""
-    info = np.einsum("en,ij->eij", weights, np.eye(3)) - np.einsum(
-        "en,eni,enj->eij", weights, body, body
+    info = (
+        weights.sum(axis=1)[:, None, None] * np.eye(3)
+        - np.swapaxes(weights[..., None] * body, 1, 2) @ body
     )
-    return np.linalg.inv(info)
+    return adjugate(info) / det3(info)[:, None, None]
 
 
 def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     """``P = [kappa lambda - det B]^-1 (kappa I + B B^T)`` (seed 002 eqs. 34, 37)."""
     fro2 = np.einsum("eij,eij->e", b_matrix, b_matrix)
     kappa = 0.5 * (lambda_max**2 - fro2)
-    zeta = kappa * lambda_max - np.linalg.det(b_matrix)
-    bbt = np.einsum("eij,ekj->eik", b_matrix, b_matrix)
+    zeta = kappa * lambda_max - det3(b_matrix)
+    bbt = b_matrix @ np.swapaxes(b_matrix, 1, 2)
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]

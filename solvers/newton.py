@@ -37,8 +37,8 @@ def largest_root_newton(
         if not active.any():
             break
         xa = x[active]
-        f = np.polynomial.polynomial.polyval(xa, c[active, ::-1].T, tensor=False)
-        df = np.polynomial.polynomial.polyval(xa, derivative[active, ::-1].T, tensor=False)
+        f = _horner(c[active], xa)
+        df = _horner(derivative[active], xa)
         with np.errstate(divide="ignore", invalid="ignore"):
             step = np.where(df != 0.0, f / df, 0.0)
         x[active] = xa - step
@@ -46,3 +46,11 @@ def largest_root_newton(
         done = ~(np.abs(step) > rtol * scale[active]) | (step < 0.0)
         active[np.flatnonzero(active)[done]] = False
     return x, iterations, ~active
+
+
+def _horner(coefficients: NDArray[np.float64], x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Evaluate each row's polynomial (highest power first) at its ``x``."""
+    value = coefficients[:, 0].copy()
+    for k in range(1, coefficients.shape[1]):
+        value = value * x + coefficients[:, k]
+    return value

@@ -27,14 +27,15 @@ class Estimate:
     """What an estimator returns for all ``N`` epochs of a batch.
 
     ``failed`` marks epochs where the method itself did not converge (with
-    ``failure`` the reason); their attitude is ignored.
+    ``failure`` the reason, one for all or one per epoch); their attitude is
+    ignored.
     """
 
     attitude: Rotation
     covariance: NDArray[np.float64]
     diagnostics: Mapping[str, NDArray[np.float64]] = field(default_factory=dict)
     failed: NDArray[np.bool_] | None = None
-    failure: NDArray[np.object_] | None = None
+    failure: str | NDArray[np.object_] | None = None
 
 
 Estimator = Callable[[ObservationBatch], Estimate]
@@ -62,7 +63,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     if est.failed is not None:
         newly = est.failed & valid
         valid &= ~est.failed
-        reason[newly] = est.failure[newly]
+        reason[newly] = est.failure if isinstance(est.failure, str) else est.failure[newly]
         error[newly] = ConvergenceError
     quaternion = est.attitude.as_quat(canonical=True)
     loss = wahba_loss(est.attitude.as_matrix(), obs.body, obs.reference, obs.weights)

@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from formulations.vector_observations import ObservationBatch
-from formulations.wahba import adjugate, attitude_profile_matrix, foam_characteristic
+from formulations.wahba import adjugate, attitude_profile_matrix, det3, foam_characteristic
 from formulations.wahba_covariance import foam_covariance
 from solvers.newton import largest_root_newton
 from solvers.wahba.driver import Estimate
@@ -19,16 +19,14 @@ def estimate(obs: ObservationBatch) -> Estimate:
     lam, iterations, converged = largest_root_newton(foam_characteristic(b), lambda_0)
     fro2 = np.einsum("eij,eij->e", b, b)
     kappa = 0.5 * (lam**2 - fro2)
-    zeta = kappa * lam - np.linalg.det(b)
-    bbtb = np.einsum("eij,ekj,ekl->eil", b, b, b)
+    zeta = kappa * lam - det3(b)
+    bbtb = b @ np.swapaxes(b, 1, 2) @ b
     a = (
         (kappa + fro2)[:, None, None] * b
         + lam[:, None, None] * adjugate(np.swapaxes(b, 1, 2))
         - bbtb
     ) / zeta[:, None, None]
-    failure = np.full(
-        b.shape[0], "FOAM Newton-Raphson on lambda_max did not converge", dtype=object
-    )
+    failure = "FOAM Newton-Raphson on lambda_max did not converge"
     return Estimate(
         Rotation.from_matrix(a),
         foam_covariance(b, lam),

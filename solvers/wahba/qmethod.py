@@ -20,4 +20,4 @@ def estimate(obs: ObservationBatch) -> Estimate:
         "lambda_max": eigenvalues[:, -1],
         "eigen_gap": eigenvalues[:, -1] - eigenvalues[:, -2],
     }
-    return Estimate(attitude, svd_covariance(b), diagnostics)
+    return Estimate(attitude, svd_covariance(b, attitude.as_matrix()), diagnostics)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 from scipy.spatial.transform import Rotation
 
 from formulations.vector_observations import ObservationBatch
@@ -15,5 +14,6 @@ def estimate(obs: ObservationBatch) -> Estimate:
     """``A = U diag[1, 1, det U det V] V^T`` for ``B = U Sigma V^T`` (eqs. 17-18)."""
     b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
     u, s, vt, d = proper_svd(b)
-    a = np.einsum("eij,ej,ejk->eik", u, np.stack([np.ones_like(d), np.ones_like(d), d], -1), vt)
-    return Estimate(Rotation.from_matrix(a), svd_covariance(b), {"s3": d * s[:, 2]})
+    u[:, :, 2] *= d[:, None]  # U diag[1, 1, d] (eq. 18)
+    a = u @ vt
+    return Estimate(Rotation.from_matrix(a), svd_covariance(b, a), {"s3": d * s[:, 2]})

@@ -35,7 +35,7 @@ def estimate(obs: ObservationBatch) -> Estimate:
     partner = np.argmax(score, axis=1)
     m_b = _triad_frame(u_b, obs.body[epochs, partner])
     m_r = _triad_frame(obs.reference[epochs, anchor], obs.reference[epochs, partner])
-    attitude = Rotation.from_matrix(np.einsum("eij,ekj->eik", m_b, m_r))
+    attitude = Rotation.from_matrix(m_b @ np.swapaxes(m_r, 1, 2))
     covariance = triad_covariance(
         u_b,
         obs.body[epochs, partner],
