@@ -1,0 +1,369 @@
+"""SNR measurement model of ADS-B attitude determination (seed 000 sec. 3.1).
+
+``SNR = G(alpha) + 10 lg P0 - 10 lg(k_B T B) + nu`` dB (seed 000 eqs. 1-4, 11)
+with ``G = 10 lg g`` the receive gain pattern (:mod:`formulations.gain_patterns`),
+``P0`` and the noise power from :mod:`formulations.link_budget`, and
+``cos alpha = (A l_o) . b_B`` (eqs. 5-7, 13): ``A = C_o^B`` the attitude
+(orbit to body, ``docs/conventions.md``), ``l_o`` the unit line of sight in the
+orbit frame and ``b_B`` the boresight of the receiving antenna in the body frame.
+
+Line of sight: ``l_o`` points from the satellite to the aircraft,
+``(x_a - x_s) / |x_a - x_s|``, as the text of eq. 3 defines ``alpha``.  Eq. 9
+prints ``x_s - x_a``, which points the other way; with it an antenna looking
+down at the aircraft would see them at ``alpha > 90 deg``.  Boresights of
+Earth-looking antennas therefore point towards nadir (``+z`` of the orbit
+frame at zero attitude).
+
+The model is written once (:func:`snr_db`) with the namespaces of
+:mod:`formulations.symbolic`: numpy arrays give vectorised values over epochs
+and observations, CasADi values give expressions from which
+:func:`snr_function` and :func:`snr_jacobian_function` build
+``casadi.Function`` objects whose Jacobian is CasADi's automatic derivative.
+The attitude is varied for optimisation as ``A = C(v) A_ref`` with ``C(v)``
+the rotation with modified Rodrigues parameters ``v / 4``
+(:func:`increment_matrix`; seed 000 eq. 28), so ``v`` is the body-frame
+attitude error vector to first order.  :func:`predict_snr` gives numpy values
+and the Jacobian with respect to that error, from which
+:func:`fisher_information` and :func:`cramer_rao_bound` follow (seed 000 eq. 22).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.errors import InvalidObservationError
+from formulations.gain_patterns import GainPattern
+from formulations.symbolic import NUMPY, namespace_of
+
+Array = NDArray[np.float64]
+
+SNR_SIGMA_DB = 1.0
+"""SNR measurement noise standard deviation (dB), seed 000 sec. 5.1."""
+
+_ROTATION_TOLERANCE = 1e-6
+_NULL_PROJECTOR_TOLERANCE = 1e-9
+
+
+def line_of_sight(
+    satellite_position: ArrayLike, aircraft_position: ArrayLike
+) -> tuple[Array, Array]:
+    """Unit line of sight from the satellite to the aircraft, and the range.
+
+    ``(x_a - x_s) / |x_a - x_s|`` (seed 000 eq. 9 with the sign of eq. 3's
+    text, see the module docstring), in the frame of the positions (the orbit
+    frame for :func:`snr_db`); the range is in the positions' unit.
+    """
+    delta = np.asarray(aircraft_position, dtype=float) - np.asarray(satellite_position, float)
+    distance = np.linalg.norm(delta, axis=-1)
+    if not np.all(np.isfinite(distance) & (distance > 0)):
+        raise InvalidObservationError("aircraft position is NaN/inf or equals the satellite's")
+    return delta / distance[..., None], distance
+
+
+def off_boresight(attitude_matrix: Any, los_orbit: Any, boresight_body: Any) -> tuple[Any, Any]:
+    """``cos(alpha)`` and ``1 - cos(alpha)`` of seed 000 eqs. 6-7.
+
+    ``l_B = A l_o / |l_o|`` and ``b = b_B / |b_B|``; ``cos alpha = l_B . b``
+    (accurate near 90 deg) and ``1 - cos alpha = |l_B - b|^2 / 2`` (accurate
+    near 0 deg).  No ``arccos``: both are polynomial in ``A``, so their
+    derivatives are finite everywhere.  numpy: ``A`` is ``(..., 3, 3)``, the
+    vectors ``(..., m, 3)``, results ``(..., m)``; CasADi: ``A`` is ``3 x 3``,
+    the vectors ``m x 3``, results ``m x 1``.
+    """
+    xp = namespace_of(attitude_matrix, los_orbit, boresight_body)
+    los = xp.components(los_orbit)
+    bore = xp.components(boresight_body)
+    los_norm = xp.sqrt(los[0] ** 2 + los[1] ** 2 + los[2] ** 2)
+    bore_norm = xp.sqrt(bore[0] ** 2 + bore[1] ** 2 + bore[2] ** 2)
+    los_body = [
+        sum(xp.entry(attitude_matrix, i, j) * los[j] for j in range(3)) / los_norm for i in range(3)
+    ]
+    unit_bore = [b / bore_norm for b in bore]
+    cos_alpha = sum(lb * b for lb, b in zip(los_body, unit_bore, strict=True))
+    versine = 0.5 * sum((lb - b) ** 2 for lb, b in zip(los_body, unit_bore, strict=True))
+    return cos_alpha, versine
+
+
+def snr_db(
+    attitude_matrix: Any,
+    los_orbit: Any,
+    boresight_body: Any,
+    p0_dbw: Any,
+    noise_dbw: Any,
+    pattern: GainPattern,
+) -> Any:
+    """Noise-free SNR (dB), ``G(alpha) + 10 lg P0 - 10 lg P_n`` (seed 000 eqs. 4, 13).
+
+    The single definition of the model for numpy and CasADi inputs (shapes as
+    in :func:`off_boresight`; ``p0_dbw`` and ``noise_dbw`` broadcast against the
+    per-observation shape).  numpy inputs are checked:
+    :class:`InvalidObservationError` if any line of sight or boresight is
+    NaN/inf or zero, the attitude is not a rotation, a power is not finite, or
+    an observation lies outside the pattern's main lobe
+    (:func:`observation_mask` finds them in a batch).
+    """
+    xp = namespace_of(attitude_matrix, los_orbit, boresight_body, p0_dbw, noise_dbw)
+    if xp is NUMPY:
+        attitude_matrix, los_orbit, boresight_body = _numpy_inputs(
+            attitude_matrix, los_orbit, boresight_body
+        )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha, versine = off_boresight(attitude_matrix, los_orbit, boresight_body)
+    if xp is NUMPY:
+        if not (np.all(np.isfinite(p0_dbw)) and np.all(np.isfinite(noise_dbw))):
+            raise InvalidObservationError("isotropic or noise power is NaN/inf")
+        reasons = _invalid_reasons(attitude_matrix, los_orbit, boresight_body, cos_alpha, pattern)
+        _raise_if_invalid(reasons)
+    return pattern.gain_dbi(cos_alpha, versine, xp) + p0_dbw - noise_dbw
+
+
+def observation_mask(
+    attitude_matrix: ArrayLike,
+    los_orbit: ArrayLike,
+    boresight_body: ArrayLike,
+    pattern: GainPattern,
+) -> NDArray[np.bool_]:
+    """``(..., m)`` mask of observations :func:`snr_db` accepts (numpy, vectorised).
+
+    False where the line of sight or boresight is NaN/inf or zero, the
+    attitude is not a finite rotation, or ``cos(alpha) < pattern.min_cos``.
+    """
+    a, los, bore = _numpy_inputs(attitude_matrix, los_orbit, boresight_body)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha, _ = off_boresight(a, los, bore)
+    reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern)
+    return ~np.logical_or.reduce([bad for _, bad in reasons])
+
+
+def _numpy_inputs(
+    attitude_matrix: ArrayLike, los_orbit: ArrayLike, boresight_body: ArrayLike
+) -> tuple[Array, Array, Array]:
+    a = np.asarray(attitude_matrix, dtype=float)
+    los = np.asarray(los_orbit, dtype=float)
+    bore = np.asarray(boresight_body, dtype=float)
+    try:
+        if a.shape[-2:] != (3, 3) or los.shape[-1:] != (3,) or bore.shape[-1:] != (3,):
+            raise ValueError
+        np.broadcast_shapes((*a.shape[:-2], 1), los.shape[:-1], bore.shape[:-1])
+    except ValueError:
+        raise InvalidObservationError(
+            f"expected (..., 3, 3) attitude and (..., m, 3) vectors that broadcast, got shapes "
+            f"{a.shape}, {los.shape}, {bore.shape}"
+        ) from None
+    return a, los, bore
+
+
+def _invalid_reasons(
+    a: Array, los: Array, bore: Array, cos_alpha: Array, pattern: GainPattern
+) -> list[tuple[str, NDArray[np.bool_]]]:
+    with np.errstate(invalid="ignore"):
+        orthogonality = np.abs(a @ np.swapaxes(a, -1, -2) - np.eye(3)).max(axis=(-2, -1))
+        is_rotation = (orthogonality < _ROTATION_TOLERANCE) & (np.linalg.det(a) > 0)
+    shape = np.shape(cos_alpha)
+    reasons = [
+        ("line of sight is NaN/inf or zero", ~_finite_nonzero(los)),
+        ("boresight is NaN/inf or zero", ~_finite_nonzero(bore)),
+        (
+            "attitude is NaN/inf or not a rotation",
+            ~is_rotation[..., None],
+        ),
+        (
+            f"off-boresight angle beyond the main lobe "
+            f"({np.degrees(pattern.max_off_boresight_rad):.2f} deg)",
+            ~(cos_alpha >= pattern.min_cos),
+        ),
+    ]
+    return [(reason, np.broadcast_to(bad, shape)) for reason, bad in reasons]
+
+
+def _finite_nonzero(vectors: Array) -> NDArray[np.bool_]:
+    return np.isfinite(vectors).all(axis=-1) & np.any(vectors != 0, axis=-1)
+
+
+def _raise_if_invalid(reasons: list[tuple[str, NDArray[np.bool_]]]) -> None:
+    for reason, bad in reasons:
+        if bad.any():
+            first = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise InvalidObservationError(
+                f"{int(bad.sum())} invalid observation(s): {reason} (first at index {first})"
+            )
+
+
+def increment_matrix(v: Any) -> Any:
+    """``C(v)``: rotation matrix with modified Rodrigues parameters ``p = v / 4``.
+
+    ``C = I + (8 [p x]^2 + 4 (1 - |p|^2) [p x]) / (1 + |p|^2)^2``, which is
+    ``Rotation.from_mrp(v / 4).as_matrix()``: the rotation by
+    ``4 arctan(|v| / 4)`` about ``v``, i.e. ``v`` minus ``O(|v|^3)``.  Four times
+    the MRPs is the attitude error vector of seed 000 eq. 28.  Rational in
+    ``v`` (no ``sinc``), exactly orthogonal, smooth at ``v = 0``.  numpy: ``v``
+    is ``(..., 3)``, the result ``(..., 3, 3)``; CasADi: ``v`` is ``3 x 1``.
+    """
+    xp = namespace_of(v)
+    p = [c / 4.0 for c in xp.components(v)]
+    norm2 = p[0] ** 2 + p[1] ** 2 + p[2] ** 2
+    scale = 1.0 / (1.0 + norm2) ** 2
+    cross = [[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]]
+    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    rows = [
+        [
+            eye[i][j]
+            + 8.0 * scale * (p[i] * p[j] - norm2 * eye[i][j])
+            + 4.0 * scale * (1.0 - norm2) * cross[i][j]
+            for j in range(3)
+        ]
+        for i in range(3)
+    ]
+    return xp.matrix(rows)
+
+
+def _symbolic_snr(pattern: GainPattern, m: int) -> tuple[list[ca.SX], ca.SX]:
+    if m < 1:
+        raise InvalidObservationError(f"need at least one observation, got m = {m}")
+    inputs = [
+        ca.SX.sym("v", 3),
+        ca.SX.sym("attitude_ref", 3, 3),
+        ca.SX.sym("los_orbit", m, 3),
+        ca.SX.sym("boresight_body", m, 3),
+        ca.SX.sym("p0_dbw", m),
+        ca.SX.sym("noise_dbw"),
+    ]
+    v, attitude_ref, los, bore, p0, noise = inputs
+    return inputs, snr_db(increment_matrix(v) @ attitude_ref, los, bore, p0, noise, pattern)
+
+
+_INPUT_NAMES = ["v", "attitude_ref", "los_orbit", "boresight_body", "p0_dbw", "noise_dbw"]
+
+
+@lru_cache(maxsize=64)
+def snr_function(pattern: GainPattern, m: int) -> ca.Function:
+    """``(v[3], A_ref[3x3], los[m x 3], boresight[m x 3], p0[m], noise) -> snr[m]``.
+
+    CasADi function of :func:`snr_db` at the attitude ``C(v) A_ref``
+    (:func:`increment_matrix`); boresight row ``i`` is the antenna that
+    received observation ``i``.  Inputs are not checked (use
+    :func:`observation_mask`).
+    """
+    inputs, snr = _symbolic_snr(pattern, m)
+    return ca.Function("snr", inputs, [snr], _INPUT_NAMES, ["snr_db"])
+
+
+@lru_cache(maxsize=64)
+def snr_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
+    """As :func:`snr_function`, returning ``(snr[m], d snr / d v [m x 3])`` by CasADi AD."""
+    inputs, snr = _symbolic_snr(pattern, m)
+    jacobian = ca.jacobian(snr, inputs[0])
+    return ca.Function("snr_jacobian", inputs, [snr, jacobian], _INPUT_NAMES, ["snr_db", "jac_v"])
+
+
+def _side_by_side(x: Array) -> Array:
+    """``(K, r, c)`` -> ``(r, K c)``: the blocks side by side, as ``Function.map`` takes them."""
+    return x.transpose(1, 0, 2).reshape(x.shape[1], -1)
+
+
+@lru_cache(maxsize=64)
+def _mapped_snr_jacobian(pattern: GainPattern, m: int, epochs: int) -> ca.Function:
+    return snr_jacobian_function(pattern, m).map(epochs)
+
+
+def predict_snr(
+    attitude: Rotation,
+    los_orbit: ArrayLike,
+    boresight_body: ArrayLike,
+    p0_dbw: ArrayLike,
+    noise_dbw: ArrayLike,
+    pattern: GainPattern,
+    mask: ArrayLike | None = None,
+) -> tuple[Array, Array]:
+    """Predicted SNR ``(..., m)`` and its Jacobian ``(..., m, 3)`` (dB/rad), numpy.
+
+    The Jacobian is with respect to the body-frame rotation-vector error
+    ``delta`` of ``exp(delta) A`` at ``delta = 0`` (``docs/conventions.md``),
+    evaluated by CasADi AD of :func:`snr_jacobian_function` at ``v = 0``
+    (``C(v)`` and ``exp(v)`` agree to first order).  ``attitude`` is one
+    rotation or a stack of ``N``; arrays broadcast as in :func:`snr_db`.
+    Observations where ``mask`` is False are not evaluated (NaN values and
+    Jacobian rows); all others must be valid, else
+    :class:`InvalidObservationError`.
+    """
+    a, los, bore = _numpy_inputs(attitude.as_matrix(), los_orbit, boresight_body)
+    offset = np.asarray(p0_dbw, dtype=float) - np.asarray(noise_dbw, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha, _ = off_boresight(a, los, bore)
+    shape = np.broadcast_shapes(np.shape(cos_alpha), offset.shape)
+    reasons = _invalid_reasons(a, los, bore, np.broadcast_to(cos_alpha, shape), pattern)
+    reasons.append(
+        ("isotropic or noise power is NaN/inf", ~np.isfinite(np.broadcast_to(offset, shape)))
+    )
+    use = np.ones(shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), shape)
+    _raise_if_invalid([(reason, bad & use) for reason, bad in reasons])
+
+    *batch, m = shape
+    epochs = int(np.prod(batch))
+    if epochs == 0 or m == 0:
+        return np.empty(shape), np.empty((*shape, 3))
+    a = np.broadcast_to(a, (*batch, 3, 3)).reshape(epochs, 3, 3)
+    # Unused observations are replaced by one on the boresight, so nothing is NaN.
+    use_k = use.reshape(epochs, m, 1)
+    filler = np.array([0.0, 0.0, 1.0])
+    bore = np.where(use_k, np.broadcast_to(bore, (*shape, 3)).reshape(epochs, m, 3), filler)
+    los_filler = (filler @ a)[:, None, :]  # A^T b: along the boresight
+    los = np.where(use_k, np.broadcast_to(los, (*shape, 3)).reshape(epochs, m, 3), los_filler)
+    offset = np.where(use, np.broadcast_to(offset, shape), 0.0).reshape(epochs, m)
+    snr, jac = _mapped_snr_jacobian(pattern, m, epochs)(
+        np.zeros((3, epochs)),
+        _side_by_side(a),
+        _side_by_side(los),
+        _side_by_side(bore),
+        offset.T,
+        np.zeros((1, epochs)),
+    )
+    snr = snr.full().T.reshape(shape)
+    jac = jac.full().reshape(m, epochs, 3).transpose(1, 0, 2).reshape(*shape, 3)
+    snr[~use] = np.nan
+    jac[~use] = np.nan
+    return snr, jac
+
+
+def fisher_information(
+    jacobian: ArrayLike, sigma_db: ArrayLike = SNR_SIGMA_DB, mask: ArrayLike | None = None
+) -> Array:
+    """``F = sum_i J_i^T J_i / sigma_i^2`` (rad^-2, body frame), seed 000 eq. 22.
+
+    ``jacobian`` is ``(..., m, 3)`` from :func:`predict_snr`; ``sigma_db``
+    broadcasts against ``(..., m)``; rows where ``mask`` is False are left out.
+    """
+    jac = np.asarray(jacobian, dtype=float)
+    weight = np.broadcast_to(np.asarray(sigma_db, dtype=float) ** -2, jac.shape[:-1])
+    if mask is not None:
+        use = np.broadcast_to(np.asarray(mask, bool), jac.shape[:-1])
+        jac = np.where(use[..., None], jac, 0.0)
+        weight = np.where(use, weight, 0.0)
+    return np.einsum("...mi,...m,...mj->...ij", jac, weight, jac)
+
+
+def cramer_rao_bound(fisher: ArrayLike, rtol: float = 1e-10) -> Array:
+    """Cramer-Rao bound ``F^-1`` (rad^2, body frame), infinite where unobservable.
+
+    Defined as the entrywise limit of ``(F + eps I)^-1`` as ``eps -> 0+``.
+    With ``F = V diag(lambda) V^T``, eigenvalues ``lambda <= rtol lambda_max``
+    span the unobservable subspace with projector ``Pi``; entries where
+    ``|Pi| > 1e-9`` are ``sign(Pi) inf`` (so the diagonal is ``+inf`` on every
+    body axis the unobservable rotation moves, e.g. the boresight axis when
+    all observations come from one antenna, seed 000 sec. 3.1), the others
+    are those of the inverse on the observable subspace.
+    """
+    f = np.asarray(fisher, dtype=float)
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (f + np.swapaxes(f, -1, -2)))
+    null = eigenvalues <= rtol * eigenvalues[..., -1:]
+    inverse = np.where(null, 0.0, 1.0 / np.where(null, 1.0, eigenvalues))
+    observable = np.einsum("...ik,...k,...jk->...ij", vectors, inverse, vectors)
+    projector = np.einsum("...ik,...k,...jk->...ij", vectors, null.astype(float), vectors)
+    unbounded = np.abs(projector) > _NULL_PROJECTOR_TOLERANCE
+    return np.where(unbounded, np.copysign(np.inf, projector), observable)
