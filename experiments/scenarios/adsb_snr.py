@@ -1,0 +1,359 @@
+"""Geometry of the ``adsb-snr`` scenario (seed 000 sec. 5.1).
+
+A satellite in a 600 km, 97.8 deg Sun-synchronous orbit carries two helical
+ADS-B antennas on its nadir face and sees a global population of airborne
+aircraft for one hour at 1 Hz.  This module gives the geometry only: satellite
+and aircraft positions, satellite-to-aircraft lines of sight in the orbit frame,
+slant ranges, off-boresight angles and the true attitude.  The SNR model and
+its 6 dB threshold are applied by the caller.
+
+Orbit.  The TLE of :func:`satellite_tle` is generated with ``sgp4``
+(``Satrec.sgp4init`` then ``sgp4.exporter.export_tle``, so its checksums are
+sgp4's) from the mean elements below and propagated with
+:mod:`experiments.environment.orbit`: epoch :data:`TLE_EPOCH_UTC`, mean motion
+of a circular orbit with semi-major axis 600 km above the (WGS72) equator,
+inclination 97.8 deg, eccentricity 1e-4, argument of perigee and mean anomaly 0
+(at the ascending node at epoch), no drag.  The right ascension of the
+ascending node, 226.31 deg, is the Sun's right ascension at epoch (68.81 deg,
+astropy ``get_sun``) plus 157.5 deg, i.e. a local time of the ascending node of
+22:30 (descending over the day side at 10:30), and the J2 node drift,
+0.9856 deg/day, keeps it there.  :data:`START_UTC` is 25 h 41 min after the
+TLE epoch, chosen by scanning starts at 1 min steps over two days (10 s
+sampling, seed-0 traffic) for the hour whose sparsest epoch holds the most
+aircraft in an antenna's main lobe (``G >= 4 dBi``: ``14.4598 cos^6(alpha) >=
+10^0.4``, ``alpha <= 41.67 deg``, seed 000 eq. 63).  The ascending pass starts
+over Brazil, runs north off the east coast of North America, over Greenland
+and the Arctic, and descends over eastern Siberia and East Asia to Borneo.
+
+Attitude.  Nominally Earth pointing (body = orbit frame), the true orbit ->
+body attitude wanders by a few degrees; 3-2-1 Euler angles of seed 000 eq. 8,
+``t`` in seconds from the start::
+
+    yaw(t)   = 4 deg * cos(2 pi t / 1700)
+    pitch(t) = 3 deg * sin(2 pi t / 2300)
+    roll(t)  = 5 deg * sin(2 pi t / 1100 + pi / 3)
+
+Antennas.  Both boresights are tilted by ``beta_opt = 50.77 deg`` (seed 000
+eq. 64) from nadir (+z body), antenna 1 towards +y and antenna 2 towards -y
+body, i.e. cross-track and symmetric about the orbit plane as in seed 000
+Fig. 7.  Cross-track tilting makes the two main lobes cover the two sides of
+the ground track: the widest surveillance swath, and two boresights 101.5 deg
+apart for a well-conditioned three-axis solution.
+
+Visibility.  An aircraft is visible at an epoch when the straight segment from
+the satellite to it does not cross the WGS84 ellipsoid (no refraction, terrain
+or atmosphere) and, for an antenna, when its off-boresight angle is at most the
+caller's ``max_off_boresight_deg``.  Lines of sight point from the satellite to
+the aircraft, so ``cos(alpha) = l . b`` (seed 000 eqs. 5-7) is positive in the
+main lobe; seed 000 eq. 9 prints the opposite difference.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import astropy.units as u
+import numpy as np
+from astropy.time import Time
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+from sgp4.api import WGS72, Satrec
+from sgp4.earth_gravity import wgs72
+from sgp4.exporter import export_tle
+
+from experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
+from experiments.environment.traffic import (
+    MEAN_RADIUS_KM,
+    WGS84_A_KM,
+    WGS84_F,
+    Traffic,
+    geodetic_normal,
+    geodetic_normals,
+    positions_ecef_km,
+    sample_traffic,
+)
+from formulations.conventions import attitude_from_euler321, orbit_frame_attitude
+
+TLE_EPOCH_UTC = "2025-06-01T00:00:00"
+SATELLITE_NUMBER = 99999
+ALTITUDE_KM = 600.0
+"""Semi-major axis minus sgp4's WGS72 equatorial radius."""
+INCLINATION_DEG = 97.8
+ECCENTRICITY = 1.0e-4
+RAAN_DEG = 226.31
+ARGUMENT_OF_PERIGEE_DEG = 0.0
+MEAN_ANOMALY_DEG = 0.0
+
+START_UTC = "2025-06-02T01:41:00"
+"""Start of the hour (UTC), 25 h 41 min after the TLE epoch."""
+
+YAW_AMPLITUDE_DEG = 4.0
+YAW_PERIOD_S = 1700.0
+PITCH_AMPLITUDE_DEG = 3.0
+PITCH_PERIOD_S = 2300.0
+ROLL_AMPLITUDE_DEG = 5.0
+ROLL_PERIOD_S = 1100.0
+ROLL_PHASE_RAD = np.pi / 3.0
+
+BETA_OPT_DEG = 50.77
+"""Optimal antenna tilt from nadir (seed 000 eq. 64)."""
+BORESIGHTS_BODY = np.array(
+    [
+        [0.0, np.sin(np.radians(BETA_OPT_DEG)), np.cos(np.radians(BETA_OPT_DEG))],
+        [0.0, -np.sin(np.radians(BETA_OPT_DEG)), np.cos(np.radians(BETA_OPT_DEG))],
+    ]
+)
+"""Unit boresights of antennas 1 and 2 in the body frame, ``(2, 3)``."""
+
+PREFILTER_GROUND_KM = 3500.0
+"""Ground distance from the sub-satellite point beyond which aircraft are not
+examined: the horizon of a 600 km satellite for a target at 9-12 km is about
+3,100 km away."""
+EPOCH_CHUNK = 60
+"""Epochs processed together (one pre-filter per chunk)."""
+
+
+@dataclass(frozen=True)
+class AdsbGeometry:
+    """True geometry of the scenario at ``N`` epochs.
+
+    Instances are cached and shared: do not modify the arrays in place.
+    """
+
+    t: NDArray[np.float64]
+    """Seconds from :attr:`start_utc`, shape ``(N,)``; aircraft motion uses the same clock."""
+    start_utc: str
+    position_ecef_km: NDArray[np.float64]
+    """Satellite positions in ECEF (ITRS), ``(N, 3)``."""
+    position_eci_km: NDArray[np.float64]
+    """Satellite positions in ECI (GCRS), ``(N, 3)``."""
+    velocity_eci_kms: NDArray[np.float64]
+    """Satellite velocities in ECI (GCRS), ``(N, 3)``."""
+    subsatellite_normal: NDArray[np.float64]
+    """Unit WGS84 normals at the sub-satellite points (ECEF), ``(N, 3)``."""
+    ecef_to_orbit: NDArray[np.float64]
+    """Matrices ``M`` with ``v_orbit = M @ v_ecef``, ``(N, 3, 3)``."""
+    truth: Rotation
+    """True attitude, orbit frame -> body frame, ``N`` rotations."""
+    traffic: Traffic
+    """The aircraft; aircraft ids are row indices."""
+
+
+@dataclass(frozen=True)
+class ObservationTable:
+    """Long-format (epoch, antenna, aircraft) rows of visible aircraft, ``M`` rows.
+
+    Rows are sorted by epoch, then antenna (0 for antenna 1), then aircraft.
+    """
+
+    epoch_index: NDArray[np.intp]
+    antenna: NDArray[np.intp]
+    aircraft: NDArray[np.intp]
+    los_orbit: NDArray[np.float64]
+    """Unit satellite-to-aircraft lines of sight in the orbit frame, ``(M, 3)``."""
+    range_m: NDArray[np.float64]
+    """Slant ranges, ``(M,)``."""
+    cos_off_boresight: NDArray[np.float64]
+    """Cosine of the true off-boresight angle (seed 000 eq. 7), ``(M,)``."""
+    aircraft_ecef_km: NDArray[np.float64]
+    """Aircraft positions in ECEF (as decoded from ADS-B), ``(M, 3)``."""
+
+    def take(self, rows: NDArray[np.intp] | NDArray[np.bool_]) -> ObservationTable:
+        """The table restricted to ``rows`` (indices or mask)."""
+        return ObservationTable(
+            epoch_index=self.epoch_index[rows],
+            antenna=self.antenna[rows],
+            aircraft=self.aircraft[rows],
+            los_orbit=self.los_orbit[rows],
+            range_m=self.range_m[rows],
+            cos_off_boresight=self.cos_off_boresight[rows],
+            aircraft_ecef_km=self.aircraft_ecef_km[rows],
+        )
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Visible aircraft at one epoch, one table per antenna."""
+
+    epoch_index: int
+    antennas: tuple[ObservationTable, ...]
+
+
+def satellite_tle() -> tuple[str, str]:
+    """The scenario's two-line element set, generated by sgp4 from the module elements."""
+    satellite = Satrec()
+    semi_major_axis_km = wgs72.radiusearthkm + ALTITUDE_KM
+    mean_motion_rad_min = 60.0 * np.sqrt(wgs72.mu / semi_major_axis_km**3)
+    satellite.sgp4init(
+        WGS72,
+        "i",
+        SATELLITE_NUMBER,
+        Time(TLE_EPOCH_UTC, scale="utc").jd - 2433281.5,  # days since 1949-12-31 00:00 UT
+        0.0,
+        0.0,
+        0.0,
+        ECCENTRICITY,
+        np.radians(ARGUMENT_OF_PERIGEE_DEG),
+        np.radians(INCLINATION_DEG),
+        np.radians(MEAN_ANOMALY_DEG),
+        mean_motion_rad_min,
+        np.radians(RAAN_DEG),
+    )
+    return export_tle(satellite)
+
+
+def true_attitude(t: NDArray[np.float64]) -> Rotation:
+    """The orbit -> body attitude profile of the module docstring at times ``t`` (s)."""
+    yaw = YAW_AMPLITUDE_DEG * np.cos(2.0 * np.pi * t / YAW_PERIOD_S)
+    pitch = PITCH_AMPLITUDE_DEG * np.sin(2.0 * np.pi * t / PITCH_PERIOD_S)
+    roll = ROLL_AMPLITUDE_DEG * np.sin(2.0 * np.pi * t / ROLL_PERIOD_S + ROLL_PHASE_RAD)
+    return attitude_from_euler321(np.radians(yaw), np.radians(pitch), np.radians(roll))
+
+
+def build_adsb_geometry(
+    duration_s: float = 3600.0, step_s: float = 1.0, n_aircraft: int = 10_000, seed: int = 0
+) -> AdsbGeometry:
+    """Geometry at ``t = 0, step_s, ...`` below ``duration_s`` (cached per process).
+
+    The aircraft are :func:`experiments.environment.traffic.sample_traffic` of
+    ``numpy.random.default_rng(seed)``.
+    """
+    return _build_adsb_geometry(float(duration_s), float(step_s), int(n_aircraft), int(seed))
+
+
+@functools.lru_cache(maxsize=4)
+def _build_adsb_geometry(
+    duration_s: float, step_s: float, n_aircraft: int, seed: int
+) -> AdsbGeometry:
+    t = np.arange(0.0, duration_s, step_s)
+    times = Time(START_UTC, scale="utc") + t * u.s
+    orbit = propagate(satellite_from_tle(*satellite_tle()), times)
+    eci_to_orbit = orbit_frame_attitude(orbit.position_eci_km, orbit.velocity_eci_kms)
+    return AdsbGeometry(
+        t=t,
+        start_utc=START_UTC,
+        position_ecef_km=orbit.position_ecef_km,
+        position_eci_km=orbit.position_eci_km,
+        velocity_eci_kms=orbit.velocity_eci_kms,
+        subsatellite_normal=geodetic_normal(orbit.latitude_deg, orbit.longitude_deg),
+        ecef_to_orbit=eci_to_orbit.as_matrix() @ ecef_to_eci_matrices(times),
+        truth=true_attitude(t),
+        traffic=sample_traffic(n_aircraft, np.random.default_rng(seed)),
+    )
+
+
+def above_limb(observer_ecef_km: ArrayLike, target_ecef_km: ArrayLike) -> NDArray[np.bool_]:
+    """Whether the segment from observer to target misses the WGS84 ellipsoid.
+
+    Both points must be above the ellipsoid.  Coordinates are scaled so that
+    the ellipsoid becomes the unit sphere; the segment then misses it when its
+    point closest to the centre lies outside.  Arrays broadcast over leading axes.
+    """
+    scale = np.array([WGS84_A_KM, WGS84_A_KM, WGS84_A_KM * (1.0 - WGS84_F)])
+    start = np.asarray(observer_ecef_km, dtype=float) / scale
+    step = np.asarray(target_ecef_km, dtype=float) / scale - start
+    fraction = -np.sum(start * step, axis=-1) / np.sum(step * step, axis=-1)
+    closest = start + np.clip(fraction, 0.0, 1.0)[..., None] * step
+    return np.sum(closest * closest, axis=-1) > 1.0
+
+
+def observation_chunks(
+    geometry: AdsbGeometry, max_off_boresight_deg: float, epochs: ArrayLike | None = None
+) -> Iterator[ObservationTable]:
+    """Visible aircraft per antenna at ``epochs`` (default all), in tables of
+    :data:`EPOCH_CHUNK` consecutive entries of ``epochs``."""
+    index = (
+        np.arange(geometry.t.size)
+        if epochs is None
+        else np.atleast_1d(np.asarray(epochs, dtype=np.intp))
+    )
+    cos_max = np.cos(np.radians(max_off_boresight_deg))
+    for chunk in np.array_split(index, -(-index.size // EPOCH_CHUNK)):
+        yield _observe(geometry, chunk, cos_max)
+
+
+def observation_table(
+    geometry: AdsbGeometry, max_off_boresight_deg: float, epochs: ArrayLike | None = None
+) -> ObservationTable:
+    """Visible aircraft per antenna at ``epochs`` (default all) as one long table.
+
+    The whole hour in the 41.67 deg main lobe is about 1.9 million rows (160 MB);
+    :func:`observation_chunks` streams it instead.
+    """
+    tables = list(observation_chunks(geometry, max_off_boresight_deg, epochs))
+    return ObservationTable(
+        **{
+            name: np.concatenate([getattr(table, name) for table in tables])
+            for name in ObservationTable.__dataclass_fields__
+        }
+    )
+
+
+def visible_observations(
+    geometry: AdsbGeometry, epoch_index: int, max_off_boresight_deg: float
+) -> Observations:
+    """Visible aircraft of each antenna at one epoch."""
+    table = observation_table(geometry, max_off_boresight_deg, [epoch_index])
+    return Observations(
+        epoch_index=int(epoch_index),
+        antennas=tuple(table.take(table.antenna == a) for a in range(len(BORESIGHTS_BODY))),
+    )
+
+
+def visible_counts(geometry: AdsbGeometry, max_off_boresight_deg: float) -> NDArray[np.intp]:
+    """Number of aircraft visible in each antenna's cone, ``(N, 2)`` (seed 000 Fig. 8)."""
+    n_antennas = len(BORESIGHTS_BODY)
+    counts = np.zeros(geometry.t.size * n_antennas, dtype=np.intp)
+    for table in observation_chunks(geometry, max_off_boresight_deg):
+        counts += np.bincount(table.epoch_index * n_antennas + table.antenna, minlength=counts.size)
+    return counts.reshape(geometry.t.size, n_antennas)
+
+
+def _observe(geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_max: float) -> ObservationTable:
+    """Rows for a chunk of epochs; aircraft far from every sub-satellite point are skipped."""
+    epoch, aircraft = (
+        grid.ravel() for grid in np.meshgrid(epochs, _candidates(geometry, epochs), indexing="ij")
+    )
+    aircraft_ecef = positions_ecef_km(geometry.traffic, geometry.t[epoch], aircraft)
+    satellite_ecef = geometry.position_ecef_km[epoch]
+    above = above_limb(satellite_ecef, aircraft_ecef)
+    epoch, aircraft, aircraft_ecef = epoch[above], aircraft[above], aircraft_ecef[above]
+    los_ecef = aircraft_ecef - satellite_ecef[above]
+    range_km = np.linalg.norm(los_ecef, axis=-1)
+    los_orbit = np.einsum("pij,pj->pi", geometry.ecef_to_orbit[epoch], los_ecef / range_km[:, None])
+    cos_off = geometry.truth[epoch].apply(los_orbit) @ BORESIGHTS_BODY.T
+    pair, antenna = np.nonzero(cos_off >= cos_max)
+    order = np.lexsort((aircraft[pair], antenna, epoch[pair]))
+    pair, antenna = pair[order], antenna[order]
+    return ObservationTable(
+        epoch_index=epoch[pair],
+        antenna=antenna,
+        aircraft=aircraft[pair],
+        los_orbit=los_orbit[pair],
+        range_m=1000.0 * range_km[pair],
+        cos_off_boresight=cos_off[pair, antenna],
+        aircraft_ecef_km=aircraft_ecef[pair],
+    )
+
+
+def _candidates(geometry: AdsbGeometry, epochs: NDArray[np.intp]) -> NDArray[np.intp]:
+    """Aircraft that may be within :data:`PREFILTER_GROUND_KM` of a sub-satellite point.
+
+    Tested once at the chunk's middle epoch with the radius widened by how far
+    the sub-satellite point and the fastest aircraft move within the chunk.
+    """
+    middle = epochs[epochs.size // 2]
+    centre = geometry.subsatellite_normal[middle]
+    satellite_spread = np.max(
+        np.arccos(np.clip(geometry.subsatellite_normal[epochs] @ centre, -1.0, 1.0))
+    )
+    time_spread = np.max(np.abs(geometry.t[epochs] - geometry.t[middle]))
+    radius = (
+        PREFILTER_GROUND_KM / MEAN_RADIUS_KM
+        + satellite_spread
+        + geometry.traffic.angular_rate_rad_s.max() * time_spread
+    )
+    normals = geodetic_normals(geometry.traffic, geometry.t[middle])
+    return np.flatnonzero(normals @ centre >= np.cos(min(radius, np.pi)))
