@@ -1,0 +1,198 @@
+"""The ``attopt`` command line: run and list experiments, run benchmarks.
+
+Heavy modules (pandas, the sweep runner, Dask) are imported inside the
+commands so that ``attopt --help`` and ``attopt list`` start quickly.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+if TYPE_CHECKING:
+    from experiments.sweep import SweepResult
+
+app = typer.Typer(
+    help="Spacecraft attitude determination as optimisation, compared by Monte Carlo.",
+    no_args_is_help=True,
+)
+bench_app = typer.Typer(help="Benchmarks of the runner and of the solvers.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+SUMMARY_COLUMNS = (
+    "n_valid",
+    "n_rows",
+    "roll_rms_deg",
+    "pitch_rms_deg",
+    "yaw_rms_deg",
+    "total_rms_deg",
+    "p95_deg",
+    "roll_ratio",
+    "pitch_ratio",
+    "yaw_ratio",
+    "failed_trials",
+)
+MAX_ERRORS_SHOWN = 5
+EXIT_USAGE = 2
+EXIT_INCOMPLETE = 1
+EXIT_INTERRUPTED = 130
+
+
+class EngineName(StrEnum):
+    """Where the trials run."""
+
+    local = "local"
+    dask = "dask"
+
+
+@app.command()
+def run(
+    experiment: Annotated[
+        str, typer.Argument(help="Registered name (see `attopt list`) or 'module:OBJECT'.")
+    ],
+    trials: Annotated[
+        int | None,
+        typer.Option(min=1, help="Trials per setting (default: the experiment's)."),
+    ] = None,
+    engine: Annotated[EngineName, typer.Option(help="Process pool here, or Dask.")] = (
+        EngineName.local
+    ),
+    address: Annotated[
+        str | None,
+        typer.Option(help="Dask scheduler, e.g. tcp://HOST:8786 (default: start a LocalCluster)."),
+    ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Worker processes of the pool or LocalCluster (default: one per CPU)."
+        ),
+    ] = None,
+    seed: Annotated[int, typer.Option(min=0, help="Root seed of the sweep.")] = 0,
+    out: Annotated[
+        Path | None,
+        typer.Option(help="Output directory (default: results/NAME, or results/NAME-quick)."),
+    ] = None,
+    quick: Annotated[bool, typer.Option(help="Small version: quick parameters and trials.")] = (
+        False
+    ),
+    config: Annotated[
+        Path | None, typer.Option(help="TOML file whose parameters table overrides parameters.")
+    ] = None,
+    fresh: Annotated[
+        bool, typer.Option(help="Discard results already in --out instead of resuming.")
+    ] = False,
+    chunk_size: Annotated[
+        int | None, typer.Option(min=1, help="Trials per stored chunk (default: automatic).")
+    ] = None,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar with ETA.")] = True,
+) -> None:
+    """Run a Monte Carlo sweep of EXPERIMENT, resuming what is already in --out."""
+    from experiments.registry import UnknownExperimentError, get_experiment
+    from experiments.sweep import (
+        ConfigError,
+        EngineSetupError,
+        ManifestMismatchError,
+        run_sweep,
+    )
+
+    if ":" in experiment and os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())  # like `python -m`; spawned workers inherit sys.path
+    try:
+        declared = get_experiment(experiment)
+    except (UnknownExperimentError, ImportError) as error:
+        typer.echo(f"error: cannot load experiment {experiment!r}: {error}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    try:
+        out = out or Path("results") / (declared.name + ("-quick" if quick else ""))
+        result = run_sweep(
+            declared,
+            trials=trials,
+            engine=engine.value,
+            address=address,
+            workers=workers,
+            seed=seed,
+            out=out,
+            quick=quick,
+            config=config,
+            progress=progress,
+            fresh=fresh,
+            chunk_size=chunk_size,
+        )
+    except (ConfigError, EngineSetupError, ManifestMismatchError) as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    except KeyboardInterrupt:
+        typer.echo(
+            f"\ninterrupted: finished chunks are kept in {out}; rerun the same command to resume",
+            err=True,
+        )
+        raise typer.Exit(EXIT_INTERRUPTED) from None
+    _print_result(result)
+    if not result.complete:
+        raise typer.Exit(EXIT_INCOMPLETE)
+
+
+@app.command("list")
+def list_command() -> None:
+    """List the registered experiments."""
+    from experiments.registry import list_experiments
+
+    listing = list_experiments()
+    width = max((len(name) for name, _ in listing), default=0)
+    for name, summary in listing:
+        typer.echo(f"{name:<{width}}  {summary}")
+
+
+@bench_app.command("runner")
+def bench_runner(
+    noop_trials: Annotated[int, typer.Option(min=4, help="Trials of the no-op case.")] = 2000,
+    sleep_trials: Annotated[int, typer.Option(min=4, help="Trials of the sleep case.")] = 24,
+    sleep: Annotated[float, typer.Option(min=0.0, help="Seconds each sleep trial takes.")] = 0.5,
+    workers: Annotated[int, typer.Option(min=2, help="Workers of the parallel engines.")] = 2,
+) -> None:
+    """Overhead per trial of each engine against a serial loop of the same trials."""
+    from experiments.bench_runner import format_table, run_benchmark
+
+    rows = run_benchmark(
+        noop_trials=noop_trials, sleep_trials=sleep_trials, sleep_s=sleep, workers=workers
+    )
+    typer.echo(format_table(rows))
+
+
+@bench_app.command("wahba")
+def bench_wahba(
+    epochs: Annotated[int, typer.Option(min=1000, help="Epochs of the batched runs.")] = 100_000,
+    calls: Annotated[int, typer.Option(min=100, help="Single-epoch calls per timing.")] = 2000,
+) -> None:
+    """Wahba solvers against scipy's align_vectors: per call and batched throughput."""
+    from experiments.bench_wahba import format_table, run
+
+    typer.echo(format_table(run(n_batch=epochs, calls=calls), epochs))
+
+
+def _print_result(result: SweepResult) -> None:
+    from experiments.sweep.report import failure_digest
+
+    summary = result.summary
+    keys = list(summary.columns[: summary.columns.get_loc("n_rows")])
+    shown = summary[[*keys, *(c for c in SUMMARY_COLUMNS if c in summary.columns)]]
+    typer.echo(f"\nResults in {result.out_dir}/ (summary.csv, report.md, failures.csv, rows/)\n")
+    typer.echo(shown.to_string(index=False, float_format="{:.4g}".format))
+    typer.echo(
+        f"\n{result.n_total} trials: {result.n_computed} computed now, "
+        f"{result.n_resumed} already done, {result.n_failed} failed, "
+        f"{result.n_missing} missing ({result.elapsed_s:.1f} s)"
+    )
+    for line in failure_digest(result.failures):
+        typer.echo(f"  failed: {line}")
+    for error in result.errors[:MAX_ERRORS_SHOWN]:
+        typer.echo(f"  not finished: {error}", err=True)
+    if len(result.errors) > MAX_ERRORS_SHOWN:
+        typer.echo(f"  ... and {len(result.errors) - MAX_ERRORS_SHOWN} more chunks", err=True)
+    if not result.complete:
+        typer.echo("Some trials did not finish: rerun the same command to complete them.", err=True)

@@ -1,0 +1,242 @@
+"""The output directory of a sweep: manifest, finished chunks, resume.
+
+Layout of ``out``::
+
+    manifest.json          experiment, parameters, settings, seed, trials, hash
+    rows/<chunk>.parquet   rows of the chunk's trials (absent if it has none)
+    trials/<chunk>.json    the chunk's (setting, trial) pairs and failures
+
+A chunk counts as finished once its ``trials/<chunk>.json`` record exists.
+Both files are written to a temporary name and renamed, the rows first, so an
+interruption at any point leaves either a finished chunk or nothing that is
+read back.  The manifest's hash covers the experiment name, parameters,
+settings and root seed: reopening the directory with different ones is
+refused unless ``fresh`` discards the old results.  The number of trials is
+not part of the hash: asking for more trials adds the missing ones, asking for
+fewer reads back only those.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from experiments.experiment import Setting
+from experiments.sweep.tasks import ChunkResult, Task, scalar_setting_items
+
+MANIFEST = "manifest.json"
+ROWS_DIR = "rows"
+RECORDS_DIR = "trials"
+OUTPUT_FILES = ("summary.csv", "failures.csv", "report.md")
+FORMAT_VERSION = 1
+FAILURE_COLUMNS = (
+    "setting_index",
+    "trial_index",
+    "error_type",
+    "message",
+    "traceback",
+    "seed_entropy",
+    "seed",
+)
+
+
+class ManifestMismatchError(ValueError):
+    """The output directory holds results of different parameters, settings or seed."""
+
+
+@dataclass(frozen=True)
+class SweepIdentity:
+    """What determines a sweep's results (everything but the number of trials)."""
+
+    experiment: str
+    parameters: Mapping[str, Any]
+    settings: Sequence[Setting]
+    seed: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """Return the identity as JSON-compatible data."""
+        return json.loads(_canonical_json(self._fields()))
+
+    def digest(self) -> str:
+        """Return the SHA-256 of the canonical JSON of the identity."""
+        return hashlib.sha256(_canonical_json(self._fields()).encode()).hexdigest()
+
+    def _fields(self) -> dict[str, Any]:
+        return {
+            "experiment": self.experiment,
+            "parameters": dict(self.parameters),
+            "settings": list(self.settings),
+            "seed": self.seed,
+        }
+
+
+class SweepStore:
+    """Reads and writes the results of one sweep in an output directory."""
+
+    def __init__(self, out: Path, identity: SweepIdentity) -> None:
+        self.out = Path(out)
+        self.identity = identity
+        self.rows_dir = self.out / ROWS_DIR
+        self.records_dir = self.out / RECORDS_DIR
+
+    @classmethod
+    def open(
+        cls,
+        out: Path,
+        identity: SweepIdentity,
+        *,
+        reference: str,
+        trials: int,
+        fresh: bool = False,
+    ) -> SweepStore:
+        """Open ``out`` for ``identity``, creating it, resuming it, or (``fresh``) clearing it.
+
+        Raises :class:`ManifestMismatchError` when ``out`` holds results of
+        another identity and ``fresh`` is false.
+        """
+        store = cls(out, identity)
+        previous = store.read_manifest()
+        if not fresh and previous is None and any(store.records_dir.glob("*.json")):
+            raise ManifestMismatchError(
+                f"{store.out} holds finished chunks but no {MANIFEST}, so they cannot be "
+                "matched to this sweep; pass --fresh (fresh=True) to discard them"
+            )
+        if not fresh and previous is not None and previous.get("hash") != identity.digest():
+            raise ManifestMismatchError(_mismatch_message(store.out, previous, identity))
+        if fresh:
+            store.clear()
+        store.rows_dir.mkdir(parents=True, exist_ok=True)
+        store.records_dir.mkdir(parents=True, exist_ok=True)
+        store._remove_temporary_files()
+        created = previous.get("created") if previous and not fresh else None
+        store._write_manifest(reference=reference, trials=trials, created=created)
+        return store
+
+    def read_manifest(self) -> dict[str, Any] | None:
+        """Return the manifest of the directory, or None if there is none."""
+        path = self.out / MANIFEST
+        if not path.exists():
+            return None
+        return json.loads(path.read_text())
+
+    def clear(self) -> None:
+        """Delete the files a sweep writes (and only those) from the directory."""
+        for directory, suffix in ((self.rows_dir, ".parquet"), (self.records_dir, ".json")):
+            if directory.is_dir():
+                for path in directory.iterdir():
+                    if path.name.endswith((suffix, ".tmp")):
+                        path.unlink()
+        for name in (MANIFEST, *OUTPUT_FILES):
+            (self.out / name).unlink(missing_ok=True)
+
+    def commit(self, result: ChunkResult) -> None:
+        """Store a finished chunk: its rows, then the record that marks it finished."""
+        if len(result.rows):
+            table = pa.Table.from_pandas(result.rows, preserve_index=False)
+            path = self.rows_dir / f"{result.chunk_id}.parquet"
+            pq.write_table(table, _temporary(path))
+            os.replace(_temporary(path), path)
+        record = {
+            "chunk": result.chunk_id,
+            "tasks": [list(task) for task in result.tasks],
+            "n_rows": len(result.rows),
+            "failures": result.failures,
+            "elapsed_s": result.elapsed_s,
+        }
+        path = self.records_dir / f"{result.chunk_id}.json"
+        _temporary(path).write_text(json.dumps(record))
+        os.replace(_temporary(path), path)
+
+    def finished_tasks(self, trials: int) -> set[Task]:
+        """Return the ``(setting, trial)`` pairs already finished (succeeded or failed)."""
+        return {(s, t) for record in self._records() for s, t in record["tasks"] if t < trials}
+
+    def load_rows(self, trials: int) -> pd.DataFrame:
+        """Return the stored rows of the first ``trials`` trials, in (setting, trial, row) order."""
+        tables = [
+            pq.read_table(self.rows_dir / f"{record['chunk']}.parquet")
+            for record in self._records()
+            if record["n_rows"]
+        ]
+        if not tables:
+            return pd.DataFrame()
+        rows = pa.concat_tables(tables, promote_options="permissive").to_pandas()
+        rows = rows[rows["trial_index"] < trials]
+        rows = rows.sort_values(["setting_index", "trial_index"], kind="stable")
+        return rows.reset_index(drop=True)
+
+    def load_failures(self, trials: int) -> pd.DataFrame:
+        """Return the failure records of the first ``trials`` trials with their setting columns."""
+        settings = self.identity.settings
+        failures = [
+            {**failure, **scalar_setting_items(settings[failure["setting_index"]])}
+            for record in self._records()
+            for failure in record["failures"]
+            if failure["trial_index"] < trials
+        ]
+        frame = pd.DataFrame(failures, columns=None if failures else list(FAILURE_COLUMNS))
+        if failures:
+            frame = frame.sort_values(["setting_index", "trial_index"], kind="stable")
+        return frame.reset_index(drop=True)
+
+    def _records(self) -> Iterator[dict[str, Any]]:
+        for path in sorted(self.records_dir.glob("*.json")):
+            yield json.loads(path.read_text())
+
+    def _write_manifest(self, *, reference: str, trials: int, created: str | None) -> None:
+        now = datetime.now(UTC).isoformat(timespec="seconds")
+        manifest = {
+            "format": FORMAT_VERSION,
+            **self.identity.as_dict(),
+            "reference": reference,
+            "trials": trials,
+            "hash": self.identity.digest(),
+            "created": created or now,
+            "updated": now,
+        }
+        path = self.out / MANIFEST
+        _temporary(path).write_text(json.dumps(manifest, indent=2) + "\n")
+        os.replace(_temporary(path), path)
+
+    def _remove_temporary_files(self) -> None:
+        for directory in (self.rows_dir, self.records_dir):
+            for path in directory.glob("*.tmp"):
+                path.unlink()
+
+
+def _temporary(path: Path) -> Path:
+    return path.with_name(path.name + ".tmp")
+
+
+def _canonical_json(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=repr)
+
+
+def _mismatch_message(out: Path, manifest: Mapping[str, Any], identity: SweepIdentity) -> str:
+    new = identity.as_dict()
+    differences = []
+    if manifest.get("experiment") != new["experiment"]:
+        differences.append(f"experiment {manifest.get('experiment')!r} -> {new['experiment']!r}")
+    if manifest.get("seed") != new["seed"]:
+        differences.append(f"seed {manifest.get('seed')} -> {new['seed']}")
+    old_parameters = manifest.get("parameters", {})
+    for key in sorted(set(old_parameters) | set(new["parameters"])):
+        if old_parameters.get(key) != new["parameters"].get(key):
+            old_value, new_value = old_parameters.get(key), new["parameters"].get(key)
+            differences.append(f"parameter {key!r} {old_value!r} -> {new_value!r}")
+    if not differences:
+        differences.append("the experiment's settings (its grid) changed")
+    return (
+        f"{out} holds results of a different sweep ({'; '.join(differences)}); "
+        "pass --fresh (fresh=True) to discard them, or choose another --out directory"
+    )
