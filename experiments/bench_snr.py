@@ -1,0 +1,183 @@
+"""Benchmark of the SNR attitude solvers (seed 000 secs. 3.2-3.3) at 20 observations.
+
+Epochs come from the ``adsb-snr`` scenario (:mod:`experiments.scenarios.adsb_snr`):
+real satellite-to-aircraft geometry, true attitude wandering by a few degrees,
+SNR from the seed-000 helix (eq. 63) and the link budget plus 1 dB Gaussian
+noise (sec. 5.1).  Messages below the 6 dB threshold are not received; of
+the rest, 20 per epoch are kept, up to 10 per antenna (at least 3 each).
+Epochs are solved in order, one ``solve`` call per epoch, warm-started from
+the previous epoch's estimate where the variant says so, and each call is
+timed (validation, solve, covariance and result assembly included).  The
+table gives the median milliseconds per epoch, the ratio to the NLSE
+(warm-started) measured in the same run, median iterations (IPOPT
+iterations, MINPACK residual evaluations, QUEST Newton steps), failed epochs,
+and the RMS attitude error.  Run with ``python -m experiments.bench_snr``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_table
+from formulations.conventions import attitude_error
+from formulations.errors import AttoptError
+from formulations.gain_patterns import SEED000_HELIX
+from formulations.link_budget import LinkBudget
+from formulations.snr_model import SNR_SIGMA_DB, predict_snr
+from formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
+from solvers.result import AttitudeSolution
+from solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
+from solvers.snr.driver import SnrSolver
+
+OBSERVATIONS = 20
+PER_ANTENNA = 10
+MIN_PER_ANTENNA = 3
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    variant: str
+    median_ms: float
+    ratio_to_nlse: float
+    median_iterations: float
+    failures: int
+    rms_error_deg: float
+
+
+def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
+    """Scenario epochs with ``OBSERVATIONS`` received messages each, and their true attitudes."""
+    geometry = build_adsb_geometry(duration_s=float(n_epochs))
+    table = observation_table(geometry, np.degrees(SEED000_HELIX.max_off_boresight_rad))
+    rng = np.random.default_rng(seed)
+    budget = LinkBudget()
+    epochs, truths = [], []
+    for k in range(n_epochs):
+        rows = table.take(table.epoch_index == k)
+        p0 = budget.isotropic_power_dbw(rows.range_m)
+        truth = geometry.truth[k]
+        snr, _ = predict_snr(
+            truth,
+            rows.los_orbit,
+            BORESIGHTS_BODY[rows.antenna],
+            p0,
+            budget.noise_power_dbw,
+            SEED000_HELIX,
+        )
+        snr = snr + SNR_SIGMA_DB * rng.normal(size=snr.shape)
+        received = snr >= RECEPTION_THRESHOLD_DB
+        pick = _pick(rng, rows.antenna, received)
+        if pick is None:
+            continue
+        epochs.append(
+            SnrEpoch.from_ranges(
+                snr[pick],
+                rows.los_orbit[pick],
+                rows.antenna[pick],
+                BORESIGHTS_BODY,
+                rows.range_m[pick],
+                SEED000_HELIX,
+                budget,
+            )
+        )
+        truths.append(truth)
+    return epochs, Rotation.concatenate(truths)
+
+
+def _pick(rng: np.random.Generator, antenna: np.ndarray, received: np.ndarray) -> np.ndarray | None:
+    """``OBSERVATIONS`` received rows, up to ``PER_ANTENNA`` per antenna, or None."""
+    by_antenna = [rng.permutation(np.flatnonzero(received & (antenna == a))) for a in (0, 1)]
+    if min(len(rows) for rows in by_antenna) < MIN_PER_ANTENNA:
+        return None
+    first = [rows[:PER_ANTENNA] for rows in by_antenna]
+    rest = np.concatenate([rows[PER_ANTENNA:] for rows in by_antenna])
+    chosen = np.concatenate([*first, rest[: OBSERVATIONS - sum(len(f) for f in first)]])
+    return np.sort(chosen) if chosen.size == OBSERVATIONS else None
+
+
+def _measure(
+    solver: SnrSolver, epochs: list[SnrEpoch], warm: bool
+) -> tuple[list[float], list[AttitudeSolution | None]]:
+    """Seconds per epoch and solutions, epochs in order (failures are None)."""
+    seconds, solutions = [], []
+    previous: Rotation | None = None
+    for problem in epochs:
+        start = time.perf_counter()
+        try:
+            solution = solver.solve(problem, prior=previous if warm else None)
+        except AttoptError:  # a flagged epoch is counted, not fatal
+            solution = None
+        seconds.append(time.perf_counter() - start)
+        solutions.append(solution)
+        if warm and solution is not None:
+            previous = solution.attitude
+    return seconds, solutions
+
+
+def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
+    """Measure every variant on the same epochs; print and return the table rows."""
+    epochs, truths = _epochs(n_epochs, seed)
+    lbfgs = NlpSolver(options=IpoptOptions(hessian_approximation="limited-memory"))
+    variants: list[tuple[str, SnrSolver, bool]] = [
+        ("nlse (warm start)", SNR_SOLVERS["nlse"], True),
+        ("nlse (two-step start)", SNR_SOLVERS["nlse"], False),
+        ("nlp, exact Hessian (warm start)", SNR_SOLVERS["nlp"], True),
+        ("nlp, exact Hessian (two-step start)", SNR_SOLVERS["nlp"], False),
+        ("nlp, L-BFGS (warm start)", lbfgs, True),
+        ("deterministic (two-step, QUEST)", SNR_SOLVERS["deterministic"], False),
+    ]
+    for _, solver, warm in variants:  # build every cached CasADi function before timing
+        _measure(solver, epochs[:2], warm)
+    rows = []
+    for name, solver, warm in variants:
+        medians = []
+        for _ in range(repeats):
+            seconds, solutions = _measure(solver, epochs, warm)
+            medians.append(float(np.median(seconds)))
+        rows.append(_row(name, float(np.median(medians)), solutions, truths))
+    reference = rows[0].median_ms
+    rows = [replace(r, ratio_to_nlse=r.median_ms / reference) for r in rows]
+    print(f"{len(epochs)} epochs, {OBSERVATIONS} observations each")
+    print(format_table(rows))
+    return rows
+
+
+def _row(
+    name: str, median_s: float, solutions: list[AttitudeSolution | None], truths: Rotation
+) -> BenchRow:
+    ok = [i for i, s in enumerate(solutions) if s is not None]
+    errors = np.array([attitude_error(solutions[i].attitude, truths[i]) for i in ok])
+    iterations = [
+        solutions[i].diagnostics.get("iterations", solutions[i].diagnostics.get("quest_iterations"))
+        for i in ok
+    ]
+    return BenchRow(
+        name,
+        median_s * 1e3,
+        np.nan,
+        float(np.median(iterations)),
+        len(solutions) - len(ok),
+        float(np.degrees(np.sqrt(np.mean(np.sum(errors**2, axis=1))))),
+    )
+
+
+def format_table(rows: list[BenchRow]) -> str:
+    """Markdown table of the measurements."""
+    lines = [
+        "| solver | median ms/epoch | vs nlse (warm) | median iterations | failures | "
+        "RMS error (deg) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.variant} | {r.median_ms:.2f} | {r.ratio_to_nlse:.2f}x | "
+            f"{r.median_iterations:g} | {r.failures} | {r.rms_error_deg:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,65 @@
+"""The SNR model of seed 000 parametrised by 3-2-1 Euler angles (eqs. 8, 13, 18).
+
+The NLSE of seed 000 sec. 3.3 estimates ``z = [psi, theta, phi]`` (yaw, pitch,
+roll).  :func:`euler321_matrix` is eq. 8 written symbolically (CasADi), the
+same attitude as :func:`formulations.conventions.attitude_from_euler321`
+(pinned in ``tests/test_snr_solvers.py``), and
+:func:`snr_euler_jacobian_function` composes it with the one model definition
+:func:`formulations.snr_model.snr_db`, so the Jacobian ``d f / d z`` of eq. 21
+is CasADi's automatic derivative.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import casadi as ca
+
+from formulations.errors import InvalidObservationError
+from formulations.gain_patterns import GainPattern
+from formulations.snr_model import snr_db
+
+
+def euler321_matrix(angles: ca.SX | ca.MX) -> ca.SX | ca.MX:
+    """``C_o^B = R1(phi) R2(theta) R3(psi)``, seed 000 eq. 8, of ``angles = [psi, theta, phi]``."""
+    psi, theta, phi = angles[0], angles[1], angles[2]
+    cps, sps = ca.cos(psi), ca.sin(psi)
+    cth, sth = ca.cos(theta), ca.sin(theta)
+    cph, sph = ca.cos(phi), ca.sin(phi)
+    rows = [
+        [cth * cps, cth * sps, -sth],
+        [sph * sth * cps - cph * sps, sph * sth * sps + cph * cps, sph * cth],
+        [cph * sth * cps + sph * sps, cph * sth * sps - sph * cps, cph * cth],
+    ]
+    return ca.vertcat(*(ca.horzcat(*row) for row in rows))
+
+
+@lru_cache(maxsize=16)
+def euler321_matrix_function() -> ca.Function:
+    """``[psi, theta, phi] -> C_o^B`` (3 x 3), seed 000 eq. 8."""
+    z = ca.SX.sym("z", 3)
+    return ca.Function("euler321_matrix", [z], [euler321_matrix(z)], ["z"], ["attitude"])
+
+
+@lru_cache(maxsize=64)
+def snr_euler_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
+    """``(z[3], los[m x 3], boresight[m x 3], p0[m], noise) -> (snr[m], d snr / d z [m x 3])``.
+
+    ``snr`` is eq. 13 at the attitude ``euler321_matrix(z)`` (eq. 18 without
+    noise); inputs are not checked (use :func:`formulations.snr_problem.epoch_issue`).
+    """
+    if m < 1:
+        raise InvalidObservationError(f"need at least one observation, got m = {m}")
+    z = ca.SX.sym("z", 3)
+    los = ca.SX.sym("los_orbit", m, 3)
+    bore = ca.SX.sym("boresight_body", m, 3)
+    p0 = ca.SX.sym("p0_dbw", m)
+    noise = ca.SX.sym("noise_dbw")
+    snr = snr_db(euler321_matrix(z), los, bore, p0, noise, pattern)
+    return ca.Function(
+        "snr_euler_jacobian",
+        [z, los, bore, p0, noise],
+        [snr, ca.jacobian(snr, z)],
+        ["z", "los_orbit", "boresight_body", "p0_dbw", "noise_dbw"],
+        ["snr_db", "jac_z"],
+    )

@@ -1,0 +1,306 @@
+"""One epoch of the SNR attitude problem of seed 000 (secs. 3.1-3.3), validated.
+
+An epoch holds ``m`` received ADS-B messages: the measured SNR ``y_k`` (dB,
+seed 000 eq. 4), the unit line of sight ``l_k`` in the orbit frame (satellite
+to aircraft, :func:`formulations.snr_model.line_of_sight`), the index of the
+antenna that received it, the isotropic power ``10 lg P0_k`` (dBW, eq. 3) and
+the noise power ``10 lg P_n`` (dBW, eq. 2).  The antennas' boresights in the
+body frame and the gain pattern are inputs too.  The unknown is the attitude
+``A = C_o^B`` (orbit -> body, ``docs/conventions.md``).
+
+Batches are plain sequences of :class:`SnrEpoch` (epochs differ in ``m``); the
+NLP solver pads each epoch to a bucket size itself
+(:mod:`solvers.snr.padding`).
+
+Policy on bad input (mirrors :mod:`formulations.vector_observations`):
+
+* structurally malformed input (wrong shapes or dimensions, antenna index out
+  of range, negative or non-integer antenna index) raises
+  :class:`~formulations.errors.InvalidObservationError` when the
+  :class:`SnrEpoch` is constructed;
+* content problems are found by :func:`epoch_issue` and returned as an
+  :class:`EpochIssue` (reason and exception class).  A single-epoch solve
+  raises that exception, a sequence solve flags the epoch with the reason and
+  carries on.  They are, in order:
+
+  - :class:`InvalidObservationError`: a line of sight or boresight that is
+    NaN/inf or zero; NaN/inf isotropic or noise power; a standard deviation
+    that is not finite and positive; a measured SNR that is NaN/inf or below
+    the reception threshold (seed 000 sec. 5.1: 6 dB; such a message is not
+    received, so its presence means a corrupted record);
+  - :class:`UnobservableError`: fewer than three observations (three unknown
+    angles; seed 000 sec. 3.3 needs ``m_i >= 3`` per antenna, the one-step
+    methods only three overall), or every observation received by antennas
+    with (anti)parallel boresights, which leaves the rotation about that
+    boresight unobservable (seed 000 sec. 3.1, the symmetric gain pattern);
+    for the two-step method (sec. 3.2) additionally fewer than two antennas
+    with ``min_per_antenna`` observations each.
+
+  An off-boresight angle beyond the pattern's main lobe *at some attitude* is
+  not an input error: the attitude is the unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from formulations.errors import AttoptError, InvalidObservationError, UnobservableError
+from formulations.gain_patterns import GainPattern
+from formulations.link_budget import LinkBudget
+from formulations.snr_model import SNR_SIGMA_DB
+
+Array = NDArray[np.float64]
+
+RECEPTION_THRESHOLD_DB = 6.0
+"""Required SNR ``P_SNR^req`` of seed 000 sec. 5.1 (dB)."""
+PARALLEL_BORESIGHT_TOLERANCE = 1e-3
+"""Boresights with ``|b_i x b_j|`` below this (about 0.057 deg) count as parallel."""
+MIN_OBSERVATIONS = 3
+"""Three unknown attitude angles need at least three SNRs (seed 000 sec. 3.3)."""
+
+
+def _readonly(x: ArrayLike, dtype: type = float) -> NDArray:
+    a = np.array(x, dtype=dtype)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class SnrEpoch:
+    """One epoch's SNR attitude problem (seed 000 eqs. 4, 7, 18-19).
+
+    Attributes:
+        snr_db: ``(m,)`` measured SNRs ``y_k`` (dB).
+        los_orbit: ``(m, 3)`` lines of sight satellite -> aircraft in the orbit
+            frame (normalised by :attr:`unit_los`).
+        antenna: ``(m,)`` index into ``boresights_body`` of the receiving antenna.
+        boresights_body: ``(n_antennas, 3)`` antenna boresights in the body frame.
+        p0_dbw: ``(m,)`` isotropic received power ``10 lg P0`` (dBW, eq. 3).
+        noise_dbw: noise power ``10 lg(k_B T B)`` (dBW, eq. 2).
+        pattern: the receive gain pattern (main lobe only).
+        sigma_db: SNR standard deviation(s), scalar or ``(m,)`` (eq. 22's ``sigma_ij``).
+        threshold_db: reception threshold; measured SNRs below it are rejected.
+
+    Arrays are stored as read-only float copies (``antenna`` as integers);
+    instances compare and hash by identity.
+    """
+
+    snr_db: NDArray[np.float64]
+    los_orbit: NDArray[np.float64]
+    antenna: NDArray[np.intp]
+    boresights_body: NDArray[np.float64]
+    p0_dbw: NDArray[np.float64]
+    noise_dbw: float
+    pattern: GainPattern = field(repr=False)
+    sigma_db: NDArray[np.float64] | float = SNR_SIGMA_DB
+    threshold_db: float = RECEPTION_THRESHOLD_DB
+
+    def __post_init__(self) -> None:
+        try:
+            y = _readonly(self.snr_db)
+            los = _readonly(self.los_orbit)
+            bores = _readonly(self.boresights_body)
+            p0 = _readonly(self.p0_dbw)
+            sigma = np.asarray(self.sigma_db, dtype=float)
+            noise = float(self.noise_dbw)
+            threshold = float(self.threshold_db)
+        except (TypeError, ValueError) as exc:
+            raise InvalidObservationError(f"SNR epoch arrays must be numeric: {exc}") from None
+        raw_antenna = np.asarray(self.antenna)
+        if y.ndim != 1:
+            raise InvalidObservationError(f"snr_db must have shape (m,), got {y.shape}")
+        m = y.shape[0]
+        if los.shape != (m, 3):
+            raise InvalidObservationError(f"los_orbit must have shape ({m}, 3), got {los.shape}")
+        if p0.shape != (m,):
+            raise InvalidObservationError(f"p0_dbw must have shape ({m},), got {p0.shape}")
+        if bores.ndim != 2 or bores.shape[1] != 3 or bores.shape[0] < 1:
+            raise InvalidObservationError(
+                f"boresights_body must have shape (n_antennas, 3), got {bores.shape}"
+            )
+        if raw_antenna.shape != (m,) or (m and not np.issubdtype(raw_antenna.dtype, np.integer)):
+            raise InvalidObservationError(
+                f"antenna must be ({m},) integer indices, got {raw_antenna.shape} "
+                f"{raw_antenna.dtype}"
+            )
+        antenna = _readonly(raw_antenna, np.intp)
+        if m and (antenna.min() < 0 or antenna.max() >= bores.shape[0]):
+            raise InvalidObservationError(
+                f"antenna indices must lie in [0, {bores.shape[0]}), got {antenna.min()}.."
+                f"{antenna.max()}"
+            )
+        if sigma.shape not in ((), (m,)):
+            raise InvalidObservationError(f"sigma_db must be a scalar or ({m},), got {sigma.shape}")
+        for name, value in (
+            ("snr_db", y),
+            ("los_orbit", los),
+            ("antenna", antenna),
+            ("boresights_body", bores),
+            ("p0_dbw", p0),
+            ("sigma_db", _readonly(np.broadcast_to(sigma, (m,)))),
+        ):
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "noise_dbw", noise)
+        object.__setattr__(self, "threshold_db", threshold)
+
+    @classmethod
+    def from_ranges(
+        cls,
+        snr_db: ArrayLike,
+        los_orbit: ArrayLike,
+        antenna: ArrayLike,
+        boresights_body: ArrayLike,
+        range_m: ArrayLike,
+        pattern: GainPattern,
+        link_budget: LinkBudget | None = None,
+        **kwargs: float | ArrayLike,
+    ) -> SnrEpoch:
+        """An epoch whose powers come from ``link_budget`` at slant ranges ``range_m``."""
+        budget = LinkBudget() if link_budget is None else link_budget
+        return cls(
+            snr_db=snr_db,
+            los_orbit=los_orbit,
+            antenna=antenna,
+            boresights_body=boresights_body,
+            p0_dbw=budget.isotropic_power_dbw(range_m),
+            noise_dbw=budget.noise_power_dbw,
+            pattern=pattern,
+            **kwargs,
+        )
+
+    @property
+    def m(self) -> int:
+        """Number of observations."""
+        return int(self.snr_db.shape[0])
+
+    @property
+    def n_antennas(self) -> int:
+        return int(self.boresights_body.shape[0])
+
+    @cached_property
+    def counts(self) -> NDArray[np.intp]:
+        """Observations per antenna, ``(n_antennas,)``."""
+        return np.bincount(self.antenna, minlength=self.n_antennas)
+
+    @cached_property
+    def unit_los(self) -> Array:
+        """``(m, 3)`` unit lines of sight (NaN rows where the input is NaN or zero)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.los_orbit / np.linalg.norm(self.los_orbit, axis=1, keepdims=True)
+
+    @cached_property
+    def unit_boresights(self) -> Array:
+        """``(n_antennas, 3)`` unit boresights in the body frame."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.boresights_body / np.linalg.norm(
+                self.boresights_body, axis=1, keepdims=True
+            )
+
+    @property
+    def boresight_rows(self) -> Array:
+        """``(m, 3)`` unit boresight of the antenna that received each observation."""
+        return self.unit_boresights[self.antenna]
+
+    @property
+    def weights(self) -> Array:
+        """``(m,)`` ``1 / sigma_k^2``: the diagonal of ``C`` in seed 000 eq. 22."""
+        return np.asarray(self.sigma_db, dtype=float) ** -2
+
+
+@dataclass(frozen=True)
+class EpochIssue:
+    """Why an epoch cannot be solved, and what a single-epoch call raises."""
+
+    reason: str
+    error: type[AttoptError]
+
+    def raise_(self, method: str = "") -> None:
+        raise self.error(f"{method}: {self.reason}" if method else self.reason)
+
+
+def _finite_nonzero(vectors: Array) -> NDArray[np.bool_]:
+    return np.isfinite(vectors).all(axis=-1) & np.any(vectors != 0, axis=-1)
+
+
+def _content_issue(problem: SnrEpoch) -> EpochIssue | None:
+    """The first malformed value of the epoch (:class:`InvalidObservationError`)."""
+    y = problem.snr_db
+    checks = [
+        (~_finite_nonzero(problem.los_orbit), "line of sight is NaN/inf or zero"),
+        (
+            ~_finite_nonzero(problem.boresights_body)[problem.antenna],
+            "boresight of the receiving antenna is NaN/inf or zero",
+        ),
+        (~np.isfinite(problem.p0_dbw), "isotropic power is NaN/inf"),
+        (
+            np.full(problem.m, not np.isfinite(problem.noise_dbw)),
+            "noise power is NaN/inf",
+        ),
+        (
+            ~(np.isfinite(problem.sigma_db) & (problem.sigma_db > 0)),
+            "SNR standard deviation must be finite and positive",
+        ),
+        (~np.isfinite(y), "measured SNR is NaN/inf"),
+        (
+            np.isfinite(y) & (y < problem.threshold_db),
+            f"measured SNR below the {problem.threshold_db:g} dB reception threshold",
+        ),
+    ]
+    for bad, text in checks:
+        if bad.any():
+            first = int(np.flatnonzero(bad)[0])
+            return EpochIssue(
+                f"{int(bad.sum())} invalid observation(s): {text} (first at index {first})",
+                InvalidObservationError,
+            )
+    return None
+
+
+def _spans_two_axes(boresights: Array) -> bool:
+    """Whether some pair of the unit ``boresights`` is not (anti)parallel.
+
+    ``|b_i x b_j|^2 = 1 - (b_i . b_j)^2`` for unit vectors.
+    """
+    cosines = boresights @ boresights.T
+    cross_sq = 1.0 - cosines * cosines
+    return bool(cross_sq.max(initial=0.0) >= PARALLEL_BORESIGHT_TOLERANCE**2)
+
+
+def epoch_issue(problem: SnrEpoch, *, min_per_antenna: int | None = None) -> EpochIssue | None:
+    """``None`` if the epoch is solvable, else the first issue (module docstring).
+
+    ``min_per_antenna=None`` applies the one-step rule (NLSE/NLP, seed 000
+    sec. 3.3): at least :data:`MIN_OBSERVATIONS` observations overall, received
+    by antennas whose boresights are not all (anti)parallel.  An integer
+    applies the two-step rule (sec. 3.2): at least two non-parallel antennas
+    with ``min_per_antenna`` observations or more each.
+    """
+    issue = _content_issue(problem)
+    if issue is not None:
+        return issue
+    if problem.m < MIN_OBSERVATIONS:
+        return EpochIssue(
+            f"{problem.m} observation(s): at least {MIN_OBSERVATIONS} are needed for three angles",
+            UnobservableError,
+        )
+    counts = problem.counts
+    if not _spans_two_axes(problem.unit_boresights[counts > 0]):
+        return EpochIssue(
+            "all observations come from antennas with (anti)parallel boresights: "
+            "the rotation about the boresight is unobservable",
+            UnobservableError,
+        )
+    if min_per_antenna is not None and not _spans_two_axes(
+        problem.unit_boresights[counts >= min_per_antenna]
+    ):
+        return EpochIssue(
+            f"the two-step method needs two non-parallel antennas with at least "
+            f"{min_per_antenna} observations each; observations per antenna: "
+            f"{counts.tolist()}",
+            UnobservableError,
+        )
+    return None

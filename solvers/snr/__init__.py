@@ -1,0 +1,37 @@
+"""Solvers of the SNR attitude problem of seed 000 and their registry.
+
+Every solver is an :class:`~solvers.snr.driver.SnrSolver` in
+:data:`SNR_SOLVERS` with the common contract
+
+* ``solve(problem, prior=None) -> AttitudeSolution`` for one
+  :class:`~formulations.snr_problem.SnrEpoch` (raises the specific
+  :mod:`formulations.errors` exception on bad input or a failed solve), and
+* ``solve_sequence(problems, prior=None, *, warm_start=True, max_prior_age=10)
+  -> BatchSolution`` for consecutive epochs (invalid ones flagged with the
+  reason, each epoch warm-started from the previous valid estimate).
+
+Names: ``"deterministic"`` (two-step: pattern inverse, boresight cones,
+QUEST; seed 000 sec. 3.2), ``"nlse"`` (Levenberg-Marquardt on 3-2-1 Euler
+angles; sec. 3.3) and ``"nlp"`` (CasADi NLP on an MRP increment, IPOPT).
+"""
+
+from __future__ import annotations
+
+from solvers.snr.deterministic import DeterministicSolver
+from solvers.snr.driver import SnrSolver
+from solvers.snr.nlp import IpoptOptions, NlpSolver
+from solvers.snr.nlse import LmOptions, NlseSolver
+
+SNR_SOLVERS: dict[str, SnrSolver] = {
+    s.name: s for s in (DeterministicSolver(), NlseSolver(), NlpSolver())
+}
+
+__all__ = [
+    "SNR_SOLVERS",
+    "DeterministicSolver",
+    "IpoptOptions",
+    "LmOptions",
+    "NlpSolver",
+    "NlseSolver",
+    "SnrSolver",
+]

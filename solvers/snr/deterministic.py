@@ -1,0 +1,170 @@
+"""Deterministic two-step method of seed 000 sec. 3.2 (boresights, then QUEST).
+
+Step 1, per antenna with enough observations: invert the gain pattern for
+each SNR to get ``cos(alpha_k)`` (seed 000 eqs. 4, 63;
+:mod:`solvers.snr.pattern_inverse`) and fit the antenna's boresight in the
+orbit frame, ``{b_i}_o``, to the cones ``l_k . b = cos(alpha_k)`` (eq. 15) by
+least squares on the unit sphere (:mod:`solvers.snr.boresight`).
+
+Step 2: Wahba's problem (eqs. 16-17) with the pairs
+``({b_i}_B, {b_i}_o)`` (body = mounting direction, reference = estimate),
+solved by QUEST (``solvers.wahba.WAHBA_SOLVERS["quest"]``, as in seed 000
+sec. 5.1).  QUEST's weights are ``a_i = 1 / sigma_i^2`` with ``sigma_i^2`` the
+mean tangent-plane variance of the estimated boresight, whose covariance
+comes from the SNR noise through step 1; the returned covariance is QUEST's
+``[sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32).  QUEST's measurement
+model has isotropic direction noise; the boresight estimates' is not (it is
+elongated along the narrower spread of their lines of sight), so the
+covariance is an approximation: in the Monte Carlo test of
+``tests/test_snr_solvers.py`` (40 observations) its trace was 0.93 of the
+scatter's, which the test holds to within 25%.
+The reported ``loss`` is the SNR loss (eq. 19) of the two-step attitude, so
+all SNR solvers are scored alike; Wahba's loss (eq. 17) is a diagnostic.
+
+Observations.  Seed 000 sec. 3.3 requires ``m_i >= 3`` per antenna; with the
+default ``min_per_antenna = 3`` an antenna with fewer is not used and the
+epoch is flagged (:class:`~formulations.errors.UnobservableError`) unless two
+non-parallel antennas remain.  ``min_per_antenna = 2`` also uses antennas with
+two observations: the two cones meet in two lines, a two-fold ambiguity
+resolved by the candidate closer to the a-priori boresight direction
+``A_prior^T {b_i}_B`` (``A_prior`` the prior attitude, by default the nominal
+Earth-pointing attitude, body = orbit frame) and counted in the diagnostics
+(``two_fold_antennas``; ``two_fold_margin_deg`` is the smallest difference of
+the two candidates' angles to the prior, small when the choice is fragile).
+Noise-free, with three or more observations on each antenna whose lines of
+sight are not coplanar, the method is exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.errors import AttoptError, ConvergenceError, UnobservableError
+from formulations.snr_problem import SnrEpoch
+from solvers.snr.boresight import BoresightEstimate, estimate_boresight
+from solvers.snr.driver import EpochEstimate, SnrSolver
+from solvers.snr.fit import fit_at
+from solvers.snr.pattern_inverse import cos_from_gain
+from solvers.wahba import WAHBA_SOLVERS
+
+Array = NDArray[np.float64]
+
+SEED000_MIN_PER_ANTENNA = 3
+"""``m_i >= 3`` of seed 000 sec. 3.3."""
+NOMINAL_ATTITUDE = Rotation.identity()
+"""Earth pointing: body frame = orbit frame (``docs/conventions.md``)."""
+
+DETERMINISTIC_DIAGNOSTICS = (
+    "antennas_used",
+    "two_fold_antennas",
+    "two_fold_margin_deg",
+    "clamped_cos",
+    "wahba_loss",
+    "quest_iterations",
+    "outside_lobe",
+)
+
+
+@dataclass(frozen=True)
+class TwoStep:
+    """Result of :func:`two_step` (``attitude`` is None unless ``valid``)."""
+
+    attitude: Rotation | None
+    covariance: Array
+    diagnostics: dict[str, float]
+    reason: str = ""
+    error: type[AttoptError] = ConvergenceError
+    boresights: tuple[BoresightEstimate, ...] = field(default=(), repr=False)
+
+    @property
+    def valid(self) -> bool:
+        return self.attitude is not None
+
+
+def _antenna_boresight(
+    problem: SnrEpoch, antenna: int, prior: Rotation
+) -> tuple[BoresightEstimate, int]:
+    rows = problem.antenna == antenna
+    gain = problem.snr_db[rows] - problem.p0_dbw[rows] + problem.noise_dbw  # seed 000 eq. 4
+    cos_alpha, dcos_dgain, clamped = cos_from_gain(problem.pattern, gain)
+    sigma_cos = np.abs(dcos_dgain) * problem.sigma_db[rows]
+    prior_direction = prior.inv().apply(problem.unit_boresights[antenna])
+    estimate = estimate_boresight(problem.unit_los[rows], cos_alpha, sigma_cos, prior_direction)
+    return estimate, clamped
+
+
+def two_step(
+    problem: SnrEpoch,
+    prior: Rotation | None = None,
+    min_per_antenna: int = SEED000_MIN_PER_ANTENNA,
+) -> TwoStep:
+    """Seed 000 sec. 3.2 on a validated epoch (see the module docstring)."""
+    prior = NOMINAL_ATTITUDE if prior is None else prior
+    antennas = np.flatnonzero(problem.counts >= max(min_per_antenna, 2))
+    diagnostics = dict.fromkeys(DETERMINISTIC_DIAGNOSTICS, np.nan)
+    estimates, clamped = [], 0
+    for antenna in antennas:
+        estimate, n_clamped = _antenna_boresight(problem, int(antenna), prior)
+        estimates.append(estimate)
+        clamped += n_clamped
+    two_fold = [e.two_fold_margin for e in estimates if e.two_fold]
+    diagnostics.update(
+        antennas_used=float(len(estimates)),
+        two_fold_antennas=float(len(two_fold)),
+        two_fold_margin_deg=float(np.degrees(min(two_fold))) if two_fold else np.nan,
+        clamped_cos=float(clamped),
+    )
+    variance = np.array([e.variance for e in estimates])
+    usable = np.isfinite(variance) & (variance > 0)
+    if usable.sum() < 2:
+        return TwoStep(
+            None,
+            np.full((3, 3), np.nan),
+            diagnostics,
+            "fewer than two antennas with a determined boresight direction "
+            f"(variances {variance.tolist()} rad^2)",
+            UnobservableError,
+            tuple(estimates),
+        )
+    body = problem.unit_boresights[antennas[usable]]
+    reference = np.stack([e.direction for e, ok in zip(estimates, usable, strict=True) if ok])
+    try:
+        wahba = WAHBA_SOLVERS["quest"].solve(body, reference, 1.0 / variance[usable])
+    except AttoptError as exc:
+        return TwoStep(
+            None, np.full((3, 3), np.nan), diagnostics, f"QUEST: {exc}", type(exc), tuple(estimates)
+        )
+    diagnostics.update(
+        wahba_loss=wahba.loss, quest_iterations=float(wahba.diagnostics["iterations"])
+    )
+    return TwoStep(wahba.attitude, wahba.covariance, diagnostics, boresights=tuple(estimates))
+
+
+@dataclass(frozen=True)
+class DeterministicSolver(SnrSolver):
+    """Registry entry ``"deterministic"``: :func:`two_step` per epoch.
+
+    The a-priori attitude (``prior``, or the previous epoch's estimate in a
+    sequence) only resolves two-fold ambiguities (``min_per_antenna = 2``).
+    """
+
+    min_per_antenna: int = SEED000_MIN_PER_ANTENNA
+    name: str = "deterministic"
+    description: str = "two-step: pattern inverse, boresight cones, QUEST (seed 000 sec. 3.2)"
+    diagnostic_names: tuple[str, ...] = DETERMINISTIC_DIAGNOSTICS
+
+    def __post_init__(self) -> None:
+        if self.min_per_antenna < 2:
+            raise ValueError("a boresight needs at least two cones (min_per_antenna >= 2)")
+
+    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        result = two_step(problem, prior, self.min_per_antenna)
+        if not result.valid:
+            return EpochEstimate.failed(result.reason, result.diagnostics, result.error)
+        fit = fit_at(problem, result.attitude)
+        diagnostics = {**result.diagnostics, "outside_lobe": float(fit.outside_lobe)}
+        return EpochEstimate(result.attitude, result.covariance, fit.loss, diagnostics)

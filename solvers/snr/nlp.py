@@ -1,0 +1,195 @@
+"""The SNR attitude problem as a CasADi NLP solved by IPOPT (seed 000 eqs. 19-20, 22).
+
+Problem.  ``min_v 1/2 sum_k w_k (y_k - f_k(C(v) A_ref))^2`` with ``f_k`` the
+SNR model of seed 000 eq. 13 (:func:`formulations.snr_model.snr_function`),
+``w_k = 1 / sigma_k^2`` (the ``C`` of eq. 22; 0 for padding rows) and
+``C(v)`` :func:`formulations.snr_model.increment_matrix`, the rotation with
+modified Rodrigues parameters ``v / 4``.
+
+Parametrisation.  The decision variable is the 3-vector ``v``, a local
+attitude increment about a reference ``A_ref`` that is re-centred every epoch
+(the prior, i.e. the previous epoch's estimate while tracking, or a start of
+:mod:`solvers.snr.initialisation`), so ``v = 0`` at the start and ``v`` is the
+body-frame rotation-vector error to first order (``docs/conventions.md``).
+Compared with a unit quaternion ``q`` (4 variables) and the equality
+constraint ``|q| = 1``:
+
+* unconstrained: IPOPT runs a damped Newton method with line search, with no
+  constraint Jacobian, multiplier or feasibility phase, and every iterate is
+  a rotation (``C(v)`` is exactly orthogonal), whereas iterates of the
+  constrained quaternion leave ``|q| = 1``, where ``A(q)`` is not a rotation
+  and ``cos(alpha)`` is not a cosine;
+* no gauge freedom: ``q`` and ``-q`` are the same attitude, and normalising
+  instead of constraining (``A(q / |q|)``) makes the loss flat along ``q``, a
+  singular Hessian that IPOPT must regularise; ``v`` maps one to one to
+  attitudes within 360 deg of ``A_ref``;
+* smooth and rational in ``v`` (no trigonometric functions), singular only at
+  ``|v| -> inf`` (a 360 deg turn), far from any increment a re-centred epoch
+  needs;
+* three variables, the problem's true dimension, and ``v`` is directly the
+  error vector in which the covariance (eq. 22) is expressed.
+
+Euler angles (the NLSE's parametrisation, seed 000 eq. 8) would do as well
+near nadir pointing but are singular at 90 deg pitch and not body-frame.
+
+Size classes.  The NLP is built once per (pattern, bucket size, options) and
+per process (``functools.lru_cache``; ``nlpsol`` objects pickle, but each
+worker process builds its own and uses it from one thread,
+``/work/shared/notes/verified-facts.md``).  All epoch data are parameters:
+``A_ref`` (9), lines of sight and boresight rows (``3 x size`` each),
+``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), with epochs padded
+to the buckets of :mod:`solvers.snr.padding`.
+
+IPOPT options (:class:`IpoptOptions`).  ``print_level 0``, ``sb yes``, no
+timing print and no CasADi evaluation warnings: silent (IPOPT itself cuts
+back steps into ``cos(alpha) <= 0``, where ``lg cos(alpha)`` is undefined).
+``nlp_scaling_method = none``: the loss is already in units of the SNR
+variance, and IPOPT's gradient-based scaling would make the stopping test
+depend on the start.  ``tol = 1e-6`` on the gradient (dB^2/rad): the attitude
+error it leaves is about ``tol / lambda_min(F) = tol sigma_max^2`` (``F`` the
+Fisher information), ~3e-9 rad for the 2-3 deg (0.05 rad) uncertainty of a
+20-observation epoch.  Tighter is not better: once the Newton step is below ~1e-10 rad the
+loss change is below the rounding of the loss (~m/2 eps), the line search
+backtracks without progress, and with ``tol = 1e-8`` a noisy epoch took 8
+instead of 4 iterations; at 1e-9 and 1e-10, 1 of 300 noisy epochs ended at
+the acceptable level.  ``max_iter = 100``: a warm-started epoch takes a median
+4 iterations (``experiments/bench_snr.py``); converged multi-starts from
+45-90 deg away took a median 9 and at most 15 in a 40-epoch trial.
+``hessian_approximation = exact`` (CasADi AD of the 3 x 3 Hessian): on the
+benchmark's 20-observation epochs L-BFGS needed a median 8 iterations
+against 4 and twice the time per epoch.  Multipliers are not computed
+(``calc_lam_x``, ``calc_lam_p`` off): the problem has no constraints.
+
+Status.  Only ``Solve_Succeeded`` converges.  ``Solved_To_Acceptable_Level``
+(IPOPT's relaxed tolerance ``acceptable_tol = 1e-4`` held for 15 iterations)
+is accepted too and flagged with ``acceptable = 1`` in the diagnostics.
+Anything else (iteration limit, restoration failure, invalid numbers at the
+start, ...) flags the epoch invalid with the IPOPT status as reason; no
+attitude is returned for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.gain_patterns import GainPattern
+from formulations.snr_model import snr_function
+from formulations.snr_problem import SnrEpoch
+from solvers.snr.fit import snr_loss
+from solvers.snr.initialisation import LocalResult
+from solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
+from solvers.snr.padding import PaddedEpoch, pad_epoch
+
+Array = NDArray[np.float64]
+
+CONVERGED_STATUS = "Solve_Succeeded"
+ACCEPTABLE_STATUS = "Solved_To_Acceptable_Level"
+
+
+@dataclass(frozen=True)
+class IpoptOptions:
+    """IPOPT settings of the SNR NLP (module docstring); hashable, part of the cache key."""
+
+    tol: float = 1e-6
+    acceptable_tol: float = 1e-4
+    acceptable_iter: int = 15
+    max_iter: int = 100
+    hessian_approximation: Literal["exact", "limited-memory"] = "exact"
+    nlp_scaling_method: Literal["none", "gradient-based"] = "none"
+
+    def nlpsol_options(self) -> dict[str, Any]:
+        ipopt = {f"ipopt.{k}": v for k, v in asdict(self).items()}
+        return {
+            **ipopt,
+            "ipopt.print_level": 0,
+            "ipopt.sb": "yes",
+            "print_time": False,
+            "show_eval_warnings": False,
+            "calc_lam_p": False,
+            "calc_lam_x": False,
+        }
+
+
+def _parameter_symbols(size: int) -> dict[str, ca.SX]:
+    return {
+        "attitude_ref": ca.SX.sym("attitude_ref", 3, 3),
+        "los": ca.SX.sym("los_orbit", size, 3),
+        "boresight": ca.SX.sym("boresight_body", size, 3),
+        "p0": ca.SX.sym("p0_dbw", size),
+        "noise": ca.SX.sym("noise_dbw"),
+        "weights": ca.SX.sym("weights", size),
+        "snr": ca.SX.sym("snr_db", size),
+    }
+
+
+def parameter_vector(padded: PaddedEpoch, attitude_ref: Array) -> Array:
+    """The NLP's parameter vector, in the order of :func:`_parameter_symbols` (column-major)."""
+    return np.concatenate(
+        [
+            attitude_ref.ravel(order="F"),
+            padded.los.ravel(order="F"),
+            padded.boresight.ravel(order="F"),
+            padded.p0,
+            [padded.noise],
+            padded.weights,
+            padded.snr,
+        ]
+    )
+
+
+@lru_cache(maxsize=32)
+def nlp_solver(pattern: GainPattern, size: int, options: IpoptOptions) -> ca.Function:
+    """IPOPT ``nlpsol`` of the SNR loss for ``size`` observation rows (built once per process)."""
+    v = ca.SX.sym("v", 3)
+    p = _parameter_symbols(size)
+    predicted = snr_function(pattern, size)(
+        v, p["attitude_ref"], p["los"], p["boresight"], p["p0"], p["noise"]
+    )
+    loss = snr_loss(p["snr"], predicted, p["weights"])
+    parameters = ca.vertcat(*(ca.vec(symbol) for symbol in p.values()))
+    problem = {"x": v, "p": parameters, "f": loss}
+    return ca.nlpsol(f"snr_nlp_{size}", "ipopt", problem, options.nlpsol_options())
+
+
+def solve_local(problem: SnrEpoch, start: Rotation, options: IpoptOptions) -> LocalResult:
+    """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""
+    a_ref = start.as_matrix()
+    padded = pad_epoch(problem, a_ref)
+    solver = nlp_solver(problem.pattern, padded.size, options)
+    solution = solver(x0=np.zeros(3), p=parameter_vector(padded, a_ref))
+    stats = solver.stats()
+    status = str(stats["return_status"])
+    v = solution["x"].full().ravel()
+    loss = float(solution["f"])
+    finite = bool(np.all(np.isfinite(v)) and np.isfinite(loss))
+    # C(v) of increment_matrix is the rotation with MRPs v / 4 (pinned in tests/test_snr_model.py).
+    attitude = Rotation.from_mrp(v / 4.0) * start if finite else start
+    return LocalResult(
+        attitude=attitude,
+        loss=loss if finite else np.nan,
+        converged=finite and status in (CONVERGED_STATUS, ACCEPTABLE_STATUS),
+        status=status,
+        iterations=int(stats["iter_count"]),
+        acceptable=status == ACCEPTABLE_STATUS,
+    )
+
+
+@dataclass(frozen=True)
+class NlpSolver(OneStepSolver):
+    """Registry entry ``"nlp"``: the IPOPT NLP, initialised by :mod:`solvers.snr.initialisation`."""
+
+    options: IpoptOptions = field(default_factory=IpoptOptions)
+    name: str = "nlp"
+    description: str = "CasADi NLP on the MRP increment, IPOPT (seed 000 eqs. 19-20, 22)"
+    diagnostic_names: tuple[str, ...] = ONE_STEP_DIAGNOSTICS
+    status_label: str = "IPOPT"
+
+    def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
+        return solve_local(problem, start, self.options)

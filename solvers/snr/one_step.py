@@ -1,0 +1,41 @@
+"""What the one-step SNR solvers (NLSE, NLP; seed 000 sec. 3.3) share.
+
+A one-step solver supplies a local solve (epoch, start attitude ->
+:class:`~solvers.snr.initialisation.LocalResult`).  This class starts it by
+:func:`~solvers.snr.initialisation.initialise`, flags a solve that does not
+converge with the solver's status as reason, and scores a converged one with
+the shared loss and covariance (seed 000 eqs. 19, 22; :mod:`solvers.snr.fit`).
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+
+from scipy.spatial.transform import Rotation
+
+from formulations.snr_problem import SnrEpoch
+from solvers.snr.driver import EpochEstimate, SnrSolver
+from solvers.snr.fit import fit_at
+from solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
+
+ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe")
+"""Initialisation diagnostics plus observations beyond the main lobe at the estimate."""
+
+
+class OneStepSolver(SnrSolver):
+    """A one-step solver; subclasses set :attr:`status_label` and implement :meth:`local_solve`."""
+
+    status_label: str
+
+    @abstractmethod
+    def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
+        """Minimise the SNR loss of ``problem`` from ``start``."""
+
+    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        init = initialise(problem, self.local_solve, prior)
+        diagnostics = init.diagnostics()
+        if not init.result.converged:
+            return EpochEstimate.failed(f"{self.status_label}: {init.result.status}", diagnostics)
+        fit = fit_at(problem, init.result.attitude)
+        diagnostics["outside_lobe"] = float(fit.outside_lobe)
+        return EpochEstimate(init.result.attitude, fit.covariance, fit.loss, diagnostics)
