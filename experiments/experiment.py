@@ -20,6 +20,11 @@ Row columns understood by the aggregation:
 * optional ``bound_x_deg``, ``bound_y_deg``, ``bound_z_deg``: the standard
   deviation a bound (e.g. the Cramer-Rao bound or the method's own
   covariance) predicts for that row, for RMS-to-bound ratios.
+
+An experiment may add its own summary columns with ``summary_columns``: a
+function of the stored rows grouped by the summary keys (setting columns and
+``group_by``) returning one row per group; its columns are joined to
+``summary.csv`` (e.g. signed maximum errors or run times).
 """
 
 from __future__ import annotations
@@ -60,3 +65,4 @@ class Experiment:
     quick_parameters: Mapping[str, Any] = field(default_factory=dict)
     group_by: tuple[str, ...] = ("method",)
     report: Callable[[ReportContext], str] | None = None
+    summary_columns: Callable[[pd.DataFrame, list[str]], pd.DataFrame] | None = None

@@ -92,3 +92,18 @@ def test_invalid_reasons_counted_per_method():
         ("q", "diverged", 1),
         ("q", "(no reason given)", 1),
     }
+
+
+def test_experiment_summary_columns_are_joined_per_group():
+    def largest_roll(frame: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+        return frame.groupby(keys).agg(roll_max_abs_deg=("err_x_deg", lambda s: s.abs().max()))
+
+    summary = summarise(
+        rows(),
+        no_failures(),
+        setting_columns=["snr"],
+        group_by=["method"],
+        extra=lambda frame, keys: largest_roll(frame, keys).reset_index(),
+    )
+    assert list(summary["roll_max_abs_deg"]) == [100.0, 2.0]
+    assert summary["n_rows"].tolist() == [4, 1]

@@ -9,7 +9,7 @@ over the valid rows and the ratio RMS / bound are added per axis.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -30,6 +30,7 @@ def summarise(
     *,
     setting_columns: Sequence[str],
     group_by: Sequence[str],
+    extra: Callable[[pd.DataFrame, list[str]], pd.DataFrame] | None = None,
 ) -> pd.DataFrame:
     """Return one summary row per setting and ``group_by`` group (e.g. per method).
 
@@ -37,12 +38,15 @@ def summarise(
     ``n_valid``, ``valid_fraction``, ``{roll,pitch,yaw}_rms_deg``,
     ``total_rms_deg``, ``{roll,pitch,yaw}_mean_deg``, ``p50_deg``, ``p95_deg``,
     ``failed_trials`` (trials of the setting that raised) and, with bounds,
-    ``{axis}_bound_deg`` and ``{axis}_ratio``.  Settings whose every trial failed
-    appear with ``n_rows == 0``.
+    ``{axis}_bound_deg`` and ``{axis}_ratio``, then the columns ``extra(rows,
+    keys)`` returns per group (an experiment's ``summary_columns``).  Settings
+    whose every trial failed appear with ``n_rows == 0``.
     """
     keys = list(dict.fromkeys(["setting_index", *setting_columns, *group_by]))
     if len(rows):
         summary = _error_statistics(rows, keys)
+        if extra is not None:
+            summary = summary.merge(extra(rows, keys), on=keys, how="left")
     else:
         summary = pd.DataFrame(columns=[*keys, "n_rows", "n_valid"])
     failed = failures.groupby("setting_index").size() if len(failures) else pd.Series(dtype=int)

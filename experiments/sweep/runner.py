@@ -137,7 +137,11 @@ def run_sweep(
     failures = store.load_failures(trials)
     setting_columns = list(dict.fromkeys(k for s in settings for k in scalar_setting_items(s)))
     summary = summarise(
-        rows, failures, setting_columns=setting_columns, group_by=experiment.group_by
+        rows,
+        failures,
+        setting_columns=setting_columns,
+        group_by=experiment.group_by,
+        extra=experiment.summary_columns,
     )
     n_total = len(settings) * trials
     n_missing = n_total - len(store.finished_tasks(trials))
