@@ -98,7 +98,7 @@ def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present
 def _max_pairwise_cross(u: NDArray, present: NDArray) -> NDArray:
     """Per epoch, the largest ``|u_i x u_j| = sqrt(1 - (u_i . u_j)^2)`` over present pairs."""
     i, j = np.triu_indices(u.shape[1], 1)
-    dot = np.sum(u[:, i] * u[:, j], axis=-1)
+    dot = np.einsum("epk,epk->ep", u[:, i], u[:, j])
     cross_sq = np.where(present[:, i] & present[:, j], 1.0 - dot * dot, 0.0)
     return np.sqrt(np.clip(cross_sq.max(axis=1, initial=0.0), 0.0, None))
 
@@ -122,12 +122,18 @@ def prepare_observations(
         checks.append((text, exc))
         code[mask & (code == 0)] = len(checks) - 1
 
-    finite = np.isfinite(b).all(-1) & np.isfinite(r).all(-1)
-    flag(((~finite) & p).any(1), "NaN or inf in an observation vector", InvalidObservationError)
     with np.errstate(invalid="ignore", over="ignore"):
-        nb = np.sqrt(np.sum(b * b, axis=-1))
-        nr = np.sqrt(np.sum(r * r, axis=-1))
-        short = (nb < MIN_NORM) | (nr < MIN_NORM)
+        nb = np.sqrt(np.einsum("eni,eni->en", b, b))
+        nr = np.sqrt(np.einsum("eni,eni->en", r, r))
+    # A norm is finite exactly when the components are, short of overflow
+    # (components beyond ~1e154), which is reported with NaN and inf.
+    finite = np.isfinite(nb) & np.isfinite(nr)
+    flag(
+        ((~finite) & p).any(1),
+        "NaN, inf or overflowing component in an observation vector",
+        InvalidObservationError,
+    )
+    short = (nb < MIN_NORM) | (nr < MIN_NORM)
     flag((short & finite & p).any(1), "zero-length observation vector", InvalidObservationError)
     with np.errstate(invalid="ignore"):
         bad_weight = ~(a > 0) | ~np.isfinite(a)

@@ -105,7 +105,8 @@ def det3(m: Array) -> Array:
 
 
 def _trace_adjugate(m: Array) -> Array:
-    return trace3(adjugate(m))
+    """``tr adj M = ((tr M)^2 - tr(M^2)) / 2`` for each ``(3, 3)`` matrix."""
+    return 0.5 * (trace3(m) ** 2 - np.einsum("eij,eji->e", m, m))
 
 
 def trace3(m: Array) -> Array:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from formulations.wahba import adjugate, det3, trace3
+from formulations.wahba import det3, trace3
 
 Array = NDArray[np.float64]
 
@@ -45,9 +45,7 @@ def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
     (``tests/test_wahba_covariance.py`` checks the identity).
     """
     bat = b_matrix @ np.swapaxes(attitude_matrix, 1, 2)
-    bat = 0.5 * (bat + np.swapaxes(bat, 1, 2))
-    info = trace3(bat)[:, None, None] * np.eye(3) - bat
-    return adjugate(info) / det3(info)[:, None, None]
+    return _inverse_symmetric(trace3(bat)[:, None, None] * np.eye(3) - bat)
 
 
 def quest_covariance(body: Array, weights: Array) -> Array:
@@ -56,7 +54,7 @@ def quest_covariance(body: Array, weights: Array) -> Array:
         weights.sum(axis=1)[:, None, None] * np.eye(3)
         - np.swapaxes(weights[..., None] * body, 1, 2) @ body
     )
-    return adjugate(info) / det3(info)[:, None, None]
+    return _inverse_symmetric(info)
 
 
 def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
@@ -66,3 +64,15 @@ def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     zeta = kappa * lambda_max - det3(b_matrix)
     bbt = b_matrix @ np.swapaxes(b_matrix, 1, 2)
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
+
+
+def _inverse_symmetric(m: Array) -> Array:
+    """Inverse of each symmetric ``(3, 3)`` matrix (its symmetric part) by cofactors."""
+    flat = np.ascontiguousarray(m.reshape(-1, 9).T)
+    a, d, f = flat[0], flat[4], flat[8]
+    b, c, e = 0.5 * (flat[1] + flat[3]), 0.5 * (flat[2] + flat[6]), 0.5 * (flat[5] + flat[7])
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
+    out = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=-1) * inv_det[:, None]
+    return out.reshape(-1, 3, 3)

@@ -73,3 +73,18 @@ def test_triad_variance_belongs_to_the_anchor():
     u = TRUTH.apply(reference)
     swapped = triad_covariance(u[:1], u[1:], sigmas[1:] ** 2, sigmas[:1] ** 2)[0]
     assert np.linalg.norm(scatter - swapped) > 0.5 * np.trace(scatter)
+
+
+def test_svd_covariance_equals_seed_eq19_form():
+    """[tr(B A^T) I - B A^T]^-1 at the optimum equals U diag[(s2+s3)^-1, ...] U^T (eq. 19)."""
+    from formulations.wahba import attitude_profile_matrix, proper_svd
+    from formulations.wahba_covariance import svd_covariance
+
+    reference, sigmas = GEOMETRIES["five-vectors"]
+    body = noisy_body(TRUTH, reference, sigmas, np.random.default_rng(3))
+    b = attitude_profile_matrix(body[None], reference[None], sigmas[None] ** -2)
+    u, s, vt, d = proper_svd(b)
+    optimal = u @ np.diag([1.0, 1.0, d[0]]) @ vt
+    s1, s2, s3 = s[0, 0], s[0, 1], d[0] * s[0, 2]
+    eq19 = u[0] @ np.diag([1 / (s2 + s3), 1 / (s3 + s1), 1 / (s1 + s2)]) @ u[0].T
+    np.testing.assert_allclose(svd_covariance(b, optimal)[0], eq19, rtol=1e-10)

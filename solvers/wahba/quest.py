@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from formulations.conventions import attitude_from_shuster_quaternion
 from formulations.vector_observations import ObservationBatch
 from formulations.wahba import (
     attitude_profile_matrix,
@@ -36,6 +35,8 @@ from solvers.wahba.driver import Estimate
 # Reference-frame turns of the sequential rotations: identity, 180 deg about x, y, z.
 _TURN_SIGNS = np.array([(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)], float)
 _TURNS = np.array([np.diag(d) for d in _TURN_SIGNS])
+_KEEP = [np.array([j for j in range(4) if j != i]) for i in range(4)]
+_CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])
 # Composing with a turn, ``q -> (Rotation(q) * turn).as_quat()``, is linear in
 # the scipy quaternion ``q``; these are its matrices, taken from scipy itself.
 _TURN_COMPOSE = np.stack(
@@ -67,25 +68,39 @@ def _quest_quaternion(b_matrix: np.ndarray, lambda_max: np.ndarray) -> np.ndarra
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
+def _principal_minors(m: np.ndarray) -> np.ndarray:
+    """The 3x3 principal minors of each ``(4, 4)`` matrix (minor ``i`` drops row/column ``i``)."""
+    return np.stack([det3(m[:, keep][:, :, keep]) for keep in _KEEP], axis=1)
+
+
+def _conjugate(q: np.ndarray) -> np.ndarray:
+    """Shuster <-> scipy quaternion (conjugate; ``docs/conventions.md``)."""
+    return q * _CONJUGATE
+
+
 def estimate(obs: ObservationBatch) -> Estimate:
     """QUEST for every epoch."""
     b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    k = davenport_matrix(b)
     lambda_0 = obs.weights.sum(axis=1)
     lambda_max, iterations, converged = largest_root_newton(davenport_characteristic(b), lambda_0)
-    # Sequential rotations: gamma of eq. 29 is the q4-entry of adj(lambda I - K),
-    # proportional to q4^2 with a factor the turns do not change, so the turn
-    # with the largest |gamma| is the frame with the largest |q4|.
-    # (B R_i flips the signs of two columns of B.)
-    gammas = np.stack([_quest_scalars(b * t, lambda_max)[3] for t in _TURN_SIGNS], axis=1)
-    turn = np.argmax(np.abs(gammas), axis=1)
+    # Sequential rotations.  The diagonal of adj(lambda I - K) is c q_i^2 (c > 0
+    # common), and turning the reference frame by 180 deg about axis i makes
+    # q_i the new q4; so the largest principal minor picks the turn
+    # (identity when it is q4's: then gamma of eq. 29 is that minor).
+    minors = _principal_minors(lambda_max[:, None, None] * np.eye(4) - k)
+    turn = (np.argmax(np.abs(minors), axis=1) + 1) % 4
     turned_b = b * _TURN_SIGNS[turn][:, None, :]
+    compose = _TURN_COMPOSE[turn]
     q = _quest_quaternion(turned_b, lambda_max)
     # Newton on the quartic leaves lambda with an error of about
     # eps lambda_0^2 / gap (gap: the eigen-gap of K); the Rayleigh quotient
-    # q^T K q of that solution reduces it to about eps lambda_0.
-    lambda_max = np.sum((davenport_matrix(turned_b) @ q[:, :, None])[:, :, 0] * q, axis=1)
-    turned = attitude_from_shuster_quaternion(_quest_quaternion(turned_b, lambda_max)).as_quat()
-    attitude = Rotation.from_quat((_TURN_COMPOSE[turn] @ turned[:, :, None])[:, :, 0])
+    # q^T K q of that solution (in the untouched frame) reduces it to about
+    # eps lambda_0.
+    q = _conjugate((compose @ _conjugate(q)[:, :, None])[:, :, 0])
+    lambda_max = np.sum((k @ q[:, :, None])[:, :, 0] * q, axis=1)
+    turned = _conjugate(_quest_quaternion(turned_b, lambda_max))
+    attitude = Rotation.from_quat((compose @ turned[:, :, None])[:, :, 0])
     failure = "QUEST Newton-Raphson on lambda_max did not converge"
     return Estimate(
         attitude,
