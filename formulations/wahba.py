@@ -44,13 +44,17 @@ def davenport_matrix(b_matrix: Array) -> Array:
     eigenvalue of ``K`` (eq. 26).
     """
     n = b_matrix.shape[0]
-    trace = trace3(b_matrix)
-    s = b_matrix + np.swapaxes(b_matrix, 1, 2)
-    k = np.empty((n, 4, 4))
-    k[:, :3, :3] = s - trace[:, None, None] * np.eye(3)
-    k[:, :3, 3] = k[:, 3, :3] = skew_axial(b_matrix)
-    k[:, 3, 3] = trace
-    return k
+    b00, b01, b02, b10, b11, b12, b20, b21, b22 = np.ascontiguousarray(b_matrix.reshape(n, 9).T)
+    k = np.empty((16, n))  # entries row by row, built from contiguous columns (fast)
+    k[0], k[5], k[10] = b00 - b11 - b22, b11 - b00 - b22, b22 - b00 - b11  # S - I tr B
+    k[15] = b00 + b11 + b22
+    k[1] = k[4] = b01 + b10
+    k[2] = k[8] = b02 + b20
+    k[6] = k[9] = b12 + b21
+    k[3] = k[12] = b12 - b21  # z (eq. 25)
+    k[7] = k[13] = b20 - b02
+    k[11] = k[14] = b01 - b10
+    return k.T.reshape(n, 4, 4)
 
 
 def davenport_characteristic(b_matrix: Array) -> Array:
