@@ -17,6 +17,7 @@ from experiments.experiment import Experiment
 EXPERIMENTS: dict[str, str] = {
     "noop": "experiments.sweep.toys:NOOP",
     "wahba-mag-sun": "experiments.wahba_mag_sun:EXPERIMENT",
+    "adsb-snr": "experiments.adsb_snr:EXPERIMENT",
 }
 
 

@@ -1,0 +1,456 @@
+"""Experiment ``adsb-snr``: the SNR attitude solvers over seed 000's one-hour pass.
+
+Scenario (seed 000 sec. 5.1): :mod:`experiments.scenarios.adsb_snr` gives the
+orbit, the true attitude, the two tilted helices and a modelled global aircraft
+population (``n_aircraft`` great-circle flights of ``traffic_seed``).  The
+geometry and the noise-free SNRs are deterministic scenario inputs, computed
+once per process and parameter set (:func:`noise_free_pass`); a trial's seed
+drives only the SNR noise.
+
+One trial, epoch by epoch at ``step_s`` over ``duration_s``:
+
+1. *Visible*: the aircraft above the limb inside an antenna's main lobe at the
+   TRUE attitude, up to the pattern's own limit
+   (``SEED000_HELIX.max_off_boresight_rad``, ``G >= 4 dBi``, sec. 5.1).
+2. *True SNR*: ``G(alpha) + 10 lg P0 - 10 lg P_n`` (eqs. 1-4, 13) at the true
+   attitude, ``P0`` from :class:`~formulations.link_budget.LinkBudget` at the
+   slant range.
+3. *Measured*: true + ``snr_sigma_db`` x N(0, 1), one draw per visible
+   (epoch, antenna, aircraft) row from ``numpy.random.default_rng(seed)`` in one
+   call, rows in the observation table's order (epoch, then antenna 1 before
+   antenna 2, then aircraft id).
+4. *Received*: rows with measured SNR >= ``threshold_db`` (sec. 5.1,
+   ``P_SNR^req = 6 dB``); the receiver decodes only those.  This is a selection
+   on the noise: near the threshold only positive noise survives, so the kept
+   measurements are biased upward and the solvers' Gaussian likelihood
+   (eq. 19) is misspecified.  The rows record the mean bias of the kept
+   measurements (``snr_bias_db``) and a second bound for the truncated
+   measurements (``bound_truncated_*``, :func:`epoch_statistics`).  Measured
+   over the hour (trial 0 of seed 0): the NLP's RMS / CRLB was 1.33 +/- 0.01
+   with mean NEES 11.2 at 6 dB, and 0.99 +/- 0.01 with mean NEES 2.99 with
+   ``threshold_db = -100`` (nothing discarded, same noise).
+5. Each method's ``solve_sequence`` over the pass of
+   :class:`~formulations.snr_problem.SnrEpoch` s, warm-started from the previous
+   valid estimate as a flight estimator would be (the first epoch has no
+   prior: the one-step methods start from the two-step solution, or a
+   multi-start, :mod:`solvers.snr.initialisation`).
+
+Rows, per method and epoch: ``t``, ``n_visible`` (before the threshold),
+``n_obs``, ``n_obs_antenna1``, ``n_obs_antenna2``, ``snr_bias_db``; the
+body-frame error ``err_{x,y,z}_deg`` (rotation vector of
+``A_est A_true^T``, ``docs/conventions.md``); ``bound_{x,y,z}_deg``, the square
+root of the diagonal of the Cramer-Rao bound ``(J^T C J)^-1`` (eq. 22) at the
+TRUE attitude with the received observations (conditional on which were
+received; inf where unobservable); ``sigma_{x,y,z}_deg`` and ``nees`` from the
+method's own covariance; 3-2-1 Euler-angle differences
+``euler_{yaw,pitch,roll}_err_deg`` wrapped to [-180, 180) (what seed 000
+Table 2 tabulates); ``loss`` (eq. 19 weighted by ``C``); ``wrong_minimum`` and
+``loss_from_truth`` (below); ``valid``, ``reason``; ``runtime_s``.
+
+``runtime_s`` is the wall time (``time.perf_counter``) of the method's whole
+``solve_sequence`` over the pass, repeated on each of its rows.  It is the
+only column that is not reproducible: every other column is bitwise identical
+across engines, workers and reruns (``docs/sweeps.md``).  Before timing, every
+method solves one epoch of each padding bucket size of the pass untimed, so
+that the one-off construction of CasADi functions and IPOPT problems per
+process (:mod:`solvers.snr.padding`) is not charged to the pass, as flight
+code would be compiled beforehand.
+
+Wrong local minima (issue 4 sec. 3).  Every ``wrong_minimum_every``-th epoch
+(0, k, 2k, ...) that the method solved is solved again with the TRUE attitude
+as prior.  ``loss_from_truth`` is that solve's loss; ``wrong_minimum`` is 1
+when the method's own loss exceeds it by more than
+:data:`WRONG_MINIMUM_RTOL` x ``loss_from_truth`` + :data:`WRONG_MINIMUM_ATOL`,
+else 0, and NaN where not checked (other epochs, invalid solutions, or a
+one-step re-solve that could not start from the truth).  The deterministic
+method does not minimise eq. 19: its prior only resolves two-fold boresight
+ambiguities, so for it the check tests that choice alone.
+
+Summary columns (:func:`summary_columns`), per method: ``yaw_max_deg``,
+``pitch_max_deg``, ``roll_max_deg`` (signed body-axis error of largest
+magnitude, z, y, x, as Table 2's "Maximum"), ``runtime_s`` (mean over trials
+of the pass time), ``crlb_ratio`` and ``crlb_ratio_10plus`` (RMS error over
+RMS of ``sqrt(CRB)``, over valid rows with a finite bound, all of them and
+those with at least 10 received observations), ``crlb_ratio_truncated`` (the
+same against ``bound_truncated_*``), ``n_unbounded`` (valid rows left out for
+a non-finite bound) and ``wrong_minimum_fraction`` with
+``wrong_minimum_checked``.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import norm
+
+from experiments.adsb_report import (
+    AXES,
+    MANY_OBSERVATIONS,
+    bounded_valid_rows,
+    crlb_ratio_by_group,
+    report,
+    signed_max,
+)
+from experiments.experiment import Experiment, Setting
+from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_chunks
+from experiments.sweep.aggregate import valid_mask
+from formulations.conventions import attitude_error, euler321_from_attitude
+from formulations.gain_patterns import SEED000_HELIX
+from formulations.link_budget import LinkBudget
+from formulations.snr_model import cramer_rao_bound, predict_snr
+from formulations.snr_problem import SnrEpoch
+from solvers.result import BatchSolution
+from solvers.snr import SNR_SOLVERS
+from solvers.snr.driver import SnrSolver
+from solvers.snr.initialisation import StartSource
+from solvers.snr.padding import bucket_size
+
+PATTERN = SEED000_HELIX
+"""The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi``."""
+LINK_BUDGET = LinkBudget()
+WRONG_MINIMUM_RTOL = 1e-6
+"""Relative loss excess over the truth-started solve that counts as a wrong minimum."""
+WRONG_MINIMUM_ATOL = 1e-9
+"""Absolute loss excess (dB^2 / sigma^2) added to the relative tolerance."""
+
+PARAMETERS: dict[str, Any] = {
+    "duration_s": 3600.0,
+    "step_s": 1.0,
+    "n_aircraft": 10_000,
+    "traffic_seed": 0,
+    "snr_sigma_db": 1.0,
+    "threshold_db": 6.0,
+    "wrong_minimum_every": 20,
+    "methods": ["deterministic", "nlse", "nlp"],
+}
+
+
+def grid(parameters: Mapping[str, Any]) -> list[Setting]:
+    """One setting: seed 000 sec. 5.1's noise and threshold; methods compared inside a trial."""
+    unknown = sorted(set(parameters["methods"]) - set(SNR_SOLVERS))
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SNR_SOLVERS)}")
+    if parameters["wrong_minimum_every"] < 1:
+        raise ValueError("wrong_minimum_every must be at least 1")
+    return [dict(parameters)]
+
+
+@dataclass(frozen=True)
+class NoiseFreePass:
+    """Visible (epoch, antenna, aircraft) rows of a pass with their noise-free SNRs.
+
+    Rows are in the order of :func:`experiments.scenarios.adsb_snr.observation_chunks`
+    (epoch, antenna, aircraft).  Shared per process: do not modify in place.
+    """
+
+    t: NDArray[np.float64]
+    truth: Rotation
+    epoch_index: NDArray[np.intp]
+    antenna: NDArray[np.intp]
+    los_orbit: NDArray[np.float64]
+    p0_dbw: NDArray[np.float64]
+    true_snr_db: NDArray[np.float64]
+    """SNR at the true attitude (eq. 13), ``(M,)``."""
+    jacobian: NDArray[np.float64]
+    """``d SNR / d delta`` at the true attitude (dB/rad, body-frame error), ``(M, 3)``."""
+
+    @property
+    def n_epochs(self) -> int:
+        return int(self.t.size)
+
+
+def noise_free_pass(
+    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int
+) -> NoiseFreePass:
+    """The scenario's visible rows and true SNRs (cached per process; module docstring, 1-2)."""
+    return _noise_free_pass(float(duration_s), float(step_s), int(n_aircraft), int(traffic_seed))
+
+
+@functools.lru_cache(maxsize=2)
+def _noise_free_pass(
+    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int
+) -> NoiseFreePass:
+    geometry = build_adsb_geometry(duration_s, step_s, n_aircraft, traffic_seed)
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("epoch", "antenna", "los", "p0")}
+    snr_parts, jac_parts = [], []
+    for table in observation_chunks(geometry, np.degrees(PATTERN.max_off_boresight_rad)):
+        p0 = LINK_BUDGET.isotropic_power_dbw(table.range_m)
+        snr, jac = predict_snr(  # one observation per stacked attitude
+            geometry.truth[table.epoch_index],
+            table.los_orbit[:, None, :],
+            BORESIGHTS_BODY[table.antenna][:, None, :],
+            p0[:, None],
+            LINK_BUDGET.noise_power_dbw,
+            PATTERN,
+        )
+        for key, value in zip(
+            parts, (table.epoch_index, table.antenna, table.los_orbit, p0), strict=True
+        ):
+            parts[key].append(value)
+        snr_parts.append(snr[:, 0])
+        jac_parts.append(jac[:, 0, :])
+    return NoiseFreePass(
+        t=geometry.t,
+        truth=geometry.truth,
+        epoch_index=np.concatenate(parts["epoch"]),
+        antenna=np.concatenate(parts["antenna"]),
+        los_orbit=np.concatenate(parts["los"]),
+        p0_dbw=np.concatenate(parts["p0"]),
+        true_snr_db=np.concatenate(snr_parts),
+        jacobian=np.concatenate(jac_parts),
+    )
+
+
+@dataclass(frozen=True)
+class NoisyPass:
+    """One trial's measurements: which rows were received, and the epochs to solve."""
+
+    measured_db: NDArray[np.float64]
+    received: NDArray[np.bool_]
+    epochs: list[SnrEpoch]
+
+
+def simulate_pass(
+    scenario: NoiseFreePass, rng: np.random.Generator, sigma_db: float, threshold_db: float
+) -> NoisyPass:
+    """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring, 3-4)."""
+    measured = scenario.true_snr_db + sigma_db * rng.standard_normal(scenario.true_snr_db.size)
+    received = measured >= threshold_db
+    rows = np.flatnonzero(received)
+    bounds = np.searchsorted(scenario.epoch_index[rows], np.arange(scenario.n_epochs + 1))
+    epochs = [
+        SnrEpoch(
+            snr_db=measured[take],
+            los_orbit=scenario.los_orbit[take],
+            antenna=scenario.antenna[take],
+            boresights_body=BORESIGHTS_BODY,
+            p0_dbw=scenario.p0_dbw[take],
+            noise_dbw=LINK_BUDGET.noise_power_dbw,
+            pattern=PATTERN,
+            sigma_db=sigma_db,
+            threshold_db=threshold_db,
+        )
+        for take in (rows[start:stop] for start, stop in itertools.pairwise(bounds))
+    ]
+    return NoisyPass(measured, received, epochs)
+
+
+def _per_epoch_sum(values: np.ndarray, epoch: np.ndarray, n_epochs: int) -> np.ndarray:
+    """Sum of ``values`` ``(K, ...)`` per epoch -> ``(n_epochs, ...)``."""
+    flat = values.reshape(values.shape[0], -1)
+    sums = [
+        np.bincount(epoch, weights=flat[:, j], minlength=n_epochs) for j in range(flat.shape[1])
+    ]
+    return np.stack(sums, axis=-1).reshape(n_epochs, *values.shape[1:])
+
+
+def truncated_information_factor(
+    true_snr_db: np.ndarray, sigma_db: float, threshold_db: float
+) -> np.ndarray:
+    """Fisher information of a received SNR about its mean, in units of ``1 / sigma^2``.
+
+    A message is received when ``y >= c`` (``c`` the threshold), so a received
+    ``y`` is ``N(f, sigma^2)`` truncated below at ``c``.  Its score with respect
+    to ``f`` is ``(y - f) / sigma^2 - lambda / sigma`` with ``a = (c - f) / sigma``
+    and ``lambda = phi(a) / (1 - Phi(a))``, whose variance is
+    ``Var(y) / sigma^4 = (1 + a lambda - lambda^2) / sigma^2``: below 1 near the
+    threshold, 1 far above it.
+    """
+    a = (threshold_db - true_snr_db) / sigma_db
+    hazard = np.exp(norm.logpdf(a) - norm.logsf(a))
+    return 1.0 + a * hazard - hazard**2
+
+
+def epoch_statistics(
+    scenario: NoiseFreePass, noisy: NoisyPass, sigma_db: float, threshold_db: float
+) -> dict[str, np.ndarray]:
+    """Per-epoch columns shared by every method: time, counts, selection bias, CRBs at the truth.
+
+    ``bound_*`` is eq. 22 with the received observations (the Gaussian model the
+    solvers use); ``bound_truncated_*`` weights each received observation by
+    :func:`truncated_information_factor`, the Fisher information of the
+    threshold-truncated measurement it actually is (given which were received).
+    """
+    n = scenario.n_epochs
+    kept = noisy.received
+    epoch = scenario.epoch_index[kept]
+    counts = np.stack(
+        [np.bincount(epoch[scenario.antenna[kept] == a], minlength=n) for a in (0, 1)], axis=1
+    )
+    n_obs = counts.sum(axis=1)
+    jac = scenario.jacobian[kept]
+    outer = jac[:, :, None] * jac[:, None, :] / sigma_db**2
+    factor = truncated_information_factor(scenario.true_snr_db[kept], sigma_db, threshold_db)
+    fishers = {
+        "bound": _per_epoch_sum(outer, epoch, n),
+        "bound_truncated": _per_epoch_sum(factor[:, None, None] * outer, epoch, n),
+    }
+    bias_sum = np.bincount(
+        epoch, weights=noisy.measured_db[kept] - scenario.true_snr_db[kept], minlength=n
+    )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bias = bias_sum / n_obs
+    columns = {
+        "t": scenario.t,
+        "n_visible": np.bincount(scenario.epoch_index, minlength=n),
+        "n_obs": n_obs,
+        "n_obs_antenna1": counts[:, 0],
+        "n_obs_antenna2": counts[:, 1],
+        "snr_bias_db": bias,
+    }
+    for label, fisher in fishers.items():
+        bound = np.degrees(np.sqrt(np.diagonal(cramer_rao_bound(fisher), axis1=1, axis2=2)))
+        for axis, column in zip(AXES, bound.T, strict=True):
+            columns[f"{label}_{axis}_deg"] = column
+    return columns
+
+
+def warm_up(solver: SnrSolver, epochs: list[SnrEpoch]) -> None:
+    """Solve one epoch of each padding bucket size (untimed), building the cached functions."""
+    seen: set[int] = set()
+    for problem in epochs:
+        size = bucket_size(problem.m)
+        if size not in seen and solver.issue(problem) is None:
+            seen.add(size)
+            solver.solve_sequence([problem])
+
+
+def timed_pass(solver: SnrSolver, epochs: list[SnrEpoch]) -> tuple[BatchSolution, float]:
+    """The method's warm-started pass and its wall time (s)."""
+    warm_up(solver, epochs)
+    start = time.perf_counter()
+    solution = solver.solve_sequence(epochs, warm_start=True)
+    return solution, time.perf_counter() - start
+
+
+def wrong_minima(
+    solver: SnrSolver, epochs: list[SnrEpoch], solution: BatchSolution, truth: Rotation, every: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``wrong_minimum`` (1/0/NaN) and ``loss_from_truth`` per epoch (module docstring)."""
+    n = len(epochs)
+    wrong = np.full(n, np.nan)
+    loss_from_truth = np.full(n, np.nan)
+    for i in range(0, n, every):
+        if not solution.valid[i]:
+            continue
+        again = solver.solve_sequence([epochs[i]], prior=truth[i])
+        source = again.diagnostics.get("start_source")
+        if not again.valid[0] or (source is not None and source[0] != StartSource.PRIOR):
+            continue
+        loss_from_truth[i] = again.loss[0]
+        tolerance = WRONG_MINIMUM_RTOL * abs(again.loss[0]) + WRONG_MINIMUM_ATOL
+        wrong[i] = float(solution.loss[i] > again.loss[0] + tolerance)
+    return wrong, loss_from_truth
+
+
+def _error_columns(solution: BatchSolution, truth: Rotation) -> dict[str, np.ndarray]:
+    """Body-axis and Euler-angle errors, own sigma and NEES of the valid epochs (deg)."""
+    n = len(solution)
+    valid = solution.valid
+    error = np.full((n, 3), np.nan)
+    euler = np.full((n, 3), np.nan)
+    nees = np.full(n, np.nan)
+    if valid.any():
+        estimate = solution.attitude()
+        error[valid] = attitude_error(estimate, truth[valid])
+        diff = np.degrees(euler321_from_attitude(estimate) - euler321_from_attitude(truth[valid]))
+        euler[valid] = (diff + 180.0) % 360.0 - 180.0
+        covariance = solution.covariance[valid]
+        finite = np.isfinite(covariance).all(axis=(1, 2))
+        e = error[valid][finite]
+        nees_valid = np.full(int(valid.sum()), np.nan)
+        nees_valid[finite] = np.einsum("ei,eij,ej->e", e, np.linalg.inv(covariance[finite]), e)
+        nees[valid] = nees_valid
+    sigma = np.degrees(np.sqrt(np.diagonal(solution.covariance, axis1=1, axis2=2)))
+    columns = {f"err_{a}_deg": np.degrees(error[:, i]) for i, a in enumerate(AXES)}
+    columns |= {f"sigma_{a}_deg": sigma[:, i] for i, a in enumerate(AXES)}
+    columns["nees"] = nees
+    for i, name in enumerate(("yaw", "pitch", "roll")):
+        columns[f"euler_{name}_err_deg"] = euler[:, i]
+    return columns
+
+
+def _method_rows(
+    name: str,
+    noisy: NoisyPass,
+    truth: Rotation,
+    common: Mapping[str, np.ndarray],
+    every: int,
+) -> pd.DataFrame:
+    solver = SNR_SOLVERS[name]
+    solution, seconds = timed_pass(solver, noisy.epochs)
+    wrong, loss_from_truth = wrong_minima(solver, noisy.epochs, solution, truth, every)
+    return pd.DataFrame(
+        {
+            "method": name,
+            **common,
+            **_error_columns(solution, truth),
+            "loss": solution.loss,
+            "wrong_minimum": wrong,
+            "loss_from_truth": loss_from_truth,
+            "valid": solution.valid,
+            "reason": solution.reason.astype(str),
+            "runtime_s": seconds,
+        }
+    )
+
+
+def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
+    """One noisy pass solved by every method in ``setting["methods"]``."""
+    scenario = noise_free_pass(
+        setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
+    )
+    sigma = setting["snr_sigma_db"]
+    noisy = simulate_pass(scenario, np.random.default_rng(seed), sigma, setting["threshold_db"])
+    common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
+    frames = [
+        _method_rows(name, noisy, scenario.truth, common, setting["wrong_minimum_every"])
+        for name in setting["methods"]
+    ]
+    return pd.concat(frames, ignore_index=True)
+
+
+def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+    """Per group: signed maxima, mean pass time, CRLB ratios, wrong-minimum fraction."""
+    out = rows[keys].drop_duplicates().set_index(keys)
+    valid = rows[valid_mask(rows)].groupby(keys)
+    for name, axis in (("yaw", "z"), ("pitch", "y"), ("roll", "x")):
+        out[f"{name}_max_deg"] = valid[f"err_{axis}_deg"].agg(signed_max)
+    per_trial = rows.groupby([*keys, "trial_index"])["runtime_s"].first()
+    out["runtime_s"] = per_trial.groupby(keys).mean()
+    bounded = bounded_valid_rows(rows)
+    for column, subset, bound in (
+        ("crlb_ratio", bounded, "bound"),
+        ("crlb_ratio_10plus", bounded[bounded["n_obs"] >= MANY_OBSERVATIONS], "bound"),
+        ("crlb_ratio_truncated", bounded_valid_rows(rows, "bound_truncated"), "bound_truncated"),
+    ):
+        out[column] = crlb_ratio_by_group(subset, keys, bound)
+    n_valid = valid.size().reindex(out.index, fill_value=0)
+    out["n_unbounded"] = n_valid - bounded.groupby(keys).size().reindex(out.index, fill_value=0)
+    checked = rows.dropna(subset=["wrong_minimum"]).groupby(keys)["wrong_minimum"]
+    out["wrong_minimum_fraction"] = checked.mean()
+    out["wrong_minimum_checked"] = checked.size().reindex(out.index, fill_value=0).astype(int)
+    return out.reset_index()
+
+
+EXPERIMENT = Experiment(
+    name="adsb-snr",
+    summary="Seed 000: SNR attitude solvers (two-step QUEST, NLSE, NLP) over an hour, vs the CRB",
+    parameters=PARAMETERS,
+    grid=grid,
+    trial=trial,
+    default_trials=4,
+    quick_trials=1,
+    quick_parameters={"duration_s": 600.0},
+    report=report,
+    summary_columns=summary_columns,
+)
