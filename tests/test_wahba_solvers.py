@@ -24,18 +24,23 @@ def angle(estimate: Rotation, truth: Rotation) -> float:
     return float(np.linalg.norm(attitude_error(estimate, truth)))
 
 
-# QUEST's quartic loses accuracy as eps * (lambda_0 / eigen-gap)^2 (see
-# solvers/wahba/quest.py) and the SDP's eigenvector as its interior-point
-# tolerance / eigen-gap, so both are held to 1e-10 rad over one decade of
-# sensor sigmas; the other solvers over three (six decades of weights).
+# Noise-free accuracy is limited by rounding amplified by lambda_0 / gap (gap:
+# the eigen-gap of K, which the weakest observations set): about
+# eps lambda_0 / gap for eigh, SVD and FOAM, eps (lambda_0 / gap)^2 for QUEST's
+# quartic before its Rayleigh refinement, and the interior-point tolerance /
+# gap for the SDP.  So the 1e-10 rad requirement is tested over two decades of
+# sensor sigmas (four of weights) for the direct solvers and one decade for
+# QUEST and the SDP.
 SIGMA_DECADES = {"quest": 1.0, "sdp": 1.0}
+DEFAULT_SIGMA_DECADES = 2.0
 
 
 @pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
 @FAST
 @given(data=st.data())
 def test_noise_free_recovery(solver, data):
-    problem = data.draw(wahba_problems(sigma_decades=SIGMA_DECADES.get(solver.name, 3.0)))
+    decades = SIGMA_DECADES.get(solver.name, DEFAULT_SIGMA_DECADES)
+    problem = data.draw(wahba_problems(sigma_decades=decades))
     truth, body, reference, weights = problem
     solution = solver.solve(body, reference, weights)
     assert angle(solution.attitude, truth) < 1e-10
