@@ -19,6 +19,7 @@ from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
+import scipy.special
 
 
 class ArrayNamespace(Protocol):
@@ -28,6 +29,10 @@ class ArrayNamespace(Protocol):
 
     def sqrt(self, x: Any) -> Any: ...
     def log10(self, x: Any) -> Any: ...
+    def exp(self, x: Any) -> Any: ...
+    def log(self, x: Any) -> Any: ...
+    def log1p(self, x: Any) -> Any: ...
+    def erf(self, x: Any) -> Any: ...
     def atan2(self, y: Any, x: Any) -> Any: ...
     def fmax(self, x: Any, y: Any) -> Any: ...
     def where(self, condition: Any, if_true: Any, if_false: Any) -> Any: ...
@@ -47,6 +52,18 @@ class NumpyNamespace:
 
     def log10(self, x: Any) -> Any:
         return np.log10(x)
+
+    def exp(self, x: Any) -> Any:
+        return np.exp(x)
+
+    def log(self, x: Any) -> Any:
+        return np.log(x)
+
+    def log1p(self, x: Any) -> Any:
+        return np.log1p(x)
+
+    def erf(self, x: Any) -> Any:
+        return scipy.special.erf(x)
 
     def atan2(self, y: Any, x: Any) -> Any:
         return np.arctan2(y, x)
@@ -88,6 +105,19 @@ class CasadiNamespace:
 
     def log10(self, x: Any) -> Any:
         return ca.log10(x)
+
+    def exp(self, x: Any) -> Any:
+        return ca.exp(x)
+
+    def log(self, x: Any) -> Any:
+        return ca.log(x)
+
+    def log1p(self, x: Any) -> Any:
+        return ca.log1p(x)
+
+    def erf(self, x: Any) -> Any:
+        """CasADi's ``erf`` (C's ``std::erf``); CasADi 3.8 has no ``erfc``."""
+        return ca.erf(x)
 
     def atan2(self, y: Any, x: Any) -> Any:
         return ca.atan2(y, x)

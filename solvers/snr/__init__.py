@@ -12,18 +12,21 @@ Every solver is an :class:`~solvers.snr.driver.SnrSolver` in
 
 Names: ``"deterministic"`` (two-step: pattern inverse, boresight cones,
 QUEST; seed 000 sec. 3.2), ``"nlse"`` (Levenberg-Marquardt on 3-2-1 Euler
-angles; sec. 3.3) and ``"nlp"`` (CasADi NLP on an MRP increment, IPOPT).
+angles; sec. 3.3) and ``"nlp"`` (CasADi NLP on an MRP increment, IPOPT), the
+last two minimising eq. 19, and ``"nlp_truncated"`` (the same NLP maximising
+the likelihood of the threshold-truncated measurements of sec. 5.1,
+:mod:`formulations.snr_truncation`).
 """
 
 from __future__ import annotations
 
 from solvers.snr.deterministic import DeterministicSolver
 from solvers.snr.driver import SnrSolver
-from solvers.snr.nlp import IpoptOptions, NlpSolver
+from solvers.snr.nlp import TRUNCATED_NLP, IpoptOptions, NlpSolver
 from solvers.snr.nlse import LmOptions, NlseSolver
 
 SNR_SOLVERS: dict[str, SnrSolver] = {
-    s.name: s for s in (DeterministicSolver(), NlseSolver(), NlpSolver())
+    s.name: s for s in (DeterministicSolver(), NlseSolver(), NlpSolver(), TRUNCATED_NLP)
 }
 
 __all__ = [

@@ -15,12 +15,22 @@
   lobe, and at a noisy estimate an observation near the lobe edge may fall
   just outside it while it still is part of the loss that was minimised.  The
   number of such observations is reported (:attr:`Fit.outside_lobe`).
+
+Objectives (:data:`Objective`).  ``"least_squares"`` is the above (seed 000
+eqs. 19, 22).  ``"truncated_ml"`` models the reception threshold
+(:mod:`formulations.snr_truncation`): the loss is the negative log-likelihood
+of the received, threshold-truncated measurements,
+``sum_k [1/2 w_k (y_k - f_k)^2 + log Phi((f_k - tau) / sigma_k)]`` (up to a
+constant), and the covariance the inverse of its Fisher information, eq. 22
+with row ``k`` weighted by
+:func:`~formulations.snr_truncation.truncated_information_factor` at the
+predicted ``f_k``, through the same AD Jacobian.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
@@ -34,9 +44,14 @@ from formulations.snr_model import (
     snr_jacobian_function,
 )
 from formulations.snr_problem import SnrEpoch
+from formulations.snr_truncation import truncated_fisher_information, truncated_nll
 from solvers.snr.padding import pad_epoch
 
 Array = NDArray[np.float64]
+
+Objective = Literal["least_squares", "truncated_ml"]
+"""The likelihood a one-step solver maximises (module docstring)."""
+OBJECTIVES: tuple[Objective, ...] = ("least_squares", "truncated_ml")
 
 
 def snr_loss(measured: Any, predicted: Any, weights: Any) -> Any:
@@ -45,6 +60,39 @@ def snr_loss(measured: Any, predicted: Any, weights: Any) -> Any:
     if isinstance(residual, ca.SX | ca.MX | ca.DM):
         return 0.5 * ca.dot(weights, residual * residual)
     return 0.5 * float(np.dot(weights, residual * residual))
+
+
+def truncated_loss(
+    measured: Any, predicted: Any, weights: Any, sigma_db: Any, threshold_db: Any
+) -> Any:
+    """``sum_k w_k sigma_k^2 l_k``, ``l_k`` :func:`~formulations.snr_truncation.truncated_nll`.
+
+    ``w_k sigma_k^2`` is 1 for an observation and 0 for a padding row
+    (:mod:`solvers.snr.padding`), so a padding row contributes nothing to
+    either term; on observations this is the truncated negative
+    log-likelihood ``sum_k [1/2 w_k (y_k - f_k)^2 + log Phi((f_k - tau) / sigma_k)]``.
+    numpy or CasADi (``sigma_db`` must be finite and positive on padding rows too).
+    """
+    terms = weights * sigma_db**2 * truncated_nll(measured, predicted, sigma_db, threshold_db)
+    if isinstance(terms, ca.SX | ca.MX | ca.DM):
+        return ca.sum1(terms)
+    return float(np.sum(terms))
+
+
+def objective_loss(
+    objective: Objective,
+    measured: Any,
+    predicted: Any,
+    weights: Any,
+    sigma_db: Any,
+    threshold_db: Any,
+) -> Any:
+    """The loss of ``objective``: :func:`snr_loss` or :func:`truncated_loss` (numpy or CasADi)."""
+    if objective == "least_squares":
+        return snr_loss(measured, predicted, weights)
+    if objective == "truncated_ml":
+        return truncated_loss(measured, predicted, weights, sigma_db, threshold_db)
+    raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
 
 
 def model_at(problem: SnrEpoch, attitude: Rotation) -> tuple[Array, Array]:
@@ -62,8 +110,10 @@ class Fit:
     """What an attitude explains of an epoch.
 
     Attributes:
-        loss: seed 000 eq. 19 weighted by ``C`` (see the module docstring).
-        covariance: ``(3, 3)`` eq. 22, rad^2, body frame.
+        loss: the objective's loss: seed 000 eq. 19 weighted by ``C``, or the
+            truncated negative log-likelihood (see the module docstring).
+        covariance: ``(3, 3)`` inverse Fisher information of the objective's
+            model (eq. 22, or eq. 22 of the truncated measurements), rad^2, body frame.
         outside_lobe: observations beyond the pattern's main lobe at the attitude.
     """
 
@@ -72,15 +122,21 @@ class Fit:
     outside_lobe: int
 
 
-def fit_at(problem: SnrEpoch, attitude: Rotation) -> Fit:
-    """Loss and eq. 22 covariance of ``attitude`` for ``problem``."""
+def fit_at(problem: SnrEpoch, attitude: Rotation, objective: Objective = "least_squares") -> Fit:
+    """Loss and covariance (eq. 22, or its truncated-model form) of ``attitude`` for ``problem``."""
     predicted, jac = model_at(problem, attitude)
     # On a validated epoch observation_mask is False only beyond the main lobe.
     in_lobe = observation_mask(
         attitude.as_matrix(), problem.unit_los, problem.boresight_rows, problem.pattern
     )
+    sigma, threshold = problem.sigma_db, problem.threshold_db
+    if objective == "truncated_ml":
+        fisher = truncated_fisher_information(jac, predicted, sigma, threshold)
+    else:
+        fisher = fisher_information(jac, sigma)
+    loss = objective_loss(objective, problem.snr_db, predicted, problem.weights, sigma, threshold)
     return Fit(
-        loss=snr_loss(problem.snr_db, predicted, problem.weights),
-        covariance=cramer_rao_bound(fisher_information(jac, problem.sigma_db)),
+        loss=loss,
+        covariance=cramer_rao_bound(fisher),
         outside_lobe=int(np.count_nonzero(~in_lobe)),
     )

@@ -6,6 +6,24 @@ SNR model of seed 000 eq. 13 (:func:`formulations.snr_model.snr_function`),
 ``C(v)`` :func:`formulations.snr_model.increment_matrix`, the rotation with
 modified Rodrigues parameters ``v / 4``.
 
+Objective (:attr:`NlpSolver.objective`, :data:`solvers.snr.fit.Objective`).
+``"least_squares"`` (registry ``"nlp"``) is the loss above, seed 000 eq. 19.
+It is the maximum-likelihood estimator only if every measurement is
+``N(f_k, sigma_k^2)``; but messages are decoded only when the MEASURED SNR
+reaches the threshold ``tau`` (sec. 5.1), so the received ones are truncated
+normals, biased upward near ``tau``, and eq. 19's minimiser is biased.
+``"truncated_ml"`` (registry ``"nlp_truncated"``) minimises instead their
+negative log-likelihood ``sum_k [1/2 w_k (y_k - f_k)^2 + w_k sigma_k^2 log
+Phi((f_k - tau) / sigma_k)]`` (:func:`solvers.snr.fit.truncated_loss`,
+:mod:`formulations.snr_truncation`), with the standard deviations (1 on
+padding rows, whose weight 0 removes both terms) and ``tau`` as extra
+parameters; its covariance is the inverse Fisher information of the truncated
+model at the estimate (:func:`solvers.snr.fit.fit_at`).  Both objectives share
+the builder, parametrisation and options below.  With ``tau`` far below every
+SNR the extra term vanishes and the two coincide; with noise-free data the
+truncated ML does NOT return the truth (``y = f`` is not what a selection on
+the noise produces).
+
 Parametrisation.  The decision variable is the 3-vector ``v``, a local
 attitude increment about a reference ``A_ref`` that is re-centred every epoch
 (the prior, i.e. the previous epoch's estimate while tracking, or a start of
@@ -37,8 +55,9 @@ per process (``functools.lru_cache``; ``nlpsol`` objects pickle, but each
 worker process builds its own and uses it from one thread,
 ``/work/shared/notes/verified-facts.md``).  All epoch data are parameters:
 ``A_ref`` (9), lines of sight and boresight rows (``3 x size`` each),
-``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), with epochs padded
-to the buckets of :mod:`solvers.snr.padding`.
+``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), and for the
+truncated objective standard deviations (size) and ``tau`` (1), with epochs
+padded to the buckets of :mod:`solvers.snr.padding`.
 
 IPOPT options (:class:`IpoptOptions`).  ``print_level 0``, ``sb yes``, no
 timing print and no CasADi evaluation warnings: silent (IPOPT itself cuts
@@ -70,7 +89,7 @@ attitude is returned for it.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import lru_cache
 from typing import Any, Literal
 
@@ -82,7 +101,8 @@ from scipy.spatial.transform import Rotation
 from formulations.gain_patterns import GainPattern
 from formulations.snr_model import snr_function
 from formulations.snr_problem import SnrEpoch
-from solvers.snr.fit import snr_loss
+from solvers.snr.driver import EpochEstimate
+from solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
 from solvers.snr.initialisation import LocalResult
 from solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
 from solvers.snr.padding import PaddedEpoch, pad_epoch
@@ -117,8 +137,8 @@ class IpoptOptions:
         }
 
 
-def _parameter_symbols(size: int) -> dict[str, ca.SX]:
-    return {
+def _parameter_symbols(size: int, objective: Objective = "least_squares") -> dict[str, ca.SX]:
+    symbols = {
         "attitude_ref": ca.SX.sym("attitude_ref", 3, 3),
         "los": ca.SX.sym("los_orbit", size, 3),
         "boresight": ca.SX.sym("boresight_body", size, 3),
@@ -127,43 +147,73 @@ def _parameter_symbols(size: int) -> dict[str, ca.SX]:
         "weights": ca.SX.sym("weights", size),
         "snr": ca.SX.sym("snr_db", size),
     }
+    if objective == "truncated_ml":
+        symbols["sigma"] = ca.SX.sym("sigma_db", size)
+        symbols["threshold"] = ca.SX.sym("threshold_db")
+    return symbols
 
 
-def parameter_vector(padded: PaddedEpoch, attitude_ref: Array) -> Array:
-    """The NLP's parameter vector, in the order of :func:`_parameter_symbols` (column-major)."""
-    return np.concatenate(
-        [
-            attitude_ref.ravel(order="F"),
-            padded.los.ravel(order="F"),
-            padded.boresight.ravel(order="F"),
-            padded.p0,
-            [padded.noise],
-            padded.weights,
-            padded.snr,
-        ]
-    )
+def parameter_vector(
+    padded: PaddedEpoch, attitude_ref: Array, threshold_db: float | None = None
+) -> Array:
+    """The NLP's parameter vector, in the order of :func:`_parameter_symbols` (column-major).
+
+    With ``threshold_db`` (the truncated objective) the padded standard
+    deviations (``1 / sqrt(w_k)``, 1 on padding rows) and the threshold follow.
+    """
+    parts = [
+        attitude_ref.ravel(order="F"),
+        padded.los.ravel(order="F"),
+        padded.boresight.ravel(order="F"),
+        padded.p0,
+        [padded.noise],
+        padded.weights,
+        padded.snr,
+    ]
+    if threshold_db is not None:
+        observed = padded.weights > 0
+        sigma = np.ones(padded.size)
+        sigma[observed] = padded.weights[observed] ** -0.5
+        parts += [sigma, [threshold_db]]
+    return np.concatenate(parts)
 
 
 @lru_cache(maxsize=32)
-def nlp_solver(pattern: GainPattern, size: int, options: IpoptOptions) -> ca.Function:
-    """IPOPT ``nlpsol`` of the SNR loss for ``size`` observation rows (built once per process)."""
+def nlp_solver(
+    pattern: GainPattern,
+    size: int,
+    options: IpoptOptions,
+    objective: Objective = "least_squares",
+) -> ca.Function:
+    """IPOPT ``nlpsol`` of the ``objective``'s loss for ``size`` rows (built once per process)."""
+    if objective not in OBJECTIVES:
+        raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
     v = ca.SX.sym("v", 3)
-    p = _parameter_symbols(size)
+    p = _parameter_symbols(size, objective)
     predicted = snr_function(pattern, size)(
         v, p["attitude_ref"], p["los"], p["boresight"], p["p0"], p["noise"]
     )
-    loss = snr_loss(p["snr"], predicted, p["weights"])
+    loss = objective_loss(
+        objective, p["snr"], predicted, p["weights"], p.get("sigma"), p.get("threshold")
+    )
     parameters = ca.vertcat(*(ca.vec(symbol) for symbol in p.values()))
     problem = {"x": v, "p": parameters, "f": loss}
-    return ca.nlpsol(f"snr_nlp_{size}", "ipopt", problem, options.nlpsol_options())
+    name = f"snr_nlp_{size}" if objective == "least_squares" else f"snr_nlp_{objective}_{size}"
+    return ca.nlpsol(name, "ipopt", problem, options.nlpsol_options())
 
 
-def solve_local(problem: SnrEpoch, start: Rotation, options: IpoptOptions) -> LocalResult:
-    """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""
+def solve_local(
+    problem: SnrEpoch,
+    start: Rotation,
+    options: IpoptOptions,
+    objective: Objective = "least_squares",
+) -> LocalResult:
+    """One IPOPT solve of ``objective`` with ``A_ref = start`` and ``v_0 = 0``."""
     a_ref = start.as_matrix()
     padded = pad_epoch(problem, a_ref)
-    solver = nlp_solver(problem.pattern, padded.size, options)
-    solution = solver(x0=np.zeros(3), p=parameter_vector(padded, a_ref))
+    solver = nlp_solver(problem.pattern, padded.size, options, objective)
+    threshold = problem.threshold_db if objective == "truncated_ml" else None
+    solution = solver(x0=np.zeros(3), p=parameter_vector(padded, a_ref, threshold))
     stats = solver.stats()
     status = str(stats["return_status"])
     v = solution["x"].full().ravel()
@@ -183,13 +233,41 @@ def solve_local(problem: SnrEpoch, start: Rotation, options: IpoptOptions) -> Lo
 
 @dataclass(frozen=True)
 class NlpSolver(OneStepSolver):
-    """Registry entry ``"nlp"``: the IPOPT NLP, initialised by :mod:`solvers.snr.initialisation`."""
+    """Registry entries ``"nlp"`` and ``"nlp_truncated"``: the IPOPT NLP of :attr:`objective`.
+
+    Initialised by :mod:`solvers.snr.initialisation`; the loss and covariance
+    of the estimate are those of :attr:`objective` (:func:`solvers.snr.fit.fit_at`).
+    """
 
     options: IpoptOptions = field(default_factory=IpoptOptions)
+    objective: Objective = "least_squares"
     name: str = "nlp"
     description: str = "CasADi NLP on the MRP increment, IPOPT (seed 000 eqs. 19-20, 22)"
     diagnostic_names: tuple[str, ...] = ONE_STEP_DIAGNOSTICS
     status_label: str = "IPOPT"
 
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
+
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
-        return solve_local(problem, start, self.options)
+        return solve_local(problem, start, self.options, self.objective)
+
+    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        estimate = super().estimate(problem, prior)
+        if self.objective == "least_squares" or estimate.attitude is None:
+            return estimate
+        # The shared one-step estimate scores with eq. 19 and eq. 22; score the truncated model.
+        fit = fit_at(problem, estimate.attitude, self.objective)
+        return replace(estimate, covariance=fit.covariance, loss=fit.loss)
+
+
+TRUNCATED_NLP = NlpSolver(
+    objective="truncated_ml",
+    name="nlp_truncated",
+    description=(
+        "CasADi NLP on the MRP increment, IPOPT, maximum likelihood of the threshold-"
+        "truncated SNRs (seed 000 eqs. 19, 22 with the sec. 5.1 reception threshold)"
+    ),
+)
+"""Registry entry ``"nlp_truncated"``: the NLP of the truncated likelihood (module docstring)."""
