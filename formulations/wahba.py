@@ -14,9 +14,16 @@ Array = NDArray[np.float64]
 
 
 def wahba_loss(attitude_matrix: Array, body: Array, reference: Array, weights: Array) -> Array:
-    """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14)."""
-    residual = body - reference @ np.swapaxes(attitude_matrix, 1, 2)
-    return 0.5 * np.sum(weights * np.sum(residual**2, axis=-1), axis=-1)
+    """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14).
+
+    Evaluated as ``lambda_0 - tr(A B^T)`` (eq. 16, exact for unit vectors), which
+    costs one profile matrix instead of ``n`` rotated residuals; its rounding
+    is about ``eps lambda_0``, so values below zero by rounding are returned
+    as 0 (``tests/test_wahba_solvers.py`` checks eq. 14).
+    """
+    b_matrix = attitude_profile_matrix(body, reference, weights)
+    loss = weights.sum(axis=1) - np.sum(attitude_matrix * b_matrix, axis=(1, 2))
+    return np.maximum(loss, 0.0)
 
 
 def attitude_profile_matrix(body: Array, reference: Array, weights: Array) -> Array:

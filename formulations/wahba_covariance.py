@@ -45,7 +45,7 @@ def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
     (``tests/test_wahba_covariance.py`` checks the identity).
     """
     bat = b_matrix @ np.swapaxes(attitude_matrix, 1, 2)
-    return _inverse_symmetric(trace3(bat)[:, None, None] * np.eye(3) - bat)
+    return _inverse_symmetric(trace3(bat)[:, None, None] * _EYE - bat)
 
 
 def quest_covariance(body: Array, weights: Array) -> Array:
@@ -64,6 +64,9 @@ def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     zeta = kappa * lambda_max - det3(b_matrix)
     bbt = b_matrix @ np.swapaxes(b_matrix, 1, 2)
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
+
+
+_EYE = np.eye(3)
 
 
 def _inverse_symmetric(m: Array) -> Array:

@@ -154,3 +154,17 @@ def test_quest_precision_degrades_with_weight_dynamic_range():
         errors.append(angle(quest.attitude, truth))
     assert errors[0] < 1e-12
     assert errors[1] > 1e-10
+
+
+def test_reported_loss_is_wahbas_eq14():
+    """The loss (evaluated by eq. 16) equals eq. 14 summed term by term."""
+    rng = np.random.default_rng(4)
+    truth = Rotation.random(random_state=5)
+    reference = rng.normal(size=(7, 3))
+    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
+    sig = np.full(7, 0.01)
+    body = noisy_body(truth, reference, sig, rng)
+    solution = WAHBA_SOLVERS["svd"].solve(body, reference, sig**-2)
+    residual = body - solution.attitude.apply(reference)
+    eq14 = 0.5 * np.sum(sig**-2 * np.sum(residual**2, axis=1))
+    assert solution.loss == pytest.approx(eq14, rel=1e-9)
