@@ -21,9 +21,9 @@ import pandas as pd
 from scipy.stats import chi2, norm
 
 from experiments.experiment import ReportContext
+from experiments.metrics import AXES
 from experiments.sweep.aggregate import valid_mask
 
-AXES = ("x", "y", "z")
 AXIS_NAMES = {"x": "roll (x)", "y": "pitch (y)", "z": "yaw (z)"}
 TABLE2_ORDER = (("yaw", "z"), ("pitch", "y"), ("roll", "x"))
 """Seed 000 Table 2's column order: psi, theta, phi = yaw, pitch, roll."""

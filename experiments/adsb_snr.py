@@ -106,9 +106,9 @@ from experiments.adsb_report import (
     signed_max,
 )
 from experiments.experiment import Experiment, Setting
+from experiments.metrics import error_columns
 from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_chunks
 from experiments.sweep.aggregate import valid_mask
-from formulations.conventions import attitude_error, euler321_from_attitude
 from formulations.gain_patterns import SEED000_HELIX
 from formulations.link_budget import LinkBudget
 from formulations.snr_model import cramer_rao_bound, predict_snr
@@ -342,33 +342,6 @@ def wrong_minima(
     return wrong, loss_from_truth
 
 
-def _error_columns(solution: BatchSolution, truth: Rotation) -> dict[str, np.ndarray]:
-    """Body-axis and Euler-angle errors, own sigma and NEES of the valid epochs (deg)."""
-    n = len(solution)
-    valid = solution.valid
-    error = np.full((n, 3), np.nan)
-    euler = np.full((n, 3), np.nan)
-    nees = np.full(n, np.nan)
-    if valid.any():
-        estimate = solution.attitude()
-        error[valid] = attitude_error(estimate, truth[valid])
-        diff = np.degrees(euler321_from_attitude(estimate) - euler321_from_attitude(truth[valid]))
-        euler[valid] = (diff + 180.0) % 360.0 - 180.0
-        covariance = solution.covariance[valid]
-        finite = np.isfinite(covariance).all(axis=(1, 2))
-        e = error[valid][finite]
-        nees_valid = np.full(int(valid.sum()), np.nan)
-        nees_valid[finite] = np.einsum("ei,eij,ej->e", e, np.linalg.inv(covariance[finite]), e)
-        nees[valid] = nees_valid
-    sigma = np.degrees(np.sqrt(np.diagonal(solution.covariance, axis1=1, axis2=2)))
-    columns = {f"err_{a}_deg": np.degrees(error[:, i]) for i, a in enumerate(AXES)}
-    columns |= {f"sigma_{a}_deg": sigma[:, i] for i, a in enumerate(AXES)}
-    columns["nees"] = nees
-    for i, name in enumerate(("yaw", "pitch", "roll")):
-        columns[f"euler_{name}_err_deg"] = euler[:, i]
-    return columns
-
-
 def _method_rows(
     name: str,
     noisy: NoisyPass,
@@ -383,7 +356,7 @@ def _method_rows(
         {
             "method": name,
             **common,
-            **_error_columns(solution, truth),
+            **error_columns(solution, truth),
             "loss": solution.loss,
             "wrong_minimum": wrong,
             "loss_from_truth": loss_from_truth,

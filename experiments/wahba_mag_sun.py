@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.experiment import Experiment, Setting
+from experiments.metrics import error_columns
 from experiments.scenarios.wahba_mag_sun import (
     MAG_SIGMA,
     SUN_SIGMA,
@@ -26,7 +27,6 @@ from experiments.scenarios.wahba_mag_sun import (
     simulate_measurements,
 )
 from experiments.wahba_report import report
-from formulations.conventions import attitude_error, euler321_from_attitude
 from formulations.wahba_covariance import quest_covariance
 from solvers.wahba import WAHBA_SOLVERS
 
@@ -79,7 +79,6 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     )
     with np.errstate(divide="ignore", invalid="ignore"):
         crb = _safe_inverse_diag(true_body, np.where(present, weights, 0.0))
-    true_euler = np.degrees(euler321_from_attitude(geometry.truth))
     common = {
         "t": geometry.t,
         "interval": interval_labels(geometry),
@@ -88,7 +87,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         "bound_z_deg": np.degrees(np.sqrt(crb[:, 2])),
     }
     frames = [
-        _method_rows(name, body, reference, weights, present, geometry, true_euler, common)
+        _method_rows(name, body, reference, weights, present, geometry, common)
         for name in setting["methods"]
     ]
     return pd.concat(frames, ignore_index=True)
@@ -111,39 +110,15 @@ def _method_rows(
     weights: np.ndarray,
     present: np.ndarray,
     geometry: VectorGeometry,
-    true_euler: np.ndarray,
     common: Mapping[str, np.ndarray],
 ) -> pd.DataFrame:
     solution = WAHBA_SOLVERS[name].solve_batch(body, reference, weights, present)
-    n = geometry.t.size
-    valid = solution.valid
-    error = np.full((n, 3), np.nan)
-    euler_error = np.full((n, 3), np.nan)
-    nees = np.full(n, np.nan)
-    if valid.any():
-        estimate = solution.attitude()
-        error[valid] = attitude_error(estimate, geometry.truth[valid])
-        diff = np.degrees(euler321_from_attitude(estimate)) - true_euler[valid]
-        euler_error[valid] = (diff + 180.0) % 360.0 - 180.0
-        inv_cov = np.linalg.inv(solution.covariance[valid])
-        nees[valid] = np.einsum("ei,eij,ej->e", error[valid], inv_cov, error[valid])
-    sigma = np.sqrt(np.diagonal(solution.covariance, axis1=1, axis2=2))
-    error_deg = np.degrees(error)
     return pd.DataFrame(
         {
             "method": name,
             **common,
-            "err_x_deg": error_deg[:, 0],
-            "err_y_deg": error_deg[:, 1],
-            "err_z_deg": error_deg[:, 2],
-            "sigma_x_deg": np.degrees(sigma[:, 0]),
-            "sigma_y_deg": np.degrees(sigma[:, 1]),
-            "sigma_z_deg": np.degrees(sigma[:, 2]),
-            "nees": nees,
-            "euler_roll_err_deg": euler_error[:, 2],
-            "euler_pitch_err_deg": euler_error[:, 1],
-            "euler_yaw_err_deg": euler_error[:, 0],
-            "valid": valid,
+            **error_columns(solution, geometry.truth),
+            "valid": solution.valid,
             "reason": solution.reason.astype(str),
         }
     )
