@@ -24,11 +24,13 @@ reference vectors alike.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from formulations.errors import AttoptError, InvalidObservationError, UnobservableError
+from formulations.wahba import attitude_profile_matrix
 
 MIN_NORM = 1e-12
 PARALLEL_TOLERANCE = 1e-3
@@ -61,6 +63,11 @@ class ObservationBatch:
     @property
     def n_epochs(self) -> int:
         return self.body.shape[0]
+
+    @cached_property
+    def profile_matrix(self) -> NDArray[np.float64]:
+        """Attitude profile matrix ``B`` (seed 002 eq. 15), computed once per batch."""
+        return attitude_profile_matrix(self.body, self.reference, self.weights)
 
     def raise_if_invalid(self, epoch: int = 0) -> None:
         """Raise the specific exception recorded for ``epoch``, if any."""

@@ -13,15 +13,14 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 
-def wahba_loss(attitude_matrix: Array, body: Array, reference: Array, weights: Array) -> Array:
+def wahba_loss(attitude_matrix: Array, b_matrix: Array, weights: Array) -> Array:
     """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14).
 
-    Evaluated as ``lambda_0 - tr(A B^T)`` (eq. 16, exact for unit vectors), which
-    costs one profile matrix instead of ``n`` rotated residuals; its rounding
-    is about ``eps lambda_0``, so values below zero by rounding are returned
-    as 0 (``tests/test_wahba_solvers.py`` checks eq. 14).
+    Evaluated for unit vectors as ``lambda_0 - tr(A B^T)`` (eq. 16) from the
+    profile matrix ``B`` of eq. 15, which costs no rotated residuals; its
+    rounding is about ``eps lambda_0``, so values below zero by rounding are
+    returned as 0 (``tests/test_wahba_solvers.py`` checks it against eq. 14).
     """
-    b_matrix = attitude_profile_matrix(body, reference, weights)
     loss = weights.sum(axis=1) - np.sum(attitude_matrix * b_matrix, axis=(1, 2))
     return np.maximum(loss, 0.0)
 

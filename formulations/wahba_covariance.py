@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from formulations.wahba import det3, trace3
+from formulations.wahba import det3
 
 Array = NDArray[np.float64]
 
@@ -44,17 +44,21 @@ def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
     ``[tr(B A^T) I - B A^T]^-1``, which is evaluated here without a second SVD
     (``tests/test_wahba_covariance.py`` checks the identity).
     """
-    bat = b_matrix @ np.swapaxes(attitude_matrix, 1, 2)
-    return _inverse_symmetric(trace3(bat)[:, None, None] * _EYE - bat)
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = _entries(
+        b_matrix @ np.swapaxes(attitude_matrix, 1, 2)
+    )
+    return _inverse_symmetric(
+        m11 + m22, -0.5 * (m01 + m10), -0.5 * (m02 + m20), m00 + m22, -0.5 * (m12 + m21), m00 + m11
+    )
 
 
 def quest_covariance(body: Array, weights: Array) -> Array:
     """``P = [sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32)."""
-    info = (
-        weights.sum(axis=1)[:, None, None] * np.eye(3)
-        - np.swapaxes(weights[..., None] * body, 1, 2) @ body
+    m00, m01, m02, _, m11, m12, _, _, m22 = _entries(
+        np.swapaxes(weights[..., None] * body, 1, 2) @ body
     )
-    return _inverse_symmetric(info)
+    total = weights.sum(axis=1)
+    return _inverse_symmetric(total - m00, -m01, -m02, total - m11, -m12, total - m22)
 
 
 def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
@@ -66,16 +70,21 @@ def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
 
 
-_EYE = np.eye(3)
+def _entries(m: Array) -> Array:
+    """The nine entries of each ``(3, 3)`` matrix as contiguous rows ``(9, N)``."""
+    return np.ascontiguousarray(m.reshape(-1, 9).T)
 
 
-def _inverse_symmetric(m: Array) -> Array:
-    """Inverse of each symmetric ``(3, 3)`` matrix (its symmetric part) by cofactors."""
-    flat = np.ascontiguousarray(m.reshape(-1, 9).T)
-    a, d, f = flat[0], flat[4], flat[8]
-    b, c, e = 0.5 * (flat[1] + flat[3]), 0.5 * (flat[2] + flat[6]), 0.5 * (flat[5] + flat[7])
+def _inverse_symmetric(a: Array, b: Array, c: Array, d: Array, e: Array, f: Array) -> Array:
+    """Inverse of the symmetric matrices ``[[a, b, c], [b, d, e], [c, e, f]]`` by cofactors."""
     c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
     c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
     inv_det = 1.0 / (a * c00 + b * c01 + c * c02)
-    out = np.stack([c00, c01, c02, c01, c11, c12, c02, c12, c22], axis=-1) * inv_det[:, None]
-    return out.reshape(-1, 3, 3)
+    out = np.empty((9, a.shape[0]))
+    out[0] = c00 * inv_det
+    out[1] = out[3] = c01 * inv_det
+    out[2] = out[6] = c02 * inv_det
+    out[4] = c11 * inv_det
+    out[5] = out[7] = c12 * inv_det
+    out[8] = c22 * inv_det
+    return out.T.reshape(-1, 3, 3)

@@ -66,7 +66,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
         reason[newly] = est.failure if isinstance(est.failure, str) else est.failure[newly]
         error[newly] = ConvergenceError
     quaternion = est.attitude.as_quat(canonical=True)
-    loss = wahba_loss(est.attitude.as_matrix(), obs.body, obs.reference, obs.weights)
+    loss = wahba_loss(est.attitude.as_matrix(), obs.profile_matrix, obs.weights)
     covariance = np.array(est.covariance, dtype=float)
     quaternion[~valid] = np.nan
     covariance[~valid] = np.nan

@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from formulations.vector_observations import ObservationBatch
-from formulations.wahba import adjugate, attitude_profile_matrix, det3, foam_characteristic
+from formulations.wahba import adjugate, det3, foam_characteristic
 from formulations.wahba_covariance import foam_covariance
 from solvers.newton import largest_root_newton
 from solvers.wahba.driver import Estimate
@@ -14,7 +14,7 @@ from solvers.wahba.driver import Estimate
 
 def estimate(obs: ObservationBatch) -> Estimate:
     """``A = [(kappa + |B|^2) B + lambda adj(B^T) - B B^T B] / (kappa lambda - det B)`` (eq. 35)."""
-    b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    b = obs.profile_matrix
     lambda_0 = obs.weights.sum(axis=1)
     lam, iterations, converged = largest_root_newton(foam_characteristic(b), lambda_0)
     fro2 = np.einsum("eij,eij->e", b, b)

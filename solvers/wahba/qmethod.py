@@ -6,14 +6,14 @@ import numpy as np
 
 from formulations.conventions import attitude_from_shuster_quaternion
 from formulations.vector_observations import ObservationBatch
-from formulations.wahba import attitude_profile_matrix, davenport_matrix
+from formulations.wahba import davenport_matrix
 from formulations.wahba_covariance import svd_covariance
 from solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:
     """Symmetric eigensolver on ``K`` (eq. 26); covariance from eq. 19 as in seed 002 sec. 2.4."""
-    b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    b = obs.profile_matrix
     eigenvalues, eigenvectors = np.linalg.eigh(davenport_matrix(b))
     attitude = attitude_from_shuster_quaternion(eigenvectors[:, :, -1])
     diagnostics = {

@@ -21,7 +21,6 @@ from scipy.spatial.transform import Rotation
 
 from formulations.vector_observations import ObservationBatch
 from formulations.wahba import (
-    attitude_profile_matrix,
     davenport_characteristic,
     davenport_matrix,
     det3,
@@ -80,7 +79,7 @@ def _conjugate(q: np.ndarray) -> np.ndarray:
 
 def estimate(obs: ObservationBatch) -> Estimate:
     """QUEST for every epoch."""
-    b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    b = obs.profile_matrix
     k = davenport_matrix(b)
     lambda_0 = obs.weights.sum(axis=1)
     lambda_max, iterations, converged = largest_root_newton(davenport_characteristic(b), lambda_0)

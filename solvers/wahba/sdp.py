@@ -21,7 +21,7 @@ import numpy as np
 
 from formulations.conventions import attitude_from_shuster_quaternion
 from formulations.vector_observations import ObservationBatch
-from formulations.wahba import attitude_profile_matrix, davenport_matrix
+from formulations.wahba import davenport_matrix
 from formulations.wahba_covariance import quest_covariance
 from formulations.wahba_sdp import WahbaSDP
 from solvers.wahba.driver import Estimate
@@ -41,7 +41,7 @@ def estimate(obs: ObservationBatch) -> Estimate:
     """One SDP solve per valid epoch."""
     n = obs.n_epochs
     lambda_0 = obs.weights.sum(axis=1)
-    k = davenport_matrix(attitude_profile_matrix(obs.body, obs.reference, obs.weights))
+    k = davenport_matrix(obs.profile_matrix)
     q = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
     gap = np.full(n, np.nan)
     ratio = np.full(n, np.nan)

@@ -5,14 +5,14 @@ from __future__ import annotations
 from scipy.spatial.transform import Rotation
 
 from formulations.vector_observations import ObservationBatch
-from formulations.wahba import attitude_profile_matrix, proper_svd
+from formulations.wahba import proper_svd
 from formulations.wahba_covariance import svd_covariance
 from solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:
     """``A = U diag[1, 1, det U det V] V^T`` for ``B = U Sigma V^T`` (eqs. 17-18)."""
-    b = attitude_profile_matrix(obs.body, obs.reference, obs.weights)
+    b = obs.profile_matrix
     u, s, vt, d = proper_svd(b)
     u[:, :, 2] *= d[:, None]  # U diag[1, 1, d] (eq. 18)
     a = u @ vt
