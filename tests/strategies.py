@@ -50,3 +50,15 @@ def noisy_body(
     """Direction-cosine noise: ``b = normalise(A r + sigma * eps)``, eps ~ N(0, I3)."""
     b = truth.apply(reference) + sigmas[:, None] * rng.normal(size=reference.shape)
     return b / np.linalg.norm(b, axis=-1, keepdims=True)
+
+
+def noisy_problem(
+    n: int, sigma: float, seed: int, truth_seed: int
+) -> tuple[Rotation, np.ndarray, np.ndarray, np.ndarray]:
+    """(truth, body, reference, sigmas): ``n`` random unit directions with noise ``sigma``."""
+    rng = np.random.default_rng(seed)
+    truth = Rotation.random(random_state=truth_seed)
+    reference = rng.normal(size=(n, 3))
+    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
+    sigmas = np.full(n, sigma)
+    return truth, noisy_body(truth, reference, sigmas, rng), reference, sigmas

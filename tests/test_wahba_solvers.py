@@ -12,7 +12,7 @@ from formulations.conventions import attitude_error
 from formulations.wahba import attitude_profile_matrix, davenport_matrix
 from formulations.wahba_sdp import WahbaSDP
 from solvers.wahba import WAHBA_SOLVERS
-from tests.strategies import noisy_body, wahba_problems
+from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
 SOLVERS = list(WAHBA_SOLVERS.values())
 OPTIMAL = [s for s in SOLVERS if s.optimal]
@@ -91,12 +91,7 @@ def test_triad_equals_optimal_for_two_noise_free_vectors(problem):
 
 def test_triad_is_suboptimal_with_noise():
     """TRIAD ignores part of the data, so with noise its loss exceeds the optimum."""
-    rng = np.random.default_rng(0)
-    truth = Rotation.random(random_state=1)
-    reference = rng.normal(size=(6, 3))
-    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
-    sig = np.full(6, 0.01)
-    body = noisy_body(truth, reference, sig, rng)
+    _, body, reference, sig = noisy_problem(6, 0.01, seed=0, truth_seed=1)
     triad = WAHBA_SOLVERS["triad"].solve(body, reference, sig**-2)
     q = WAHBA_SOLVERS["q_method"].solve(body, reference, sig**-2)
     assert triad.loss > q.loss * (1 + 1e-6)
@@ -158,12 +153,7 @@ def test_quest_precision_degrades_with_weight_dynamic_range():
 
 def test_reported_loss_is_wahbas_eq14():
     """The loss (evaluated by eq. 16) equals eq. 14 summed term by term."""
-    rng = np.random.default_rng(4)
-    truth = Rotation.random(random_state=5)
-    reference = rng.normal(size=(7, 3))
-    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
-    sig = np.full(7, 0.01)
-    body = noisy_body(truth, reference, sig, rng)
+    _, body, reference, sig = noisy_problem(7, 0.01, seed=4, truth_seed=5)
     solution = WAHBA_SOLVERS["svd"].solve(body, reference, sig**-2)
     residual = body - solution.attitude.apply(reference)
     eq14 = 0.5 * np.sum(sig**-2 * np.sum(residual**2, axis=1))
