@@ -10,6 +10,7 @@ with the experiment's ``summary_columns`` hook.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import matplotlib
 
@@ -20,6 +21,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import chi2, norm
 
+from experiments.adsb_filter_report import filter_report
 from experiments.experiment import ReportContext
 from experiments.metrics import AXES
 from experiments.sweep.aggregate import valid_mask
@@ -218,7 +220,7 @@ def table2(ctx: ReportContext) -> list[str]:
             lines.append(_paper_line(SEED000_ROW[method]))
         lines += _our_lines(method, ctx.rows[ctx.rows["method"] == method], summary.loc[method])
     lines.append(_paper_line("MEKF"))
-    lines.append("| MEKF (ours) | | filter issue, not yet | | | | | | | |")
+    lines.append("| MEKF (ours) | | see the filter section below (mekf_paper) | | | | | | | |")
     lines.append(_bound_line(epochs, "bound", "CRLB, RMS of sqrt(CRB) (ours)"))
     lines.append(
         _bound_line(epochs_truncated, "bound_truncated", "CRLB of the truncated model (ours)")
@@ -820,8 +822,20 @@ def figures(ctx: ReportContext) -> list[str]:
 # ----------------------------------------------------------------- report ---
 
 
+def single_frame_context(ctx: ReportContext) -> ReportContext:
+    """``ctx`` restricted to the single-frame methods' rows and summary (``gyro`` "none")."""
+    if "gyro" not in ctx.rows:
+        return ctx
+    rows = ctx.rows[ctx.rows["gyro"] == "none"]
+    summary = ctx.summary[ctx.summary["gyro"] == "none"]
+    return replace(ctx, rows=rows, summary=summary)
+
+
 def report(ctx: ReportContext) -> str:
-    """Markdown: Table 2 beside ours, targets, accuracy by count, consistency, discussion."""
+    """Markdown: Table 2 beside ours, targets, accuracy by count, consistency, discussion,
+    then the gyro-aided filters (:mod:`experiments.adsb_filter_report`)."""
+    full = ctx
+    ctx = single_frame_context(ctx)
     n_trials = ctx.rows["trial_index"].nunique()
     epochs = _epochs(ctx.rows)
     bins = observation_bins(ctx)
@@ -881,4 +895,5 @@ def report(ctx: ReportContext) -> str:
         "",
     ]
     lines += [f"![{name}]({name})" for name in figures(ctx)]
+    lines += ["", *filter_report(full)]
     return "\n".join(lines) + "\n"

@@ -97,6 +97,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from experiments.adsb_filters import FILTER_METHODS, PAPER_SOURCE, check_parameters, filter_rows
 from experiments.adsb_report import (
     AXES,
     MANY_OBSERVATIONS,
@@ -106,6 +107,7 @@ from experiments.adsb_report import (
     signed_max,
 )
 from experiments.experiment import Experiment, Setting
+from experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG
 from experiments.metrics import error_columns
 from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_chunks
 from experiments.sweep.aggregate import valid_mask
@@ -123,6 +125,8 @@ from solvers.snr.padding import bucket_size
 PATTERN = SEED000_HELIX
 """The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi``."""
 LINK_BUDGET = LinkBudget()
+NO_GYRO = "none"
+"""``gyro`` column of the single-frame rows."""
 WRONG_MINIMUM_RTOL = 1e-6
 """Relative loss excess over the truth-started solve that counts as a wrong minimum."""
 WRONG_MINIMUM_ATOL = 1e-9
@@ -137,6 +141,11 @@ PARAMETERS: dict[str, Any] = {
     "threshold_db": 6.0,
     "wrong_minimum_every": 20,
     "methods": ["deterministic", "nlse", "nlp", "nlp_truncated"],
+    "filters": list(FILTER_METHODS),
+    "gyros": ["seed000", "mems"],
+    "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
+    "paper_sigma_deg": 1.0,
+    "filter_snr_model": "truncated",
 }
 
 
@@ -147,6 +156,7 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
         raise ValueError(f"unknown methods {unknown}; registered: {sorted(SNR_SOLVERS)}")
     if parameters["wrong_minimum_every"] < 1:
         raise ValueError("wrong_minimum_every must be at least 1")
+    check_parameters(parameters)
     return [dict(parameters)]
 
 
@@ -348,13 +358,14 @@ def _method_rows(
     truth: Rotation,
     common: Mapping[str, np.ndarray],
     every: int,
-) -> pd.DataFrame:
+) -> tuple[pd.DataFrame, BatchSolution]:
     solver = SNR_SOLVERS[name]
     solution, seconds = timed_pass(solver, noisy.epochs)
     wrong, loss_from_truth = wrong_minima(solver, noisy.epochs, solution, truth, every)
-    return pd.DataFrame(
+    frame = pd.DataFrame(
         {
             "method": name,
+            "gyro": NO_GYRO,
             **common,
             **error_columns(solution, truth),
             "loss": solution.loss,
@@ -365,20 +376,28 @@ def _method_rows(
             "runtime_s": seconds,
         }
     )
+    return frame, solution
 
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
-    """One noisy pass solved by every method in ``setting["methods"]``."""
+    """One noisy pass solved by every method in ``setting["methods"]`` and every
+    filter in ``setting["filters"]`` (:mod:`experiments.adsb_filters`)."""
     scenario = noise_free_pass(
         setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
     )
     sigma = setting["snr_sigma_db"]
     noisy = simulate_pass(scenario, np.random.default_rng(seed), sigma, setting["threshold_db"])
     common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
-    frames = [
-        _method_rows(name, noisy, scenario.truth, common, setting["wrong_minimum_every"])
-        for name in setting["methods"]
-    ]
+    frames, solutions = [], {}
+    for name in setting["methods"]:
+        frame, solutions[name] = _method_rows(
+            name, noisy, scenario.truth, common, setting["wrong_minimum_every"]
+        )
+        frames.append(frame)
+    nlse = solutions.get(PAPER_SOURCE)
+    if nlse is None and "mekf_paper" in setting["filters"]:
+        nlse = SNR_SOLVERS[PAPER_SOURCE].solve_sequence(noisy.epochs, warm_start=True)
+    frames += filter_rows(setting, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 
 
@@ -408,8 +427,8 @@ def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
 EXPERIMENT = Experiment(
     name="adsb-snr",
     summary=(
-        "Seed 000: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) over an "
-        "hour, vs the CRB"
+        "Seed 000: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) and "
+        "gyro-aided filters (MEKF, USQUE, RTS) over an hour, vs the CRB"
     ),
     parameters=PARAMETERS,
     grid=grid,
@@ -417,6 +436,7 @@ EXPERIMENT = Experiment(
     default_trials=4,
     quick_trials=1,
     quick_parameters={"duration_s": 600.0},
+    group_by=("method", "gyro"),
     report=report,
     summary_columns=summary_columns,
 )

@@ -7,17 +7,49 @@ bound of that epoch (``sqrt`` of the diagonal of ``[sum a_i (I - b_i b_i^T)]^-1`
 at the true body vectors) and the method's own covariance (as ``sigma_*`` and
 the normalised estimation error squared ``nees``), and the 3-2-1 Euler-angle
 differences the seed's Table 1 reports.
+
+Gyro-aided filters (``filters``: the MEKF, USQUE and the RTS smoother over
+the MEKF, :mod:`experiments.filtering`) see the same vector measurements
+(each epoch one :class:`~formulations.attitude_measurement.VectorMeasurement`
+of the Sun and field directions, orbit-frame references; the Sun row is
+dropped in eclipse) plus a simulated gyro (``gyro``, a
+:data:`formulations.gyro.GYRO_MODELS` name; seed 002 has none, so the default
+is the MEMS unit) and a prior with ``initial_sigma_deg`` attitude error per
+axis.  The gyro and the prior draw from a child stream of the trial's seed
+(:func:`experiments.filtering.child_rng`), so the single-frame rows do not
+depend on the filters.  Filter rows carry the single-frame columns plus
+:func:`experiments.filtering.filter_columns` (gyro-bias error and sigma,
+6-state NEES ``nees_full``, update counts), the bias estimates
+``bias_{x,y,z}_deg_h`` and ``runtime_s``, the wall time of the pass (for
+``rts``: the MEKF's plus the backward pass's); single-frame rows have NaN
+there.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import functools
+import math
+import time
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from experiments.experiment import Experiment, Setting
+from experiments.filtering import (
+    FILTERS,
+    GYRO_STREAM,
+    INITIAL_ATTITUDE_SIGMA_DEG,
+    FilterInputs,
+    GyroTruth,
+    child_rng,
+    filter_columns,
+    gyro_truth,
+    in_orbit_frame,
+    run_filter,
+    simulate_filter_inputs,
+)
 from experiments.metrics import error_columns
 from experiments.scenarios.wahba_mag_sun import (
     MAG_SIGMA,
@@ -25,9 +57,14 @@ from experiments.scenarios.wahba_mag_sun import (
     VectorGeometry,
     build_geometry,
     simulate_measurements,
+    true_attitude,
 )
 from experiments.wahba_report import report
+from formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
+from formulations.conventions import orbit_frame_attitude
+from formulations.gyro import GYRO_MODELS
 from formulations.wahba_covariance import quest_covariance
+from solvers.filters import FilterResult, rts_smooth
 from solvers.wahba import WAHBA_SOLVERS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
@@ -38,14 +75,41 @@ PARAMETERS: dict[str, Any] = {
     "mag_sigma": MAG_SIGMA,
     "sun_sigma": SUN_SIGMA,
     "methods": list(WAHBA_SOLVERS),
+    "filters": list(FILTERS),
+    "gyro": "mems",
+    "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
 }
+
+TO_DEG_H = math.degrees(1.0) * 3600.0
+"""rad/s -> deg/h."""
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting: the seed's sensor noise; methods are compared inside each trial."""
+    """One setting: the seed's sensor noise; methods are compared inside each trial.
+
+    Raises:
+        ValueError: for an unknown method, filter or gyro model, a name used
+            twice across ``methods`` and ``filters``, or a non-positive
+            ``initial_sigma_deg``.
+    """
     unknown = sorted(set(parameters["methods"]) - set(WAHBA_SOLVERS))
     if unknown:
         raise ValueError(f"unknown methods {unknown}; registered: {sorted(WAHBA_SOLVERS)}")
+    filters = list(parameters.get("filters", []))
+    unknown = sorted(set(filters) - set(FILTERS))
+    if unknown:
+        raise ValueError(f"unknown filters {unknown}; known: {list(FILTERS)}")
+    names = [*parameters["methods"], *filters]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise ValueError(f"method names must be unique across methods and filters: {repeated}")
+    if parameters.get("gyro", "mems") not in GYRO_MODELS:
+        raise ValueError(f"unknown gyro {parameters['gyro']!r}; known: {sorted(GYRO_MODELS)}")
+    sigma = parameters.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG)
+    if isinstance(sigma, bool) or not (
+        isinstance(sigma, int | float) and math.isfinite(sigma) and sigma > 0
+    ):
+        raise ValueError(f"initial_sigma_deg must be a positive number, got {sigma!r}")
     return [dict(parameters)]
 
 
@@ -90,7 +154,90 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         _method_rows(name, body, reference, weights, present, geometry, common)
         for name in setting["methods"]
     ]
+    if setting.get("filters"):
+        frames += _filter_rows(setting, seed, geometry, sun_body, mag_body, common)
     return pd.concat(frames, ignore_index=True)
+
+
+def filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth:
+    """Inertial truth of :func:`build_geometry`'s pass at the gyro rate (cached per
+    process like the geometry): ``A_bi`` at ``rate_hz`` and ``A_oi`` at the epochs."""
+    return _filter_truth(float(duration_s), float(step_s), float(rate_hz))
+
+
+@functools.lru_cache(maxsize=8)
+def _filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth:
+    geometry = build_geometry(duration_s, step_s)
+    frames = orbit_frame_attitude(geometry.position_eci_km, geometry.velocity_eci_kms)
+    return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
+
+
+def run_filters(
+    kinds: list[str],
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+) -> dict[str, tuple[FilterResult, float]]:
+    """Each filter's result and wall time (s); the RTS pass smooths the MEKF run once."""
+    out: dict[str, tuple[FilterResult, float]] = {}
+    if "mekf" in kinds or "rts" in kinds:
+        out["mekf"] = run_filter("mekf", inputs, truth, measurements, "mekf")
+    if "rts" in kinds:
+        filtered, seconds = out["mekf"]
+        start = time.perf_counter()
+        smoothed = rts_smooth(filtered, method="rts")
+        out["rts"] = (smoothed, seconds + time.perf_counter() - start)
+    if "usque" in kinds:
+        out["usque"] = run_filter("usque", inputs, truth, measurements, "usque")
+    return {kind: out[kind] for kind in kinds}
+
+
+def _filter_rows(
+    setting: Setting,
+    seed: np.random.SeedSequence,
+    geometry: VectorGeometry,
+    sun_body: np.ndarray,
+    mag_body: np.ndarray,
+    common: Mapping[str, np.ndarray],
+) -> list[pd.DataFrame]:
+    model = GYRO_MODELS[setting.get("gyro", "mems")]
+    truth = filter_truth(setting["duration_s"], setting["step_s"], model.rate_hz)
+    inputs = simulate_filter_inputs(
+        truth,
+        model,
+        child_rng(seed, GYRO_STREAM),
+        setting.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG),
+    )
+    sigma = [setting["sun_sigma"], setting["mag_sigma"]]
+    measurements = [
+        VectorMeasurement(
+            np.stack([sun_body[k], mag_body[k]]),
+            np.stack([geometry.sun_orbit[k], geometry.mag_orbit[k]]),
+            sigma,
+        )
+        for k in range(geometry.t.size)
+    ]
+    frames = []
+    for name, (result, seconds) in run_filters(
+        setting["filters"], inputs, truth, measurements
+    ).items():
+        solution = in_orbit_frame(result.solution, truth.epoch_frames)
+        bias = {f"bias_{a}_deg_h": TO_DEG_H * result.bias[:, i] for i, a in enumerate("xyz")}
+        frames.append(
+            pd.DataFrame(
+                {
+                    "method": name,
+                    **common,
+                    **error_columns(solution, geometry.truth),
+                    "valid": solution.valid,
+                    "reason": solution.reason.astype(str),
+                    **filter_columns(result, inputs, truth),
+                    **bias,
+                    "runtime_s": seconds,
+                }
+            )
+        )
+    return frames
 
 
 def _safe_inverse_diag(true_body: np.ndarray, weights: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ and the Jacobian with respect to that error, from which
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
 
@@ -37,6 +38,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from formulations.attitude_model import (
+    attitude_model_function,
+    evaluate_at_attitudes,
+    increment_matrix,
+)
 from formulations.errors import InvalidObservationError
 from formulations.gain_patterns import GainPattern
 from formulations.symbolic import NUMPY, namespace_of
@@ -195,34 +201,6 @@ def _raise_if_invalid(reasons: list[tuple[str, NDArray[np.bool_]]]) -> None:
             )
 
 
-def increment_matrix(v: Any) -> Any:
-    """``C(v)``: rotation matrix with modified Rodrigues parameters ``p = v / 4``.
-
-    ``C = I + (8 [p x]^2 + 4 (1 - |p|^2) [p x]) / (1 + |p|^2)^2``, which is
-    ``Rotation.from_mrp(v / 4).as_matrix()``: the rotation by
-    ``4 arctan(|v| / 4)`` about ``v``, i.e. ``v`` minus ``O(|v|^3)``.  Four times
-    the MRPs is the attitude error vector of seed 000 eq. 28.  Rational in
-    ``v`` (no ``sinc``), exactly orthogonal, smooth at ``v = 0``.  numpy: ``v``
-    is ``(..., 3)``, the result ``(..., 3, 3)``; CasADi: ``v`` is ``3 x 1``.
-    """
-    xp = namespace_of(v)
-    p = [c / 4.0 for c in xp.components(v)]
-    norm2 = p[0] ** 2 + p[1] ** 2 + p[2] ** 2
-    scale = 1.0 / (1.0 + norm2) ** 2
-    cross = [[0.0, -p[2], p[1]], [p[2], 0.0, -p[0]], [-p[1], p[0], 0.0]]
-    eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    rows = [
-        [
-            eye[i][j]
-            + 8.0 * scale * (p[i] * p[j] - norm2 * eye[i][j])
-            + 4.0 * scale * (1.0 - norm2) * cross[i][j]
-            for j in range(3)
-        ]
-        for i in range(3)
-    ]
-    return xp.matrix(rows)
-
-
 def _symbolic_snr(pattern: GainPattern, m: int) -> tuple[list[ca.SX], ca.SX]:
     if m < 1:
         raise InvalidObservationError(f"need at least one observation, got m = {m}")
@@ -239,6 +217,16 @@ def _symbolic_snr(pattern: GainPattern, m: int) -> tuple[list[ca.SX], ca.SX]:
 
 
 _INPUT_NAMES = ["v", "attitude_ref", "los_orbit", "boresight_body", "p0_dbw", "noise_dbw"]
+
+
+@lru_cache(maxsize=16)
+def _snr_model(pattern: GainPattern) -> Callable[..., Any]:
+    """:func:`snr_db` with ``pattern`` bound, for :func:`attitude_model_function`."""
+
+    def snr_model(attitude: Any, los: Any, boresight: Any, p0: Any, noise: Any) -> Any:
+        return snr_db(attitude, los, boresight, p0, noise, pattern)
+
+    return snr_model
 
 
 @lru_cache(maxsize=64)
@@ -262,16 +250,6 @@ def snr_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
     return ca.Function("snr_jacobian", inputs, [snr, jacobian], _INPUT_NAMES, ["snr_db", "jac_v"])
 
 
-def _side_by_side(x: Array) -> Array:
-    """``(K, r, c)`` -> ``(r, K c)``: the blocks side by side, as ``Function.map`` takes them."""
-    return x.transpose(1, 0, 2).reshape(x.shape[1], -1)
-
-
-@lru_cache(maxsize=64)
-def _mapped_snr_jacobian(pattern: GainPattern, m: int, epochs: int) -> ca.Function:
-    return snr_jacobian_function(pattern, m).map(epochs)
-
-
 def predict_snr(
     attitude: Rotation,
     los_orbit: ArrayLike,
@@ -279,18 +257,23 @@ def predict_snr(
     p0_dbw: ArrayLike,
     noise_dbw: ArrayLike,
     pattern: GainPattern,
-    mask: ArrayLike | None = None,
+    mask: ArrayLike | str | None = None,
+    model: Callable[..., Any] | None = None,
 ) -> tuple[Array, Array]:
     """Predicted SNR ``(..., m)`` and its Jacobian ``(..., m, 3)`` (dB/rad), numpy.
 
     The Jacobian is with respect to the body-frame rotation-vector error
     ``delta`` of ``exp(delta) A`` at ``delta = 0`` (``docs/conventions.md``),
-    evaluated by CasADi AD of :func:`snr_jacobian_function` at ``v = 0``
-    (``C(v)`` and ``exp(v)`` agree to first order).  ``attitude`` is one
+    evaluated by CasADi AD of the model at ``C(v) A``, ``v = 0``
+    (:func:`formulations.attitude_model.attitude_model_function`; ``C(v)``
+    and ``exp(v)`` agree to first order), one observation per mapped call.  ``attitude`` is one
     rotation or a stack of ``N``; arrays broadcast as in :func:`snr_db`.
     Observations where ``mask`` is False are not evaluated (NaN values and
     Jacobian rows); all others must be valid, else
-    :class:`InvalidObservationError`.
+    :class:`InvalidObservationError`; ``mask="valid"`` evaluates exactly the
+    valid ones (:func:`observation_mask`) and leaves the rest NaN.
+    ``model`` replaces :func:`snr_db` (same arguments, pattern bound) by a
+    function of it, e.g. the truncated mean of :mod:`formulations.snr_measurement`.
     """
     a, los, bore = _numpy_inputs(attitude.as_matrix(), los_orbit, boresight_body)
     offset = np.asarray(p0_dbw, dtype=float) - np.asarray(noise_dbw, dtype=float)
@@ -301,31 +284,35 @@ def predict_snr(
     reasons.append(
         ("isotropic or noise power is NaN/inf", ~np.isfinite(np.broadcast_to(offset, shape)))
     )
-    use = np.ones(shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), shape)
-    _raise_if_invalid([(reason, bad & use) for reason, bad in reasons])
+    if isinstance(mask, str) and mask == "valid":
+        use = ~np.logical_or.reduce([bad for _, bad in reasons])
+    else:
+        use = (
+            np.ones(shape, bool) if mask is None else np.broadcast_to(np.asarray(mask, bool), shape)
+        )
+        _raise_if_invalid([(reason, bad & use) for reason, bad in reasons])
 
-    *batch, m = shape
-    epochs = int(np.prod(batch))
-    if epochs == 0 or m == 0:
+    rows = int(np.prod(shape))
+    if rows == 0:
         return np.empty(shape), np.empty((*shape, 3))
-    a = np.broadcast_to(a, (*batch, 3, 3)).reshape(epochs, 3, 3)
-    # Unused observations are replaced by one on the boresight, so nothing is NaN.
-    use_k = use.reshape(epochs, m, 1)
+    # One observation per row; unused ones are replaced by one on the boresight.
+    use_k = use.reshape(rows, 1)
+    a = np.broadcast_to(a[..., None, :, :], (*shape, 3, 3)).reshape(rows, 3, 3)
     filler = np.array([0.0, 0.0, 1.0])
-    bore = np.where(use_k, np.broadcast_to(bore, (*shape, 3)).reshape(epochs, m, 3), filler)
-    los_filler = (filler @ a)[:, None, :]  # A^T b: along the boresight
-    los = np.where(use_k, np.broadcast_to(los, (*shape, 3)).reshape(epochs, m, 3), los_filler)
-    offset = np.where(use, np.broadcast_to(offset, shape), 0.0).reshape(epochs, m)
-    snr, jac = _mapped_snr_jacobian(pattern, m, epochs)(
-        np.zeros((3, epochs)),
-        _side_by_side(a),
-        _side_by_side(los),
-        _side_by_side(bore),
-        offset.T,
-        np.zeros((1, epochs)),
+    bore = np.where(use_k, np.broadcast_to(bore, (*shape, 3)).reshape(rows, 3), filler)
+    los_filler = filler @ a  # A^T b: along the boresight
+    los = np.where(use_k, np.broadcast_to(los, (*shape, 3)).reshape(rows, 3), los_filler)
+    offset = np.where(use, np.broadcast_to(offset, shape), 0.0).reshape(rows)
+    snr, jac = evaluate_at_attitudes(
+        attitude_model_function(model or _snr_model(pattern), ((1, 3), (1, 3), (1, 1), (1, 1))),
+        a,
+        los,
+        bore,
+        offset,
+        0.0,
     )
-    snr = snr.full().T.reshape(shape)
-    jac = jac.full().reshape(m, epochs, 3).transpose(1, 0, 2).reshape(*shape, 3)
+    snr = snr.reshape(shape)
+    jac = jac.reshape(*shape, 3)
     snr[~use] = np.nan
     jac[~use] = np.nan
     return snr, jac

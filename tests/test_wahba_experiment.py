@@ -10,9 +10,17 @@ from experiments.bench_wahba import run as run_bench
 from experiments.registry import get_experiment
 from experiments.scenarios.wahba_mag_sun import build_geometry
 from experiments.sweep import run_sweep
-from experiments.wahba_mag_sun import EXPERIMENT, interval_labels
+from experiments.wahba_mag_sun import EXPERIMENT, PARAMETERS, interval_labels
 
-SHORT = {"duration_s": 1300.0, "methods": ["triad", "q_method", "quest", "sdp"]}
+FILTERS = ["mekf", "usque", "rts"]
+SHORT = {
+    "duration_s": 1300.0,
+    "methods": ["triad", "q_method", "quest", "sdp"],
+    "filters": FILTERS,
+}
+"""1300 s: the eclipse starts at 1001 s, so the last 299 epochs are in it."""
+SETTLED_S = 120.0
+"""The filters converge from the 10 deg initial error well within this time."""
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +45,7 @@ def test_summary_has_the_issue_columns(sweep):
     ):
         assert column in summary.columns
     assert set(summary["interval"]) == {"before_eclipse", "eclipse"}
-    assert set(summary["method"]) == set(SHORT["methods"])
+    assert set(summary["method"]) == set(SHORT["methods"]) | set(FILTERS)
 
 
 def test_eclipse_is_unobservable_and_sunlit_is_efficient(sweep):
@@ -67,6 +75,86 @@ def test_report_compares_with_seed_002(sweep):
     assert "Seed 002 Table 1 beside ours" in report
     assert "3.38 / 1.79 / 0.97" in report  # the seed's q-method row, before eclipse
     assert (sweep.out_dir / "error_quest.png").stat().st_size > 10_000
+
+
+def test_filters_carry_the_attitude_through_the_eclipse(sweep):
+    summary = sweep.summary.set_index(["method", "interval"])
+    rows = sweep.rows[sweep.rows["method"].isin(FILTERS) & (sweep.rows["t"] >= SETTLED_S)]
+    for method, frame in rows.groupby("method"):
+        assert summary.loc[(method, "eclipse"), "valid_fraction"] == 1.0
+        assert summary.loc[(method, "before_eclipse"), "valid_fraction"] == 1.0
+        errors = frame[["err_x_deg", "err_y_deg", "err_z_deg"]].to_numpy()
+        assert np.isfinite(errors).all()
+        # MEMS gyro: about 0.1 deg before the eclipse, growing to a few tenths in 300 s of it.
+        assert np.abs(errors).max() < 1.0, method
+        assert summary.loc[(method, "before_eclipse"), "total_rms_deg"] < 0.2, method
+        for interval, group in frame.groupby("interval"):
+            # 3 when consistent; 2 trials of strongly correlated epochs, so only "not absurd".
+            assert 1.0 < group["nees"].mean() < 10.0, (method, interval)
+            assert 2.0 < group["nees_full"].mean() < 20.0, (method, interval)
+        assert np.isfinite(frame["runtime_s"]).all() and (frame["runtime_s"] > 0).all()
+    # bias estimate minus bias error: the same true bias whichever filter's rows give it
+    true_bias = rows.assign(
+        **{a: rows[f"bias_{a}_deg_h"] - rows[f"bias_err_{a}_deg_h"] for a in "xyz"}
+    ).pivot_table(index=["trial_index", "t"], columns="method", values=list("xyz"))
+    for axis in "xyz":
+        spread = true_bias[axis].max(axis=1) - true_bias[axis].min(axis=1)
+        assert spread.max() < 1e-6
+    single = sweep.rows[sweep.rows["method"].isin(SHORT["methods"])]
+    assert single["runtime_s"].isna().all() and single["nees_full"].isna().all()
+
+
+@pytest.fixture(scope="module")
+def replay():
+    """Trial 0 of the sweep replayed with the RTS filter only, and without filters."""
+    setting = EXPERIMENT.grid({**PARAMETERS, **SHORT})[0]
+    seed = np.random.SeedSequence(0, spawn_key=(0, 0))
+    with_filters = EXPERIMENT.trial({**setting, "filters": ["rts"]}, seed)
+    without = EXPERIMENT.trial({**setting, "filters": []}, seed)
+    return with_filters, without
+
+
+def test_filter_rows_replay_identically(sweep, replay):
+    """Same seed, same rows (but the wall time), whichever other filters run beside."""
+    with_filters, _ = replay
+    stored = sweep.rows[sweep.rows["trial_index"] == 0]
+    stored = stored[stored["method"].isin(with_filters["method"])]
+    stored = stored[list(with_filters.columns)].reset_index(drop=True)
+    assert len(stored) == len(with_filters)
+    columns = [c for c in with_filters.columns if c != "runtime_s"]
+    pd.testing.assert_frame_equal(stored[columns], with_filters[columns], check_dtype=False)
+
+
+def test_single_frame_rows_do_not_depend_on_the_filters(replay):
+    with_filters, without = replay
+    assert set(without["method"]) == set(SHORT["methods"])
+    assert "runtime_s" not in without.columns
+    same = with_filters[with_filters["method"].isin(SHORT["methods"])]
+    pd.testing.assert_frame_equal(same[list(without.columns)].reset_index(drop=True), without)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"filters": ["mekf", "ukf"]}, "unknown filters"),
+        ({"filters": ["mekf", "mekf"]}, "unique"),
+        ({"gyro": "fog"}, "unknown gyro"),
+        ({"initial_sigma_deg": 0.0}, "initial_sigma_deg"),
+    ],
+)
+def test_bad_filter_parameters_are_rejected(overrides, message):
+    with pytest.raises(ValueError, match=message):
+        EXPERIMENT.grid({**PARAMETERS, **overrides})
+
+
+def test_report_has_the_filter_section(sweep):
+    report = (sweep.out_dir / "report.md").read_text()
+    assert "## Gyro-aided filters through the eclipse" in report
+    assert "`mems` gyro" in report
+    for name in ("filter_errors.png", "gyro_bias.png"):
+        assert f"![{name}]({name})" in report
+        assert (sweep.out_dir / name).stat().st_size > 10_000
+    assert not (sweep.out_dir / "error_mekf.png").exists()
 
 
 def test_intervals_follow_the_computed_eclipse():

@@ -1,0 +1,183 @@
+"""Gyro-aided filter rows of the ``adsb-snr`` experiment (issue 5).
+
+On the same measured SNRs as the single-frame methods, with a simulated
+rate-integrating gyro (:mod:`formulations.gyro`, 10 Hz) per entry of the
+``gyros`` parameter (``seed000``: seed 000 sec. 5.1 read literally;
+``mems``: a MEMS-class unit):
+
+* ``mekf_paper``: seed 000's MEKF (secs. 4.2-4.5): the observation is the
+  3-2-1 Euler angles of the NLSE solution of each epoch (eqs. 41-46) with
+  ``R = (paper_sigma_deg)^2 I`` (sec. 5.1's ``R``, read as degrees); epochs
+  where the NLSE has no valid solution are propagated only.  Its
+  ``runtime_s`` is the filter's alone (add the NLSE's for the pipeline).
+* ``mekf_snr``: the MEKF with the received SNRs themselves as scalar
+  measurements (seed 000 sec. 6's proposed future work), through the
+  threshold-truncated measurement model by default (``filter_snr_model =
+  "truncated"``; ``"gaussian"`` is eq. 19's model, which integrates the
+  selection bias of near-threshold messages, :mod:`formulations.snr_measurement`).
+* ``usque_snr``: the USQUE unscented filter on the same SNR measurements.
+* ``rts_snr``: the multiplicative RTS backward pass over ``mekf_snr`` (its
+  ``runtime_s`` includes the forward MEKF).
+
+Every filter starts from the prior of
+:func:`experiments.filtering.simulate_filter_inputs` (attitude error drawn
+with ``initial_sigma_deg`` per axis, bias estimate 0) and works in ECI
+(:mod:`experiments.filtering`); errors are reported in the orbit frame like
+the single-frame rows.  The gyro of the ``i``-th entry of ``gyros`` and the
+prior are drawn from child stream ``1 + i`` of the trial's seed.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from experiments.filtering import (
+    FilterInputs,
+    GyroTruth,
+    child_rng,
+    filter_columns,
+    gyro_truth,
+    in_orbit_frame,
+    run_filter,
+    simulate_filter_inputs,
+)
+from experiments.metrics import error_columns
+from experiments.scenarios.adsb_snr import build_adsb_geometry, true_attitude
+from formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
+from formulations.conventions import euler321_from_attitude, orbit_frame_attitude
+from formulations.gyro import GYRO_MODELS
+from formulations.snr_measurement import SnrMeasurement
+from formulations.snr_problem import SnrEpoch
+from solvers.filters import FilterResult, rts_smooth
+from solvers.result import BatchSolution
+
+FILTER_METHODS = {"mekf_paper": "mekf", "mekf_snr": "mekf", "usque_snr": "usque", "rts_snr": "rts"}
+"""Filter rows and the filter kind each runs."""
+SNR_MODELS = ("truncated", "gaussian")
+PAPER_SOURCE = "nlse"
+"""The single-frame method whose Euler angles ``mekf_paper`` filters (seed 000)."""
+
+
+def check_parameters(parameters: Mapping[str, Any]) -> None:
+    """Raise ValueError on unknown filter methods, gyro models or SNR models."""
+    unknown = sorted(set(parameters["filters"]) - set(FILTER_METHODS))
+    if unknown:
+        raise ValueError(f"unknown filters {unknown}; known: {sorted(FILTER_METHODS)}")
+    gyros = sorted(set(parameters["gyros"]) - set(GYRO_MODELS))
+    if gyros:
+        raise ValueError(f"unknown gyros {gyros}; known: {sorted(GYRO_MODELS)}")
+    if parameters["filter_snr_model"] not in SNR_MODELS:
+        raise ValueError(f"filter_snr_model must be one of {SNR_MODELS}")
+
+
+@functools.lru_cache(maxsize=2)
+def adsb_gyro_truth(
+    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int, rate_hz: float
+) -> GyroTruth:
+    """The scenario's truth at the gyro rate (cached per process)."""
+    geometry = build_adsb_geometry(duration_s, step_s, n_aircraft, traffic_seed)
+    frames = orbit_frame_attitude(geometry.position_eci_km, geometry.velocity_eci_kms)
+    return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
+
+
+def paper_measurements(
+    solution: BatchSolution, sigma_deg: float
+) -> list[AttitudeMeasurement | None]:
+    """Euler angles of the valid single-frame solutions (seed 000 eqs. 41-46)."""
+    covariance = np.radians(sigma_deg) ** 2 * np.eye(3)
+    out: list[AttitudeMeasurement | None] = [None] * len(solution)
+    if solution.valid.any():
+        angles = euler321_from_attitude(solution.attitude())
+        for k, row in zip(np.flatnonzero(solution.valid), angles, strict=True):
+            out[k] = EulerAngleMeasurement(row, covariance)
+    return out
+
+
+def snr_measurements(epochs: list[SnrEpoch], model: str) -> list[AttitudeMeasurement | None]:
+    """One :class:`SnrMeasurement` per epoch with at least one received message."""
+    truncated = model == "truncated"
+    return [SnrMeasurement(e, truncated=truncated) if e.m else None for e in epochs]
+
+
+def _rows(
+    method: str,
+    gyro: str,
+    result: FilterResult,
+    seconds: float,
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    common: Mapping[str, np.ndarray],
+    true_attitude_orbit: Any,
+) -> pd.DataFrame:
+    solution = in_orbit_frame(result.solution, truth.epoch_frames)
+    return pd.DataFrame(
+        {
+            "method": method,
+            "gyro": gyro,
+            **common,
+            **error_columns(solution, true_attitude_orbit),
+            **filter_columns(result, inputs, truth),
+            "loss": solution.loss,
+            "wrong_minimum": np.nan,
+            "loss_from_truth": np.nan,
+            "valid": solution.valid,
+            "reason": solution.reason.astype(str),
+            "runtime_s": seconds,
+        }
+    )
+
+
+def filter_rows(
+    setting: Mapping[str, Any],
+    seed: np.random.SeedSequence,
+    epochs: list[SnrEpoch],
+    nlse: BatchSolution | None,
+    common: Mapping[str, np.ndarray],
+    true_attitude_orbit: Any,
+) -> list[pd.DataFrame]:
+    """Rows of every requested filter for every gyro model (module docstring)."""
+    wanted = list(setting["filters"])
+    if not wanted:
+        return []
+    truth = adsb_gyro_truth(
+        setting["duration_s"],
+        setting["step_s"],
+        setting["n_aircraft"],
+        setting["traffic_seed"],
+        GYRO_MODELS[setting["gyros"][0]].rate_hz,
+    )
+    snr = snr_measurements(epochs, setting["filter_snr_model"])
+    paper = paper_measurements(nlse, setting["paper_sigma_deg"]) if nlse is not None else None
+    frames = []
+    for index, gyro in enumerate(setting["gyros"]):
+        model = GYRO_MODELS[gyro]
+        if model.rate_hz != GYRO_MODELS[setting["gyros"][0]].rate_hz:
+            raise ValueError("every gyro of a setting must have the same rate")
+        rng = child_rng(seed, 1 + index)
+        inputs = simulate_filter_inputs(truth, model, rng, setting["initial_sigma_deg"])
+        runs: dict[str, tuple[FilterResult, float]] = {}
+        if "mekf_paper" in wanted:
+            if paper is None:
+                raise ValueError(f"mekf_paper needs the {PAPER_SOURCE} solution")
+            runs["mekf_paper"] = run_filter("mekf", inputs, truth, paper, "mekf_paper")
+        if {"mekf_snr", "rts_snr"} & set(wanted):
+            runs["mekf_snr"] = run_filter("mekf", inputs, truth, snr, "mekf_snr")
+        if "rts_snr" in wanted:
+            forward, seconds = runs["mekf_snr"]
+            start = time.perf_counter()
+            smoothed = rts_smooth(forward, method="rts_snr")
+            runs["rts_snr"] = (smoothed, seconds + time.perf_counter() - start)
+        if "usque_snr" in wanted:
+            runs["usque_snr"] = run_filter("usque", inputs, truth, snr, "usque_snr")
+        for method in wanted:
+            result, seconds = runs[method]
+            frames.append(
+                _rows(method, gyro, result, seconds, inputs, truth, common, true_attitude_orbit)
+            )
+    return frames

@@ -1,0 +1,194 @@
+"""Gyro truth, simulated gyro, priors and filter runs shared by the experiments.
+
+The scenarios define the true attitude relative to the orbit frame (``A_bo``)
+at the measurement epochs.  A gyro measures the body rate relative to the
+inertial frame (ECI, GCRS), so the filters estimate ``A_bi = A_bo A_oi``
+(:mod:`solvers.filters`) and their measurements are wrapped in
+:class:`~formulations.attitude_measurement.ReferencedMeasurement` with the
+epoch's ``A_oi``.  Between epochs the orbit frame is interpolated by
+spherical linear interpolation (``scipy.spatial.transform.Slerp``: the orbit
+frame turns at the nearly constant orbit rate, so the interpolation error is
+far below a microradian for 1 s epochs) and ``A_bo`` is the scenario's
+analytic profile, giving the truth at the gyro rate.  At the epochs the truth
+is exactly the scenario's.
+
+Estimates are reported relative to the orbit frame again
+(:func:`in_orbit_frame`); the body-frame attitude error and its covariance
+are the same in both frames.
+
+Random streams of a trial: the scenario's measurement noise uses the trial's
+seed as before; the gyro and the prior draw from a child stream
+(:func:`child_rng`), so adding filters does not change the single-frame
+methods' data.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+from formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
+from formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
+from solvers.filters import FilterPrior, FilterResult, mekf, rts_smooth, usque
+from solvers.result import BatchSolution
+
+Array = NDArray[np.float64]
+
+GYRO_STREAM = 1
+"""Spawn-key suffix of the gyro-and-prior stream of a trial."""
+INITIAL_ATTITUDE_SIGMA_DEG = 10.0
+"""Default per-axis standard deviation of the filters' initial attitude error."""
+
+
+def child_rng(seed: np.random.SeedSequence, stream: int) -> np.random.Generator:
+    """Generator of an independent child stream of the trial's ``seed``."""
+    child = np.random.SeedSequence(seed.entropy, spawn_key=(*seed.spawn_key, stream))
+    return np.random.default_rng(child)
+
+
+@dataclass(frozen=True)
+class GyroTruth:
+    """True inertial attitude at the gyro sample times of a pass.
+
+    Attributes:
+        t: ``(n,)`` gyro sample times (s), covering the epochs.
+        attitude: ``A_bi`` at ``t``.
+        epoch_frames: ``A_oi`` at the epochs.
+        epoch_samples: index into ``t`` of each epoch.
+    """
+
+    t: Array
+    attitude: Rotation
+    epoch_frames: Rotation
+    epoch_samples: NDArray[np.intp]
+
+
+def gyro_truth(
+    t_epochs: Array,
+    eci_to_orbit: Rotation,
+    attitude_orbit: Callable[[Array], Rotation],
+    rate_hz: float,
+) -> GyroTruth:
+    """Truth at ``rate_hz`` from the scenario's ``A_bo(t)`` and the epochs' ``A_oi`` (docstring)."""
+    t_epochs = np.asarray(t_epochs, dtype=float)
+    per_epoch = (t_epochs - t_epochs[0]) * rate_hz
+    samples = np.rint(per_epoch).astype(np.intp)
+    if np.any(np.abs(per_epoch - samples) > 1e-6):
+        raise ValueError(f"epochs must be multiples of the gyro step 1/{rate_hz} s")
+    t = t_epochs[0] + np.arange(samples[-1] + 1) / rate_hz
+    frame = Slerp(t_epochs, eci_to_orbit)(t)
+    return GyroTruth(t, attitude_orbit(t) * frame, eci_to_orbit, samples)
+
+
+@dataclass(frozen=True)
+class FilterInputs:
+    """One trial's gyro record and prior (drawn from :func:`child_rng`)."""
+
+    gyro: SimulatedGyro
+    prior: FilterPrior
+    model: GyroModel
+
+
+def simulate_filter_inputs(
+    truth: GyroTruth,
+    model: GyroModel,
+    rng: np.random.Generator,
+    initial_sigma_deg: float = INITIAL_ATTITUDE_SIGMA_DEG,
+) -> FilterInputs:
+    """Gyro samples, then the prior: attitude error ``~ N(0, sigma0^2 I3)``, bias estimate 0.
+
+    The prior covariance is ``diag(sigma0^2 I3, initial_bias_sigma^2 I3)``, the
+    statistics the truth was drawn from, so the filters start consistent.
+    """
+    gyro = simulate_gyro(truth.t, truth.attitude, model, rng)
+    sigma0 = np.radians(initial_sigma_deg)
+    error = sigma0 * rng.standard_normal(3)
+    prior = FilterPrior(
+        attitude=Rotation.from_rotvec(error) * truth.attitude[0],
+        bias=np.zeros(3),
+        covariance=np.diag([sigma0**2] * 3 + [model.initial_bias_sigma**2] * 3),
+    )
+    return FilterInputs(gyro, prior, model)
+
+
+def referenced(
+    measurements: Sequence[AttitudeMeasurement | None], frames: Rotation
+) -> list[AttitudeMeasurement | None]:
+    """Orbit-frame measurement models re-expressed for the inertial attitude."""
+    return [
+        None if m is None else ReferencedMeasurement(m, frames[k])
+        for k, m in enumerate(measurements)
+    ]
+
+
+FILTERS = ("mekf", "usque", "rts")
+"""Filter kinds: the MEKF, USQUE, and the RTS pass over the MEKF."""
+
+
+def run_filter(
+    kind: str,
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+    method: str,
+) -> tuple[FilterResult, float]:
+    """Run filter ``kind`` on orbit-frame ``measurements``; the result and its wall time (s)."""
+    if kind not in FILTERS:
+        raise ValueError(f"unknown filter kind {kind!r}; known: {FILTERS}")
+    inertial = referenced(measurements, truth.epoch_frames)
+    t_epochs = truth.t[truth.epoch_samples]
+    start = time.perf_counter()
+    run = usque if kind == "usque" else mekf
+    result = run(inputs.gyro.samples, t_epochs, inertial, inputs.prior, inputs.model, method=method)
+    if kind == "rts":
+        result = rts_smooth(result, method=method)
+    return result, time.perf_counter() - start
+
+
+def in_orbit_frame(solution: BatchSolution, eci_to_orbit: Rotation) -> BatchSolution:
+    """``A_bo = A_bi A_oi^T`` of a filter's solution (covariance unchanged: body frame)."""
+    quaternion = solution.quaternion.copy()
+    valid = solution.valid
+    if valid.any():
+        quaternion[valid] = (solution.attitude() * eci_to_orbit[valid].inv()).as_quat()
+    return replace(solution, quaternion=quaternion)
+
+
+def filter_columns(
+    result: FilterResult, inputs: FilterInputs, truth: GyroTruth
+) -> dict[str, Array]:
+    """Bias estimate, error and sigma (deg/h, per axis), the 6-state NEES ``nees_full``
+    and the update counts, per epoch.
+
+    The attitude columns come from :func:`experiments.metrics.error_columns`
+    applied to :func:`in_orbit_frame` of the solution.
+    """
+    true_bias = inputs.gyro.bias[truth.epoch_samples]
+    bias_error = result.bias - true_bias
+    attitude_error = (
+        Rotation.from_quat(
+            np.where(result.solution.valid[:, None], result.solution.quaternion, [0, 0, 0, 1])
+        )
+        * truth.attitude[truth.epoch_samples].inv()
+    ).as_rotvec()
+    error = np.concatenate([attitude_error, bias_error], axis=1)
+    valid = result.solution.valid
+    nees = np.full(valid.size, np.nan)
+    if valid.any():
+        nees[valid] = np.einsum(
+            "ei,eij,ej->e", error[valid], np.linalg.inv(result.covariance[valid]), error[valid]
+        )
+    to_deg_h = np.degrees(1.0) * 3600.0
+    sigma = np.sqrt(np.diagonal(result.covariance[:, 3:, 3:], axis1=1, axis2=2))
+    columns = {f"bias_{a}_deg_h": to_deg_h * result.bias[:, i] for i, a in enumerate("xyz")}
+    columns |= {f"bias_err_{a}_deg_h": to_deg_h * bias_error[:, i] for i, a in enumerate("xyz")}
+    columns |= {f"bias_sigma_{a}_deg_h": to_deg_h * sigma[:, i] for i, a in enumerate("xyz")}
+    columns["nees_full"] = nees
+    for name in ("n_used", "n_gated", "n_unpredictable", "update_iterations"):
+        columns[name] = result.solution.diagnostics[name]
+    return columns

@@ -1,0 +1,217 @@
+"""The measurement interface every attitude filter and smoother consumes.
+
+An :class:`AttitudeMeasurement` is one epoch's measurement vector ``z`` (``m``
+rows) with its noise covariance ``R`` and a model ``h(A)`` of the attitude
+``A`` (reference -> body, ``docs/conventions.md``).  :meth:`~AttitudeMeasurement.predict`
+returns ``h`` at a stack of attitudes and its Jacobian with respect to the
+body-frame attitude error ``delta`` of ``exp(delta) A`` at ``delta = 0``; the
+filters (``solvers/filters``) and the factor-graph smoother use nothing else,
+so they contain no measurement-specific code.  Rows are grouped in blocks
+(one observation each: one SNR, one unit vector, one Euler-angle triple) for
+outlier gating.
+
+Symbolic models are written once with :mod:`formulations.symbolic` and
+differentiated by CasADi
+(:func:`formulations.attitude_model.attitude_model_function`): the attitude
+enters as ``C(v) A`` (:func:`formulations.attitude_model.increment_matrix`,
+seed 000 eq. 28), whose derivative at ``v = 0`` is the body-frame Jacobian.
+
+Implementations: :class:`EulerAngleMeasurement` (seed 000 eqs. 41-46, the
+"paper MEKF" observation), :class:`VectorMeasurement` (unit vectors, seed 002
+eqs. 2-4), :class:`formulations.snr_measurement.SnrMeasurement` (SNRs, seed
+000 eq. 13); :class:`ReferencedMeasurement` re-expresses any of them for an
+attitude relative to another reference frame.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
+from formulations.conventions import euler321_from_attitude
+from formulations.errors import InvalidObservationError
+from formulations.symbolic import CASADI
+
+Array = NDArray[np.float64]
+
+
+class AttitudeMeasurement(ABC):
+    """One epoch's measurement ``z = h(A) + noise``, ``noise ~ N(0, R)``."""
+
+    z: Array
+    """``(m,)`` measured values."""
+    noise_covariance: Array
+    """``(m, m)`` covariance ``R``."""
+    blocks: NDArray[np.intp]
+    """``(m,)`` block index of each row (rows of one observation share a block)."""
+
+    @property
+    def size(self) -> int:
+        return int(self.z.shape[0])
+
+    @abstractmethod
+    def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """Predictions ``(N, m)`` and Jacobians ``(N, m, 3)`` at ``N`` stacked attitudes.
+
+        Rows the model cannot evaluate at some of the attitudes (for example an
+        observation outside the antenna's main lobe) are NaN for every attitude.
+        With ``jacobian=False`` the values come from the model's numpy
+        evaluation and the Jacobian is ``None`` (sigma-point filters).
+        """
+
+    def innovation(self, predicted: Array) -> Array:
+        """``z - h`` for predictions ``(..., m)`` (angles wrapped where the model has them)."""
+        return self.z - predicted
+
+    def noise_covariance_at(self, attitude: Rotation) -> Array:
+        """``R`` at an attitude (models whose noise depends on it override this)."""
+        return self.noise_covariance
+
+
+def _check_vector(name: str, value: ArrayLike) -> Array:
+    a = np.array(value, dtype=float)
+    if a.ndim != 1:
+        raise InvalidObservationError(f"{name} must be one-dimensional, got shape {a.shape}")
+    return a
+
+
+def euler321_model(attitude: Any) -> Any:
+    """``[yaw, pitch, roll]`` of seed 000 eq. 8 from the attitude matrix (symbolic).
+
+    ``A = R1(roll) R2(pitch) R3(yaw)`` has ``A12 / A11 = tan(yaw)``,
+    ``A13 = -sin(pitch)``, ``A23 / A33 = tan(roll)``; pitch is taken as
+    ``atan2(-A13, sqrt(A11^2 + A12^2))``, well conditioned away from +/-90 deg.
+    """
+    xp = CASADI
+    a = [[xp.entry(attitude, i, j) for j in range(3)] for i in range(3)]
+    yaw = xp.atan2(a[0][1], a[0][0])
+    pitch = xp.atan2(-a[0][2], xp.sqrt(a[0][0] ** 2 + a[0][1] ** 2))
+    roll = xp.atan2(a[1][2], a[2][2])
+    return ca.vertcat(yaw, pitch, roll)
+
+
+def _wrap(angle: Array) -> Array:
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+class EulerAngleMeasurement(AttitudeMeasurement):
+    """3-2-1 Euler angles of an attitude solution as a measurement (seed 000 eqs. 41-46).
+
+    ``z = [yaw, pitch, roll]`` (rad) of a single-frame solution (the seed uses
+    the NLSE's); the Jacobian (AD) equals minus seed 000 eq. 44's ``H_v``, the
+    Euler-rate kinematics matrix at the predicted angles: the seed's error
+    vector is the opposite rotation of attopt's ``delta`` (its eq. 36 has
+    ``- delta_beta``, see :mod:`formulations.gyro`).  One gating block.
+    """
+
+    def __init__(self, angles: ArrayLike, covariance: ArrayLike) -> None:
+        self.z = _check_vector("angles", angles)
+        self.noise_covariance = np.array(covariance, dtype=float)
+        if self.z.shape != (3,) or self.noise_covariance.shape != (3, 3):
+            raise InvalidObservationError("Euler angles must be (3,) with a (3, 3) covariance")
+        self.blocks = np.zeros(3, dtype=np.intp)
+
+    def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
+        if not jacobian:
+            return euler321_from_attitude(attitude).reshape(-1, 3), None
+        return evaluate_at_attitudes(
+            attitude_model_function(euler321_model, ()), attitude.as_matrix()
+        )
+
+    def innovation(self, predicted: Array) -> Array:
+        return _wrap(self.z - predicted)
+
+
+def body_vectors_model(attitude: Any, reference: Any) -> Any:
+    """``b_i = A r_i`` stacked as ``[b_1; b_2; ...]`` (seed 002 eqs. 2, 4; symbolic)."""
+    return ca.vec(attitude @ reference.T)
+
+
+class VectorMeasurement(AttitudeMeasurement):
+    """Measured body-frame unit vectors ``b_i = A r_i + noise`` (seed 002 eqs. 2-4).
+
+    ``z`` is the ``k`` measured vectors stacked (``3 k`` rows), ``R`` block
+    diagonal ``sigma_i^2 I3`` (the QUEST measurement model of seed 002 sec.
+    2.3); each vector is a gating block.  Rows with a NaN vector are dropped.
+
+    The innovation of each vector is its geodesic difference in the plane
+    perpendicular to the prediction ``h_i``: ``theta p / |p|`` with ``p`` the
+    component of ``z_i`` perpendicular to ``h_i`` and ``theta`` the angle
+    between them.  To first order it is ``z_i - h_i``; the raw difference also
+    has a second-order part along ``h_i`` (``cos(theta) - 1``) that the linear
+    model cannot explain (the Jacobian's rows are perpendicular to ``h_i``) and
+    that, after a 20 deg initial error against ``sigma = 0.001``, would fail the
+    gate; and a reversed vector gets ``theta = pi``, not zero (an exactly
+    antipodal one is NaN: left out).  The innovation has two degrees of freedom
+    per vector, so the gate (chi-square with three) is slightly lenient.
+    """
+
+    def __init__(self, body: ArrayLike, reference: ArrayLike, sigma: ArrayLike) -> None:
+        try:
+            b = np.array(body, dtype=float).reshape(-1, 3)
+            r = np.array(reference, dtype=float).reshape(-1, 3)
+            s = np.broadcast_to(np.asarray(sigma, dtype=float), (b.shape[0],))
+        except ValueError as exc:
+            raise InvalidObservationError(f"vectors must be (k, 3) with k sigmas: {exc}") from None
+        if r.shape != b.shape:
+            raise InvalidObservationError(f"body {b.shape} and reference {r.shape} differ")
+        keep = np.isfinite(b).all(axis=1) & np.isfinite(r).all(axis=1)
+        if not (np.all(np.isfinite(s[keep])) and np.all(s[keep] > 0)):
+            raise InvalidObservationError("vector standard deviations must be finite and positive")
+        self.reference = r[keep]
+        self.z = b[keep].ravel()
+        self.noise_covariance = np.diag(np.repeat(s[keep] ** 2, 3))
+        self.blocks = np.repeat(np.arange(int(keep.sum())), 3)
+
+    def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
+        k = self.reference.shape[0]
+        if not jacobian:
+            body = np.einsum("nij,kj->nki", attitude.as_matrix().reshape(-1, 3, 3), self.reference)
+            return body.reshape(-1, 3 * k), None
+        function = attitude_model_function(body_vectors_model, ((k, 3),))
+        return evaluate_at_attitudes(function, attitude.as_matrix(), self.reference)
+
+    def innovation(self, predicted: Array) -> Array:
+        h = predicted.reshape(*predicted.shape[:-1], -1, 3)
+        unit = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        z = self.z.reshape(-1, 3)
+        cosine = np.sum(z * unit, axis=-1, keepdims=True)
+        perpendicular = z - cosine * unit
+        sine = np.linalg.norm(perpendicular, axis=-1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            geodesic = np.arctan2(sine, cosine) * perpendicular / sine
+        geodesic = np.where(sine > 0, geodesic, np.where(cosine > 0, 0.0, np.nan))
+        return geodesic.reshape(predicted.shape)
+
+
+class ReferencedMeasurement(AttitudeMeasurement):
+    """``inner`` (a model of ``A_bo``) as a model of ``A_bi = A_bo A_oi``.
+
+    Filters carry the attitude relative to the frame the gyro's rates refer to
+    (inertial); measurement models may be written relative to another frame
+    (the orbit frame).  With ``frame = A_oi`` (inertial -> model reference),
+    ``A_bo = A_bi A_oi^T``; a body-frame error is the same for both, so values
+    and Jacobians are the inner model's at ``A_bi * frame.inv()``.
+    """
+
+    def __init__(self, inner: AttitudeMeasurement, frame: Rotation) -> None:
+        self.inner = inner
+        self.frame_inverse = frame.inv()
+        self.z = inner.z
+        self.noise_covariance = inner.noise_covariance
+        self.blocks = inner.blocks
+
+    def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
+        return self.inner.predict(attitude * self.frame_inverse, jacobian)
+
+    def innovation(self, predicted: Array) -> Array:
+        return self.inner.innovation(predicted)
+
+    def noise_covariance_at(self, attitude: Rotation) -> Array:
+        return self.inner.noise_covariance_at(attitude * self.frame_inverse)

@@ -1,0 +1,367 @@
+"""USQUE: the unscented quaternion estimator with gyro bias (seed 004 sec. V.B).
+
+Crassidis and Markley (2003), "Unscented filtering for spacecraft attitude
+estimation", JGCD 26(4) 536-542 ("CM"; its text is not among the project's
+sources, so the equations below are numbered (U1)-(U9) here rather than by
+CM's numbering).  Seed 004 sec. V.B runs this filter on SNR measurements
+with the multiplicative body-frame error of its eq. 26.  Same inputs,
+outputs, diagnostics and fault handling as :func:`solvers.filters.mekf.mekf`
+and the same measurement interface, of which only the predicted values are
+used: no Jacobian is evaluated.
+
+State and sigma points.  The filter carries the attitude estimate ``A``
+(reference -> body), the bias ``beta`` and the ``6 x 6`` covariance ``P`` of
+the error state ``x = [delta, delta_beta]``, ``delta`` the generalised
+Rodrigues parameters of ``A_true A^T`` with ``a = 1, f = 4``, CM's choice
+(:func:`~solvers.filters.common.error_vector`,
+:func:`~solvers.filters.common.apply_error`).  At the start of every
+propagation and update the error mean is zero (it has been folded into ``A``
+and ``beta``), and the ``2 n + 1 = 13`` sigma points are::
+
+    chi_0 = 0,   chi_{+j}, chi_{-j} = +/- L_j,   L L^T = (n + lambda) P,      (U1)
+    w_0 = lambda / (n + lambda),   w_{+/-j} = 1 / (2 (n + lambda)),           (U2)
+
+``L_j`` the columns of the Cholesky factor, ``n = 6``, and the scaled
+unscented transform (Julier 2002; Wan and van der Merwe 2000): ``lambda =
+alpha^2 n - n`` with ``alpha = 0.5`` (points at ``1.22 sigma``), and for
+covariances ``w_0 + 1 - alpha^2 + beta``, ``beta = 2`` (see the deviations
+below: CM's ``lambda = 1`` is ``alpha = sqrt(7/6), beta = 0``).
+
+Propagation from one output epoch to the next, over all the gyro steps
+between them at once and vectorised over the sigma points: sigma point ``i``
+is the attitude ``A_i = apply_error(chi_i[:3], A)`` with bias ``beta_i =
+beta + chi_i[3:]``, carried through the exact kinematics with its own rates
+``omega_measured - beta_i`` (:func:`~solvers.filters.common.propagate_attitude`).
+The propagated reference is sigma point 0's attitude ``A_0'``; the
+propagated points are ``chi_i' = [error_vector(A_i', A_0'), chi_i[3:]]``
+(the bias is a random walk: its points do not move), and::
+
+    x^- = sum_i w_i chi_i',                                                    (U3)
+    P^- = T(x^-) [sum_i w_i (chi_i' - x^-)(chi_i' - x^-)^T + Q_interval] T(x^-)^T,   (U4)
+    A^- = apply_error(x^-[:3], A_0'),   beta^- = beta + x^-[3:].              (U5)
+
+(U5) folds the mean into the estimate, and ``T(x) = blockdiag(J(x[:3]), I)``
+in (U4) carries the covariance of the error about ``A_0'`` to the error
+about ``A^-`` to first order (``J`` of :func:`~solvers.filters.common.error_jacobian`,
+the MEKF's reset; :func:`carried`).
+
+Update at an epoch with a measurement: fresh sigma points (U1) from ``P^-``
+about ``A^-``, ``A_i = apply_error(chi_i[:3], A^-)``, are predicted in one
+call, ``h_i = h(A_i)`` (the model's values only, ``jacobian=False``), and
+``R`` is the measurement's noise covariance at ``A^-`` (attitude-dependent
+for the truncated SNR model, evaluated where the MEKF evaluates it); rows
+that are NaN for any sigma point or in ``z`` are left out (whole blocks,
+:func:`~solvers.filters.common.usable_rows`).  With
+the measurement's own innovation ``d_i = z - h_i`` (wrapped angles,
+geodesic unit-vector differences)::
+
+    nu = sum_i w_i d_i,                                                        (U6)
+    P_nunu = sum_i w_i (nu - d_i)(nu - d_i)^T + R,   P_xnu = sum_i w_i chi_i (nu - d_i)^T,   (U7)
+    K = P_xnu P_nunu^-1,   x^+ = K nu,   P^+ = P^- - K P_nunu K^T,             (U8)
+    A^+ = apply_error(x^+[:3], A^-),  beta^+ = beta^- + x^+[3:],  P^+ <- T(x^+) P^+ T(x^+)^T, (U9)
+
+``nu - d_i`` standing for ``h_i - h_mean`` (exact for ``d = z - h``, to
+first order for nonlinear ones such as the unit vectors').  Each block is first gated on
+``nu`` and its diagonal block of ``P_nunu`` (:func:`~solvers.filters.common.gate`);
+(U8) uses the accepted rows; ``P^+`` is floored if it loses definiteness
+(:func:`~solvers.filters.common.repair_covariance`).  ``nis`` is ``nu^T
+P_nunu^-1 nu`` over the accepted rows.
+
+Deviations from CM:
+
+* *Sigma-point spread.*  CM's ``lambda = 1`` places the points at ``2.65
+  sigma``.  With the experiments' 10 deg initial attitude sigma that is 26
+  deg: SNR observations leave the antenna's main lobe at some points (they
+  are then dropped) and the regression over such a spread averages the SNR
+  response away, so the update hardly informs the worst-known axis and the
+  filter does not converge (measured on ``adsb-snr`` with the ``seed000``
+  gyro: the pitch sigma stayed at 7.7 deg for more than ten epochs while the
+  MEKF's fell to 0.6 deg, and the errors reached 90 deg).  With ``alpha =
+  0.5`` (1.22 sigma) the same run converges like the MEKF (RMS within 2 %).
+
+* *Additive process noise.*  CM draw the sigma points from ``P + Q_bar`` and
+  add ``Q_bar`` again after propagation.  Here they come from ``P`` alone
+  and the noise is added once, after propagation (U4): the standard UKF for
+  additive noise, which does not count the noise twice.
+* *Interval noise.*  ``Q_interval`` accumulates the steps' noise over the
+  interval, ``Q <- Phi_j Q Phi_j^T + Q_j`` from ``Q = 0``, ``Q_j`` the
+  per-step :meth:`~formulations.gyro.GyroModel.process_noise` plus the
+  gyro-gap growth (:func:`~solvers.filters.common.step_noise`) and ``Phi_j``
+  the closed-form :func:`~formulations.gyro.error_state_transition` at the
+  mean rate ``omega_measured - beta`` (:func:`interval_noise`): the noise
+  part of the MEKF's covariance propagation.  Drawing fresh sigma points at
+  every gyro step instead (CM propagate one gyro step per filter step)
+  changed the estimates by less than 1e-6 of the filter sigma at 10 Hz over
+  1 s intervals, with both a MEMS-class and seed 000's gyro, and took four
+  times as long.
+* *Fresh sigma points at the update* (CM reuse the propagated ones), centred
+  on the folded estimate so that their mean error is zero; ``Q_interval`` is
+  then represented in them.
+* *Iterated update after a large correction.*  One pass of (U6)-(U9) from a
+  20 deg error against 0.001 rad vectors leaves a 5 deg error with a 0.1-0.2
+  deg posterior sigma (later measurements are then gated and the filter is
+  lost), as one EKF pass does.  The MEKF iterates its update for this; USQUE
+  does the same with the iterated posterior linearisation filter
+  (:func:`update`): while the attitude step's second-order term exceeds
+  ``options.relinearise_fraction`` of the posterior attitude sigma (the
+  MEKF's test, :func:`~solvers.filters.common.linearised`; at most
+  ``options.max_update_iterations`` passes), sigma points drawn from the
+  current posterior re-linearise the measurement statistically.  The first
+  pass is exactly (U6)-(U9); ``update_iterations`` counts the passes (1 in
+  steady state).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from formulations.attitude_measurement import AttitudeMeasurement
+from formulations.gyro import GyroModel, GyroSamples, error_state_transition
+from solvers.filters.common import (
+    STATE_SIZE,
+    Array,
+    EpochRecord,
+    FilterOptions,
+    FilterPrior,
+    FilterResult,
+    PreparedGyro,
+    TrackMonitor,
+    apply_error,
+    error_jacobian,
+    error_vector,
+    filter_result,
+    gate,
+    linearised,
+    prepare_gyro,
+    propagate_attitude,
+    record_epoch,
+    repair_covariance,
+    step_noise,
+    usable_rows,
+    validate_inputs,
+)
+
+ALPHA = 0.5
+"""Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
+BETA = 2.0
+"""Prior-distribution weight of the scaled transform (2: Gaussian)."""
+LAMBDA = ALPHA**2 * STATE_SIZE - STATE_SIZE
+WEIGHTS = np.full(2 * STATE_SIZE + 1, 0.5 / (STATE_SIZE + LAMBDA))
+WEIGHTS[0] = LAMBDA / (STATE_SIZE + LAMBDA)
+COVARIANCE_WEIGHTS = WEIGHTS.copy()
+COVARIANCE_WEIGHTS[0] += 1.0 - ALPHA**2 + BETA
+
+
+def finite(*arrays: Array) -> bool:
+    """Whether every entry of ``arrays`` is finite."""
+    return all(np.all(np.isfinite(a)) for a in arrays)
+
+
+def sigma_offsets(covariance: Array) -> tuple[Array, bool]:
+    """``(13, 6)`` offsets ``0, +L_i, -L_i`` of the sigma points, ``L L^T = (n + lambda) P``;
+    whether ``P`` had to be repaired first."""
+    try:
+        root = np.linalg.cholesky((STATE_SIZE + LAMBDA) * covariance)
+        repaired = False
+    except np.linalg.LinAlgError:
+        covariance, repaired = repair_covariance(covariance)
+        root = np.linalg.cholesky((STATE_SIZE + LAMBDA) * covariance)
+    return np.concatenate([np.zeros((1, STATE_SIZE)), root.T, -root.T]), repaired
+
+
+def carried(covariance: Array, state: Array) -> Array:
+    """The covariance of the error about ``apply_error(state[:3], A)`` from that about
+    ``A``: ``T P T^T``, ``T = blockdiag(J, I)``, ``J`` of
+    :func:`~solvers.filters.common.error_jacobian` (the MEKF's reset)."""
+    reset = np.eye(STATE_SIZE)
+    reset[:3, :3] = error_jacobian(state[:3])
+    return reset @ covariance @ reset.T
+
+
+def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: float) -> Array:
+    """Process noise (U4) accumulated over consecutive gyro steps at the mean ``rates``,
+    with the gap growth ``hold_variance`` (:func:`~solvers.filters.common.step_noise`)."""
+    total = np.zeros((STATE_SIZE, STATE_SIZE))
+    noise = step_noise(model, dt, hold_variance)
+    for phi, q in zip(error_state_transition(rates, dt), noise, strict=True):
+        total = phi @ total @ phi.T + q
+    return total
+
+
+def propagate(
+    attitude: Rotation,
+    bias: Array,
+    covariance: Array,
+    gyro: PreparedGyro,
+    steps: slice,
+    model: GyroModel,
+    dt: float,
+) -> tuple[Rotation, Array, Array, bool]:
+    """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in; the
+    last item says whether the covariance was repaired to draw the sigma points."""
+    rates = gyro.rates[steps]
+    if rates.shape[0] == 0:
+        return attitude, bias, covariance, False
+    offsets, repaired = sigma_offsets(covariance)
+    sigma_bias = bias + offsets[:, 3:]
+    propagated = propagate_attitude(
+        apply_error(offsets[:, :3], attitude), rates[None] - sigma_bias[:, None], dt
+    )
+    points = np.concatenate([error_vector(propagated, propagated[0]), offsets[:, 3:]], axis=1)
+    mean = WEIGHTS @ points  # (U3)
+    spread = points - mean
+    noise = interval_noise(rates - bias, gyro.hold_variance[steps], model, dt)
+    covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + noise, mean)  # (U4)
+    return apply_error(mean[:3], propagated[0]), bias + mean[3:], covariance, repaired  # (U5)
+
+
+def regression(deviation: Array, offsets: Array) -> tuple[Array, Array]:
+    """Statistical linear regression of ``h`` on the error state over sigma points.
+
+    ``deviation`` ``(13, r)`` holds ``h_i - h_mean`` and ``offsets`` the sigma
+    points' offsets from their centre (columns of ``L``, ``L L^T = (n +
+    lambda) P``).  Returns ``H`` (``r x 6``) with ``H = P_xh^T P^-1 = (1/2) D
+    L^-1``, ``D`` the central differences ``h_{+j} - h_{-j}``, and the
+    covariance of the regression residual ``Omega = P_hh - H P H^T``, ``H P
+    H^T = D D^T / (4 (n + lambda))``.
+    """
+    n = STATE_SIZE
+    differences = deviation[1 : n + 1] - deviation[n + 1 :]
+    h = 0.5 * np.linalg.solve(offsets[1 : n + 1], differences).T  # rows of offsets: L^T
+    spread = (COVARIANCE_WEIGHTS * deviation.T) @ deviation
+    return h, spread - differences.T @ differences / (4.0 * (n + LAMBDA))
+
+
+def update(
+    attitude: Rotation,
+    bias: Array,
+    covariance: Array,
+    measurement: AttitudeMeasurement,
+    options: FilterOptions,
+) -> tuple[Rotation, Array, Array, dict[str, float]]:
+    """Unscented measurement update (U6)-(U9) with gating.
+
+    The first pass is the plain unscented update.  While the attitude step is
+    not :func:`~solvers.filters.common.linearised` (at most
+    ``options.max_update_iterations`` passes) it is repeated as the iterated
+    posterior linearisation filter (Garcia-Fernandez, Svensson, Morelande
+    and Sarkka 2015, IEEE Trans. Signal Process. 63(20)): sigma
+    points drawn from the current posterior ``(x_i, P_i)`` give the
+    regression ``h ~ H x + b`` with residual covariance ``Omega``
+    (:func:`regression`), and the linear update of the prior ``(0, P^-)``
+    with it is ``S = H P^- H^T + Omega + R``, ``K = P^- H^T S^-1``,
+    ``x_{i+1} = K (nu_i + H x_i)``, ``P_{i+1} = P^- - K S K^T``, ``nu_i``
+    the sigma-weighted innovation at ``x_i``.  With ``x_0 = 0`` and ``P_0 =
+    P^-`` this is the unscented update itself (``H P^- H^T + Omega = P_nunu
+    - R``, ``P^- H^T = P_xnu``).  Gating uses the first pass.
+    """
+    counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan}
+    counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
+    offsets, repaired = sigma_offsets(covariance)
+    counts["covariance_repairs"] = float(repaired)
+    predicted, _ = measurement.predict(apply_error(offsets[:, :3], attitude), jacobian=False)
+    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
+    counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
+    rows = np.flatnonzero(keep)
+    if rows.size == 0:
+        return attitude, bias, covariance, counts
+    blocks = measurement.blocks[rows]
+    with np.errstate(invalid="ignore"):  # rows left out may hold NaN
+        innovations = measurement.innovation(predicted)[:, rows]
+    nu = WEIGHTS @ innovations  # (U6)
+    deviation = nu - innovations  # h_i - h_mean
+    r_all = measurement.noise_covariance_at(attitude)
+    s = (COVARIANCE_WEIGHTS * deviation.T) @ deviation + r_all[np.ix_(rows, rows)]  # (U7)
+    accepted = gate(nu, s, blocks, options.gate_probability)
+    counts["n_gated"] = float(np.unique(blocks[~accepted]).size)
+    if not accepted.any():
+        return attitude, bias, covariance, counts
+    rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
+    nu, s = nu[accepted], s[np.ix_(accepted, accepted)]
+    counts["nis"] = float(nu @ np.linalg.solve(s, nu))
+    counts["n_used"] = float(np.unique(blocks).size)
+    r = r_all[np.ix_(rows, rows)]
+    state = np.zeros(STATE_SIZE)
+    posterior = covariance
+    for iteration in range(options.max_update_iterations):
+        if iteration > 0:
+            if not finite(state, posterior):
+                break
+            offsets, repaired = sigma_offsets(posterior)
+            counts["covariance_repairs"] += float(repaired)
+            sigma_attitudes = apply_error(state[:3] + offsets[:, :3], attitude)
+            predicted, _ = measurement.predict(sigma_attitudes, jacobian=False)
+            with np.errstate(invalid="ignore"):
+                innovations = measurement.innovation(predicted)[:, rows]
+            # relinearised: drop blocks the model can no longer predict at some point
+            lost = np.unique(blocks[~np.isfinite(innovations).all(axis=0)])
+            if lost.size:
+                keep_rows = ~np.isin(blocks, lost)
+                rows, blocks, innovations = (
+                    rows[keep_rows],
+                    blocks[keep_rows],
+                    innovations[:, keep_rows],
+                )
+                counts["n_unpredictable"] += float(lost.size)
+                counts["n_used"] -= float(lost.size)
+                if rows.size == 0:
+                    break
+                r = r_all[np.ix_(rows, rows)]
+            nu = WEIGHTS @ innovations
+        h, omega = regression(nu - innovations, offsets)  # pass 0: (U7)-(U8) exactly
+        s = h @ covariance @ h.T + omega + r
+        gain = np.linalg.solve(s, h @ covariance).T
+        step = gain @ (nu + h @ state) - state
+        state = state + step
+        posterior = covariance - gain @ s @ gain.T
+        counts["update_iterations"] = float(iteration + 1)
+        regression_exact = np.trace(omega) <= options.relinearise_fraction * np.trace(r)
+        if linearised(step, posterior, options.relinearise_fraction) and regression_exact:
+            break
+    if not finite(state, posterior):  # reported as such: the epoch and later ones are flagged
+        return attitude, bias, np.full_like(covariance, np.nan), counts
+    posterior, repaired = repair_covariance(carried(posterior, state))
+    counts["covariance_repairs"] += float(repaired)
+    return apply_error(state[:3], attitude), bias + state[3:], posterior, counts  # (U9)
+
+
+def usque(
+    samples: GyroSamples,
+    t: Array,
+    measurements: Sequence[AttitudeMeasurement | None],
+    prior: FilterPrior,
+    model: GyroModel,
+    options: FilterOptions | None = None,
+    method: str = "usque",
+) -> FilterResult:
+    """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
+    its measurement (``None``: propagation only).  Same result as
+    :func:`~solvers.filters.mekf.mekf` without the history (no RTS pass)."""
+    options = options or FilterOptions()
+    index = validate_inputs(samples, t, measurements, prior)
+    gyro = prepare_gyro(samples, options)
+    record = EpochRecord(index.size)
+    attitude, bias = prior.attitude, np.asarray(prior.bias, dtype=float)
+    covariance = np.asarray(prior.covariance, dtype=float)
+    monitor = TrackMonitor(options)
+    start = 0
+    for k, (stop, measurement) in enumerate(zip(index, measurements, strict=True)):
+        attitude, bias, covariance, repaired = propagate(
+            attitude, bias, covariance, gyro, slice(start, stop), model, samples.dt
+        )
+        record.diagnostics["gyro_gap_s"][k] = gyro.gap_s[stop - 1] if stop > 0 else 0.0
+        counts = {"covariance_repairs": float(repaired)}
+        if measurement is not None and finite(covariance):
+            attitude, bias, covariance, update_counts = update(
+                attitude, bias, covariance, measurement, options
+            )
+            update_counts["covariance_repairs"] += counts["covariance_repairs"]
+            counts = update_counts
+            covariance = monitor.check(counts, covariance)
+        if not record_epoch(record, k, attitude, bias, covariance, counts):
+            break
+        start = stop
+    return filter_result(method, record, options)
