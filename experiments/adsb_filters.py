@@ -30,7 +30,6 @@ prior are drawn from child stream ``1 + i`` of the trial's seed.
 from __future__ import annotations
 
 import functools
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -45,6 +44,7 @@ from experiments.filtering import (
     gyro_truth,
     in_orbit_frame,
     run_filter,
+    run_filters,
     simulate_filter_inputs,
 )
 from experiments.metrics import error_columns
@@ -54,9 +54,10 @@ from formulations.conventions import euler321_from_attitude, orbit_frame_attitud
 from formulations.gyro import GYRO_MODELS
 from formulations.snr_measurement import SnrMeasurement
 from formulations.snr_problem import SnrEpoch
-from solvers.filters import FilterResult, rts_smooth
+from solvers.filters import FilterResult
 from solvers.result import BatchSolution
 
+SNR_SUFFIX = "_snr"
 FILTER_METHODS = {"mekf_paper": "mekf", "mekf_snr": "mekf", "usque_snr": "usque", "rts_snr": "rts"}
 """Filter rows and the filter kind each runs."""
 SNR_MODELS = ("truncated", "gaussian")
@@ -166,15 +167,9 @@ def filter_rows(
             if paper is None:
                 raise ValueError(f"mekf_paper needs the {PAPER_SOURCE} solution")
             runs["mekf_paper"] = run_filter("mekf", inputs, truth, paper, "mekf_paper")
-        if {"mekf_snr", "rts_snr"} & set(wanted):
-            runs["mekf_snr"] = run_filter("mekf", inputs, truth, snr, "mekf_snr")
-        if "rts_snr" in wanted:
-            forward, seconds = runs["mekf_snr"]
-            start = time.perf_counter()
-            smoothed = rts_smooth(forward, method="rts_snr")
-            runs["rts_snr"] = (smoothed, seconds + time.perf_counter() - start)
-        if "usque_snr" in wanted:
-            runs["usque_snr"] = run_filter("usque", inputs, truth, snr, "usque_snr")
+        kinds = [FILTER_METHODS[m] for m in wanted if m.endswith(SNR_SUFFIX)]
+        for kind, run in run_filters(kinds, inputs, truth, snr, SNR_SUFFIX).items():
+            runs[kind + SNR_SUFFIX] = run
         for method in wanted:
             result, seconds = runs[method]
             frames.append(

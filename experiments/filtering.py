@@ -137,7 +137,10 @@ def run_filter(
     measurements: Sequence[AttitudeMeasurement | None],
     method: str,
 ) -> tuple[FilterResult, float]:
-    """Run filter ``kind`` on orbit-frame ``measurements``; the result and its wall time (s)."""
+    """Run filter ``kind`` on orbit-frame ``measurements``; the result and its wall time (s).
+
+    ``rts`` runs the MEKF and smooths it.
+    """
     if kind not in FILTERS:
         raise ValueError(f"unknown filter kind {kind!r}; known: {FILTERS}")
     inertial = referenced(measurements, truth.epoch_frames)
@@ -148,6 +151,34 @@ def run_filter(
     if kind == "rts":
         result = rts_smooth(result, method=method)
     return result, time.perf_counter() - start
+
+
+def run_filters(
+    kinds: Sequence[str],
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+    suffix: str = "",
+) -> dict[str, tuple[FilterResult, float]]:
+    """Each filter kind's result and wall time (s), methods named ``kind + suffix``.
+
+    The RTS pass smooths the MEKF run (run once even when both are asked for);
+    its time includes the MEKF's.
+    """
+    unknown = sorted(set(kinds) - set(FILTERS))
+    if unknown:
+        raise ValueError(f"unknown filter kinds {unknown}; known: {FILTERS}")
+    out: dict[str, tuple[FilterResult, float]] = {}
+    if {"mekf", "rts"} & set(kinds):
+        out["mekf"] = run_filter("mekf", inputs, truth, measurements, "mekf" + suffix)
+    if "rts" in kinds:
+        filtered, seconds = out["mekf"]
+        start = time.perf_counter()
+        smoothed = rts_smooth(filtered, method="rts" + suffix)
+        out["rts"] = (smoothed, seconds + time.perf_counter() - start)
+    if "usque" in kinds:
+        out["usque"] = run_filter("usque", inputs, truth, measurements, "usque" + suffix)
+    return {kind: out[kind] for kind in kinds}
 
 
 def in_orbit_frame(solution: BatchSolution, eci_to_orbit: Rotation) -> BatchSolution:

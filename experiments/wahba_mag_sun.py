@@ -29,8 +29,7 @@ from __future__ import annotations
 
 import functools
 import math
-import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -41,13 +40,12 @@ from experiments.filtering import (
     FILTERS,
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
-    FilterInputs,
     GyroTruth,
     child_rng,
     filter_columns,
     gyro_truth,
     in_orbit_frame,
-    run_filter,
+    run_filters,
     simulate_filter_inputs,
 )
 from experiments.metrics import error_columns
@@ -60,11 +58,10 @@ from experiments.scenarios.wahba_mag_sun import (
     true_attitude,
 )
 from experiments.wahba_report import report
-from formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
+from formulations.attitude_measurement import VectorMeasurement
 from formulations.conventions import orbit_frame_attitude
 from formulations.gyro import GYRO_MODELS
 from formulations.wahba_covariance import quest_covariance
-from solvers.filters import FilterResult, rts_smooth
 from solvers.wahba import WAHBA_SOLVERS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
@@ -79,9 +76,6 @@ PARAMETERS: dict[str, Any] = {
     "gyro": "mems",
     "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
 }
-
-TO_DEG_H = math.degrees(1.0) * 3600.0
-"""rad/s -> deg/h."""
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -172,26 +166,6 @@ def _filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth
     return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
 
 
-def run_filters(
-    kinds: list[str],
-    inputs: FilterInputs,
-    truth: GyroTruth,
-    measurements: Sequence[AttitudeMeasurement | None],
-) -> dict[str, tuple[FilterResult, float]]:
-    """Each filter's result and wall time (s); the RTS pass smooths the MEKF run once."""
-    out: dict[str, tuple[FilterResult, float]] = {}
-    if "mekf" in kinds or "rts" in kinds:
-        out["mekf"] = run_filter("mekf", inputs, truth, measurements, "mekf")
-    if "rts" in kinds:
-        filtered, seconds = out["mekf"]
-        start = time.perf_counter()
-        smoothed = rts_smooth(filtered, method="rts")
-        out["rts"] = (smoothed, seconds + time.perf_counter() - start)
-    if "usque" in kinds:
-        out["usque"] = run_filter("usque", inputs, truth, measurements, "usque")
-    return {kind: out[kind] for kind in kinds}
-
-
 def _filter_rows(
     setting: Setting,
     seed: np.random.SeedSequence,
@@ -222,7 +196,6 @@ def _filter_rows(
         setting["filters"], inputs, truth, measurements
     ).items():
         solution = in_orbit_frame(result.solution, truth.epoch_frames)
-        bias = {f"bias_{a}_deg_h": TO_DEG_H * result.bias[:, i] for i, a in enumerate("xyz")}
         frames.append(
             pd.DataFrame(
                 {
@@ -232,7 +205,6 @@ def _filter_rows(
                     "valid": solution.valid,
                     "reason": solution.reason.astype(str),
                     **filter_columns(result, inputs, truth),
-                    **bias,
                     "runtime_s": seconds,
                 }
             )

@@ -47,7 +47,7 @@ class AttitudeMeasurement(ABC):
     z: Array
     """``(m,)`` measured values."""
     noise_covariance: Array
-    """``(m, m)`` covariance ``R``."""
+    """``R``: ``(m,)`` variances of independent rows, or an ``(m, m)`` matrix."""
     blocks: NDArray[np.intp]
     """``(m,)`` block index of each row (rows of one observation share a block)."""
 
@@ -166,7 +166,7 @@ class VectorMeasurement(AttitudeMeasurement):
             raise InvalidObservationError("vector standard deviations must be finite and positive")
         self.reference = r[keep]
         self.z = b[keep].ravel()
-        self.noise_covariance = np.diag(np.repeat(s[keep] ** 2, 3))
+        self.noise_covariance = np.repeat(s[keep] ** 2, 3)
         self.blocks = np.repeat(np.arange(int(keep.sum())), 3)
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:

@@ -66,7 +66,7 @@ class SnrMeasurement(AttitudeMeasurement):
         self.truncated = truncated
         self.z = epoch.snr_db
         sigma = np.broadcast_to(epoch.sigma_db, (epoch.m,))
-        self.noise_covariance = np.diag(sigma**2)
+        self.noise_covariance = sigma**2
         self.blocks = np.arange(epoch.m)
         self._model = None
         if truncated:
@@ -124,4 +124,4 @@ class SnrMeasurement(AttitudeMeasurement):
         matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
         f = self._snr(matrices, self._usable(matrices))[0]
         factor = truncated_information_factor(f, self.sigma, self.epoch.threshold_db)
-        return np.diag(self.sigma**2 * np.where(np.isfinite(factor), factor, 1.0))
+        return self.sigma**2 * np.where(np.isfinite(factor), factor, 1.0)

@@ -196,15 +196,56 @@ def gate_threshold(probability: float, dof: int) -> float:
     return float(chi2.ppf(probability, dof))
 
 
+def noise_subset(noise: Array, rows: NDArray[np.intp]) -> Array:
+    """``R`` restricted to ``rows``: ``(m,)`` variances or an ``(m, m)`` matrix."""
+    return noise[rows] if noise.ndim == 1 else noise[np.ix_(rows, rows)]
+
+
+def solve_noise(noise: Array, x: Array) -> Array:
+    """``R^-1 x`` for ``(m,)`` variances (elementwise) or an ``(m, m)`` matrix."""
+    if noise.ndim == 1:
+        return x / noise.reshape(-1, *([1] * (x.ndim - 1)))
+    return np.linalg.solve(noise, x)
+
+
+def noise_sandwich(gain: Array, noise: Array) -> Array:
+    """``K R K^T``."""
+    return (gain * noise) @ gain.T if noise.ndim == 1 else gain @ noise @ gain.T
+
+
+def kalman_gain(
+    covariance: Array, h: Array, noise: Array, innovation: Array
+) -> tuple[Array, float, Array]:
+    """Gain ``K = P H^T S^-1``, ``nu^T S^-1 nu`` and the posterior ``(I - K H) P``,
+    ``S = H P H^T + R``, in information form.
+
+    ``P+ = (P^-1 + H^T R^-1 H)^-1``, ``K = P+ H^T R^-1`` and the
+    matrix-inversion lemma for the normalised innovation: only ``6 x 6``
+    inverses and work linear in the number of rows when ``R`` is given as
+    variances (SNRs, unit vectors), however many rows an epoch has.
+    """
+    weighted = solve_noise(noise, np.column_stack([h, innovation]))
+    r_inv_h, r_inv_nu = weighted[:, :-1], weighted[:, -1]
+    posterior = np.linalg.inv(np.linalg.inv(covariance) + h.T @ r_inv_h)
+    projected = h.T @ r_inv_nu
+    nis = float(innovation @ r_inv_nu - projected @ posterior @ projected)
+    return posterior @ r_inv_h.T, nis, posterior
+
+
 def gate(
     innovation: Array,
-    innovation_covariance: Array,
+    factor: Array,
+    weight: Array,
+    noise: Array,
     blocks: NDArray[np.intp],
     probability: float,
 ) -> NDArray[np.bool_]:
     """Rows whose block's normalised innovation squared is within the chi-square gate.
 
-    Blocks of equal size are tested together (batched solves).
+    The innovation covariance is ``S = F^T W F + R`` (``F`` ``(k, m)``: for the
+    MEKF ``H^T`` with ``W = P``; for USQUE the sigma deviations with ``W`` the
+    covariance weights); only its diagonal blocks are formed, blocks of equal
+    size tested together, so the cost is linear in the number of blocks.
     """
     keep = np.ones(innovation.shape[0], dtype=bool)
     if probability >= 1.0 or innovation.size == 0:
@@ -218,7 +259,12 @@ def gate(
             else (first[sizes == size][:, None])
         )
         nu = innovation[rows]
-        s = innovation_covariance[rows[:, :, None], rows[:, None, :]]
+        columns = factor[:, rows]  # (k, blocks, size)
+        s = np.einsum("kbi,kl,lbj->bij", columns, weight, columns)
+        if noise.ndim == 1:
+            s += noise[rows][:, :, None] * np.eye(int(size))
+        else:
+            s += noise[rows[:, :, None], rows[:, None, :]]
         nis = np.einsum("bi,bi->b", nu, np.linalg.solve(s, nu[..., None])[..., 0])
         # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
         keep[rows[~(nis <= gate_threshold(probability, int(size)))].ravel()] = False

@@ -42,7 +42,10 @@ from solvers.filters.common import (
     error_jacobian,
     filter_result,
     gate,
+    kalman_gain,
     linearised,
+    noise_sandwich,
+    noise_subset,
     prepare_gyro,
     propagate_attitude,
     record_epoch,
@@ -71,32 +74,6 @@ def propagate(
         covariance = phi @ covariance @ phi.T + q
         total = phi @ total
     return propagate_attitude(attitude, rates, dt), covariance, total
-
-
-def _solve_noise(r: Array, x: Array) -> Array:
-    """``R^-1 x``; elementwise when ``R`` is diagonal (SNRs), else a dense solve."""
-    d = np.diagonal(r)
-    if np.count_nonzero(r) == np.count_nonzero(d):
-        return x / d.reshape(-1, *([1] * (x.ndim - 1)))
-    return np.linalg.solve(r, x)
-
-
-def kalman_gain(
-    covariance: Array, h: Array, r: Array, innovation: Array
-) -> tuple[Array, float, Array]:
-    """Gain ``K = P H^T S^-1``, ``nu^T S^-1 nu`` and the posterior ``(I - K H) P``,
-    ``S = H P H^T + R``, in information form.
-
-    ``P+ = (P^-1 + H^T R^-1 H)^-1``, ``K = P+ H^T R^-1`` and the
-    matrix-inversion lemma for the normalised innovation: only ``6 x 6``
-    inverses, however many rows.
-    """
-    weighted = _solve_noise(r, np.column_stack([h, innovation]))
-    r_inv_h, r_inv_nu = weighted[:, :-1], weighted[:, -1]
-    posterior = np.linalg.inv(np.linalg.inv(covariance) + h.T @ r_inv_h)
-    projected = h.T @ r_inv_nu
-    nis = float(innovation @ r_inv_nu - projected @ posterior @ projected)
-    return posterior @ r_inv_h.T, nis, posterior
 
 
 def update(
@@ -140,14 +117,20 @@ def update(
         if iteration == 0:
             keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
             rows = np.flatnonzero(keep)
-            s = h_all[rows] @ covariance @ h_all[rows].T + r_all[np.ix_(rows, rows)]
-            accepted = gate(innovation[rows], s, blocks[rows], options.gate_probability)
+            accepted = gate(
+                innovation[rows],
+                h_all[rows].T,
+                covariance,
+                noise_subset(r_all, rows),
+                blocks[rows],
+                options.gate_probability,
+            )
             counts["n_gated"] = float(np.unique(blocks[rows[~accepted]]).size)
             counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
             rows = rows[accepted]
             if rows.size == 0:
                 return attitude, bias, covariance, counts
-            r = r_all[np.ix_(rows, rows)]
+            r = noise_subset(r_all, rows)
         else:  # relinearised: drop blocks the model can no longer predict
             lost = np.unique(blocks[rows[~np.isfinite(innovation[rows])]])
             if lost.size:
@@ -155,7 +138,7 @@ def update(
                 counts["n_unpredictable"] += float(lost.size)
                 if rows.size == 0:
                     break
-                r = r_all[np.ix_(rows, rows)]
+                r = noise_subset(r_all, rows)
         h, nu = h_all[rows], innovation[rows]
         gain, nis, posterior = kalman_gain(covariance, h, r, nu)
         step = gain @ (nu + h @ state) - state
@@ -169,7 +152,7 @@ def update(
             break
         current = apply_error(state[:3], attitude)
     joseph = eye - gain @ h
-    covariance = joseph @ covariance @ joseph.T + gain @ r @ gain.T
+    covariance = joseph @ covariance @ joseph.T + noise_sandwich(gain, r)
     reset = np.eye(STATE_SIZE)
     reset[:3, :3] = error_jacobian(state[:3])
     covariance, repaired = repair_covariance(reset @ covariance @ reset.T)

@@ -1,0 +1,232 @@
+"""Scaling benchmark of the batch factor-graph smoother on ``adsb-snr`` (issue 6 sec. 4).
+
+For each pass length (default 15 min, 1 h, 4 h) on the ``adsb-snr``
+scenario (:mod:`experiments.adsb_snr`: seed 000's noise and 6 dB threshold,
+10,000 aircraft, 1 s epochs), with the measurements the SNR filters use
+(:func:`experiments.adsb_filters.snr_measurements`, threshold-truncated
+model, wrapped for the inertial attitude by
+:func:`experiments.filtering.referenced`) and the ``mems`` gyro at 10 Hz
+(:func:`experiments.filtering.simulate_filter_inputs`, 10 deg initial
+attitude error), it times:
+
+* ``mekf``: the forward MEKF (``mekf_snr``), and ``rts`` its backward pass;
+* ``smoother``: :func:`solvers.smoother.smooth` started from the RTS result
+  (``initial=``; the time of the smoother alone, split into factor set-up,
+  optimisation and marginals, with the number of passes over the
+  measurements, each one ``predict`` per epoch);
+* ``predict``: one pass of ``predict`` over all epochs at the truth, the
+  interface's cost that bounds the smoother's from below.
+
+and reports each method's RMS attitude error (body axes, degrees, all valid
+epochs and those after 300 s), the posterior Cramer-Rao bound of the pass
+(the smoother's marginal covariance at the truth: its information is the
+Fisher information of the whole pass, gyro and prior included), and the
+time ratio per doubling of the pass (target: at most 2.5).
+
+Run with ``python -m experiments.bench_smoother`` (``--durations 900 1800
+3600`` for other lengths; building the 4 h scenario takes about a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from experiments.adsb_filters import adsb_gyro_truth, snr_measurements
+from experiments.adsb_snr import PARAMETERS, noise_free_pass, simulate_pass
+from experiments.filtering import child_rng, referenced, simulate_filter_inputs
+from formulations.conventions import attitude_error
+from formulations.gyro import GYRO_MODELS
+from solvers.filters import FilterOptions, mekf, rts_smooth
+from solvers.smoother import SmootherOptions, smooth
+
+BURN_IN_S = 300.0
+
+
+@dataclass(frozen=True)
+class Row:
+    duration_s: float
+    epochs: int
+    observations: int
+    build_s: float
+    predict_s: float
+    mekf_s: float
+    rts_s: float
+    smoother_s: float
+    factors_s: float
+    optimisation_s: float
+    marginals_s: float
+    evaluations: int
+    iterations: int
+    converged: bool
+    rms_deg: dict[str, float]
+    rms_late_deg: dict[str, float]
+    bound_deg: float
+    nees: float
+
+
+def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
+    valid = solution.valid
+    error = np.full((valid.size, 3), np.nan)
+    error[valid] = attitude_error(solution.attitude(), truth[valid])
+    squared = np.sum(error**2, axis=1)
+    return (
+        float(np.degrees(np.sqrt(np.nanmean(squared)))),
+        float(np.degrees(np.sqrt(np.nanmean(squared[late])))),
+    )
+
+
+def run(duration_s: float, seed: int, gyro: str) -> Row:
+    """One pass of ``duration_s`` (module docstring)."""
+    start = time.perf_counter()
+    scenario = noise_free_pass(duration_s, 1.0, PARAMETERS["n_aircraft"], 0)
+    truth = adsb_gyro_truth(duration_s, 1.0, PARAMETERS["n_aircraft"], 0, 10.0)
+    build = time.perf_counter() - start
+    root = np.random.SeedSequence(seed)
+    noisy = simulate_pass(
+        scenario,
+        np.random.default_rng(root),
+        PARAMETERS["snr_sigma_db"],
+        PARAMETERS["threshold_db"],
+    )
+    measurements = referenced(snr_measurements(noisy.epochs, "truncated"), truth.epoch_frames)
+    model = GYRO_MODELS[gyro]
+    inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))
+    t = truth.t[truth.epoch_samples]
+    true_attitude = truth.attitude[truth.epoch_samples]
+    late = t >= t[0] + BURN_IN_S
+
+    start = time.perf_counter()
+    for k, m in enumerate(measurements):
+        if m is not None:
+            m.predict(true_attitude[k])
+    predict = time.perf_counter() - start
+
+    start = time.perf_counter()
+    forward = mekf(inputs.gyro.samples, t, measurements, inputs.prior, model)
+    mekf_s = time.perf_counter() - start
+    start = time.perf_counter()
+    backward = rts_smooth(forward)
+    rts_s = time.perf_counter() - start
+    start = time.perf_counter()
+    result = smooth(inputs.gyro.samples, t, measurements, inputs.prior, model, initial=backward)
+    smoother_s = time.perf_counter() - start
+    report = result.report
+
+    # posterior bound: the marginal covariance at the truth, no gating
+    at_truth = replace(
+        backward,
+        solution=replace(backward.solution, quaternion=true_attitude.as_quat()),
+        bias=inputs.gyro.bias[truth.epoch_samples],
+    )
+    bound_options = SmootherOptions(
+        max_iterations=0, flag_unconverged=False, filter=FilterOptions(gate_probability=1.0)
+    )
+    bound = smooth(
+        inputs.gyro.samples,
+        t,
+        measurements,
+        inputs.prior,
+        model,
+        bound_options,
+        initial=at_truth,
+    )
+    trace = np.trace(bound.solution.covariance, axis1=1, axis2=2)
+
+    rms, rms_late = {}, {}
+    for name, solution in (
+        ("mekf", forward.solution),
+        ("rts", backward.solution),
+        ("smoother", result.solution),
+    ):
+        rms[name], rms_late[name] = _rms(solution, true_attitude, late)
+    valid = result.solution.valid
+    error = attitude_error(result.solution.attitude(), true_attitude[valid])
+    nees = np.einsum("ki,kij,kj->k", error, np.linalg.inv(result.solution.covariance[valid]), error)
+    return Row(
+        duration_s=duration_s,
+        epochs=t.size,
+        observations=int(sum(m.size for m in measurements if m is not None)),
+        build_s=build,
+        predict_s=predict,
+        mekf_s=mekf_s,
+        rts_s=rts_s,
+        smoother_s=smoother_s,
+        factors_s=report.seconds["factors"],
+        optimisation_s=report.seconds["optimisation"],
+        marginals_s=report.seconds["marginals"],
+        evaluations=report.evaluations,
+        iterations=report.iterations,
+        converged=report.converged,
+        rms_deg=rms,
+        rms_late_deg=rms_late,
+        bound_deg=float(np.degrees(np.sqrt(np.nanmean(trace)))),
+        nees=float(np.mean(nees)),
+    )
+
+
+def format_table(rows: list[Row], gyro: str) -> str:
+    lines = [
+        f"Batch smoother on adsb-snr (truncated SNR model, {gyro} gyro at 10 Hz), "
+        "started from the RTS result; times in seconds.",
+        "",
+        "| pass | epochs | SNRs | smoother | factors / optimise / marginals | passes | "
+        "per doubling | one predict pass | mekf | rts |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    previous = None
+    for r in rows:
+        doubling = ""
+        if previous is not None:
+            exponent = np.log2(r.duration_s / previous.duration_s)
+            doubling = f"{(r.smoother_s / previous.smoother_s) ** (1.0 / exponent):.2f}"
+        lines.append(
+            f"| {r.duration_s / 60:.0f} min | {r.epochs} | {r.observations} | "
+            f"{r.smoother_s:.1f} | {r.factors_s:.1f} / {r.optimisation_s:.1f} / "
+            f"{r.marginals_s:.1f} | {r.evaluations + 1} ({r.iterations} it., "
+            f"{'converged' if r.converged else 'NOT converged'}) | {doubling} | "
+            f"{r.predict_s:.1f} | {r.mekf_s:.1f} | {r.rts_s:.1f} |"
+        )
+        previous = r
+    lines += [
+        "",
+        f"RMS attitude error (deg; all epochs, and after {BURN_IN_S:.0f} s) and the "
+        "posterior bound (RMS of the marginal covariance at the truth):",
+        "",
+        "| pass | mekf | rts | smoother | bound | smoother / bound | smoother NEES (3) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        cells = " | ".join(
+            f"{r.rms_deg[m]:.4f} / {r.rms_late_deg[m]:.4f}" for m in ("mekf", "rts", "smoother")
+        )
+        lines.append(
+            f"| {r.duration_s / 60:.0f} min | {cells} | {r.bound_deg:.4f} | "
+            f"{r.rms_deg['smoother'] / r.bound_deg:.3f} | {r.nees:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--durations", type=float, nargs="+", default=[900.0, 3600.0, 14400.0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--gyro", default="mems", choices=sorted(GYRO_MODELS))
+    args = parser.parse_args()
+    rows = []
+    for duration in sorted(args.durations):
+        rows.append(run(duration, args.seed, args.gyro))
+        r = rows[-1]
+        print(
+            f"{duration:.0f} s: smoother {r.smoother_s:.1f} s ({r.evaluations + 1} passes), "
+            f"mekf {r.mekf_s:.1f} s, build {r.build_s:.1f} s",
+            flush=True,
+        )
+    print(format_table(rows, args.gyro))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,594 @@
+"""Batch factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
+
+Variables: one ``gtsam.Rot3`` (``R = A^T``, :mod:`solvers.smoother.conventions`)
+and one bias 3-vector per node; the nodes are the output epochs (gyro sample
+times, as for the filters) and, when the first epoch is later than the first
+gyro sample, one more node there carrying the prior.
+
+Factors: the prior with its full ``6 x 6`` covariance, ``gtsam.AHRSFactor``
+and ``BetweenFactorVector`` between consecutive nodes
+(:mod:`solvers.smoother.gyro_factors`), and one stacked measurement factor per
+epoch (:mod:`solvers.smoother.measurement_factors`; SNRs of seed 000 eq. 10 /
+seed 004 eq. 7, unit vectors, Euler angles, all through the
+:class:`~formulations.attitude_measurement.AttitudeMeasurement` interface).
+
+Optimiser: Levenberg-Marquardt driven from Python, because a Python
+``CustomFactor`` inside GTSAM's optimisers receives a deep copy of the whole
+``Values`` on every call and makes a pass quadratic.  Each iteration:
+
+1. linearise the built-in factors (``NonlinearFactorGraph.linearize``, C++),
+   add the prior's and every epoch's ``JacobianFactor`` computed in numpy at
+   the current estimate (their ``predict`` calls are the dominant cost, one
+   per epoch per iteration), and the damping ``sqrt(lambda) I`` on every
+   variable;
+2. solve (``GaussianFactorGraph.optimize``, multifrontal elimination in
+   COLAMD order: linear in the pass for this chain-structured graph), retract
+   (``A <- exp(-xi) A``, ``b <- b + d``);
+3. accept the step if the total cost (``graph.error`` of the built-in
+   factors plus the prior's and the measurements' half squared (or Huber)
+   whitened residuals) decreased, and divide ``lambda`` by
+   ``lambda_factor``; else multiply it;
+4. stop when the decrease predicted by the undamped linear model, or the
+   decrease achieved by an accepted step, is at most ``absolute_tolerance +
+   relative_tolerance * cost`` (converged); or when a rejected step changes
+   the cost by less than the rounding level (converged); otherwise after
+   ``max_iterations`` trial steps or when ``lambda`` exceeds ``max_lambda``
+   (not converged: reported in :class:`SmootherReport` with the final cost and
+   iterations, and by default every epoch is flagged invalid with that reason;
+   the estimates stay in the report).
+
+Initialisation (``SmootherOptions.initialisation``): ``"mekf"`` (default) runs
+the forward MEKF and its RTS pass on the same inputs
+(:mod:`solvers.filters`), whose estimates are within the linearisation range
+of the batch optimum; ``"gyro"`` integrates the gyro from the prior (cheap;
+only for passes short enough, or gyros good enough, that the drift stays
+within the measurement models' convergence range).  A caller that has
+already run a filter passes its result as ``initial`` and saves that cost.
+Epochs the initial estimate leaves undetermined are filled by gyro
+integration from the previous node.
+
+Marginal covariances at the solution: ``gtsam.Marginals`` of the final
+undamped linear system (built-in factors, prior, measurement factors with
+their final IRLS weights); per epoch the joint ``6 x 6`` of ``[xi, d]``
+(``jointMarginalCovariance``; ``cross_covariance=False`` keeps only the
+per-key blocks, about 12 times cheaper), converted to the error state
+``[delta, delta_beta]`` (cross block negated).  At the truth the inverse of
+this information is the posterior Cramer-Rao bound of the pass.
+
+Gyro gaps follow the filters (:func:`solvers.filters.common.prepare_gyro`):
+the last valid sample is held and the AHRS factor's covariance grows by the
+filters' hold variance; epochs in a gap longer than
+``filter.max_gyro_gap_s`` are flagged invalid as the filters flag them, so
+all methods are compared on the same epochs.  The filters' "lost track" rule
+does not apply (the smoother bridges gated epochs with the gyro and its
+marginal covariance says how well); ``filter.max_attitude_sigma`` does.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from formulations.attitude_measurement import AttitudeMeasurement
+from formulations.errors import ConvergenceError
+from formulations.gyro import GyroModel, GyroSamples
+from solvers.filters.common import (
+    STATE_SIZE,
+    EpochRecord,
+    FilterOptions,
+    FilterPrior,
+    FilterResult,
+    PreparedGyro,
+    filter_result,
+    prepare_gyro,
+    propagate_attitude,
+    repair_covariance,
+    validate_inputs,
+)
+from solvers.filters.mekf import mekf
+from solvers.filters.rts import rts_smooth
+from solvers.smoother.conventions import (
+    Array,
+    attitude_key,
+    bias_key,
+    error_state_covariance,
+    retract,
+    step_arrays,
+    to_values,
+)
+from solvers.smoother.gyro_factors import JointPrior, check_model, gyro_graph, gyro_intervals
+from solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+
+INITIALISATIONS = ("mekf", "gyro")
+UNDETERMINED_SIGMA = np.pi
+"""Attitude standard deviation (rad) assumed for gating where the initial estimate has none."""
+ROUNDING = 1e-13
+"""A rejected step whose cost differs by less than this fraction is at the rounding floor."""
+
+
+@dataclass(frozen=True)
+class SmootherOptions:
+    """Options of :func:`smooth` (module docstring).
+
+    Attributes:
+        initialisation: ``"mekf"`` or ``"gyro"`` (ignored when ``initial`` is given).
+        max_iterations: trial steps (each one ``predict`` per epoch) before giving up.
+        relative_tolerance, absolute_tolerance: convergence on the cost decrease
+            (predicted or achieved) ``<= absolute + relative * cost``; cost units
+            are half chi-square.
+        initial_lambda, lambda_factor, max_lambda: Levenberg damping ``lambda I``.
+        huber_threshold: ``k`` of the Huber loss on each block's whitened
+            residual norm; ``None`` (default) is plain least squares.
+        noise_updates: times ``R`` is re-evaluated at the solution and the
+            problem re-solved (attitude-dependent ``R``: truncated SNRs).
+        bias_relinearise_angle: the gyro factors are preintegrated again about
+            the current bias when ``|b - b_hat| T`` exceeds this (rad).
+        cross_covariance: joint attitude-bias marginals (else block-diagonal).
+        flag_unconverged: flag every epoch invalid when the optimiser did not converge.
+        filter: gating, gyro-gap and validity rules shared with the filters
+            (and the options of the initialising MEKF).
+    """
+
+    initialisation: str = "mekf"
+    max_iterations: int = 30
+    relative_tolerance: float = 1e-10
+    absolute_tolerance: float = 1e-6
+    initial_lambda: float = 1e-6
+    lambda_factor: float = 10.0
+    max_lambda: float = 1e8
+    huber_threshold: float | None = None
+    noise_updates: int = 0
+    bias_relinearise_angle: float = 1e-5
+    cross_covariance: bool = True
+    flag_unconverged: bool = True
+    filter: FilterOptions = field(default_factory=FilterOptions)
+
+    def __post_init__(self) -> None:
+        if self.initialisation not in INITIALISATIONS:
+            raise ValueError(f"initialisation must be one of {INITIALISATIONS}")
+        if self.huber_threshold is not None and not self.huber_threshold > 0:
+            raise ValueError("huber_threshold must be positive (or None)")
+        if self.max_iterations < 0 or self.lambda_factor <= 1 or self.initial_lambda <= 0:
+            raise ValueError("need max_iterations >= 0, lambda_factor > 1, initial_lambda > 0")
+
+
+@dataclass
+class SmootherProblem:
+    """The cost the optimiser minimises (exposed for checks, e.g. the brute-force test).
+
+    ``cost = graph.error(values) + prior.cost(values) + sum of the epoch
+    factors' costs``, over ``n`` nodes; output epoch ``k`` is node ``k + offset``.
+    """
+
+    graph: gtsam.NonlinearFactorGraph
+    prior: JointPrior
+    factors: list[EpochFactor]
+    n: int
+    offset: int
+    huber_threshold: float | None
+    bias_hat: Array
+
+    def measurement_cost(self) -> float:
+        return sum(f.current_cost(self.huber_threshold) for f in self.factors)
+
+    def cost(self, values: gtsam.Values) -> float:
+        """Total cost at ``values``, the epoch factors at their current linearisation."""
+        return self.graph.error(values) + self.prior.cost(values) + self.measurement_cost()
+
+    def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+        """Undamped whitened linear system at ``values`` (the factors' current linearisation)."""
+        linear = self.graph.linearize(values)
+        linear.add(self.prior.linearize(values))
+        for f in self.factors:
+            factor = f.linear_factor(self.huber_threshold)
+            if factor is not None:
+                linear.add(factor)
+        return linear
+
+
+@dataclass(frozen=True)
+class SmootherReport:
+    """How the optimisation went (whole pass).
+
+    ``quaternion`` and ``bias`` are the final estimates at the output epochs
+    even where the result flags them (e.g. not converged); ``seconds`` splits
+    the wall time into ``initialisation``, ``factors`` (``R`` and gating),
+    ``optimisation``, ``marginals`` and ``total``.  ``evaluations`` counts
+    passes over all measurements (one ``predict`` per epoch each) after the
+    initial one.  ``2 final_cost / measurement_rows`` is of order 1 at a
+    correct minimum with consistent noise models (about 1 for SNRs, 2/3 for
+    unit vectors, whose three rows carry two degrees of freedom); a wrong
+    local minimum leaves it far above.
+    """
+
+    converged: bool
+    message: str
+    iterations: int
+    evaluations: int
+    initial_cost: float
+    final_cost: float
+    final_lambda: float
+    graph_rebuilds: int
+    noise_updates: int
+    n_gated: int
+    n_nan: int
+    n_unpredictable: int
+    n_downweighted: int
+    measurement_rows: int
+    initialisation: str
+    seconds: dict[str, float]
+    quaternion: Array
+    bias: Array
+    problem: SmootherProblem
+
+
+@dataclass(frozen=True)
+class SmootherResult(FilterResult):
+    """A :class:`~solvers.filters.common.FilterResult` with the optimiser's report.
+
+    ``solution.loss`` (diagnostic ``nis``) is the epoch's normalised residual
+    squared at the solution, ``nu^T R^-1 nu`` over its used rows;
+    diagnostics ``n_used``, ``n_gated``, ``n_nan``, ``n_unpredictable`` count
+    observation blocks, ``n_downweighted`` the blocks the Huber loss
+    down-weights, ``update_iterations`` the pass's iterations.
+    """
+
+    report: SmootherReport | None = None
+
+
+def _initial_estimate(
+    samples: GyroSamples,
+    t: Array,
+    measurements: Sequence[AttitudeMeasurement | None],
+    prior: FilterPrior,
+    model: GyroModel,
+    options: SmootherOptions,
+    initial: FilterResult | None,
+) -> tuple[Array, Array, Array, str]:
+    """Quaternions, biases and ``6 x 6`` covariances at the epochs (NaN where undetermined)."""
+    if initial is None:
+        if options.initialisation == "mekf":
+            forward = mekf(samples, t, measurements, prior, model, options.filter)
+            initial = rts_smooth(forward, options.filter)
+            label = "mekf+rts"
+        else:
+            forward = mekf(samples, t, [None] * len(measurements), prior, model, options.filter)
+            initial = forward
+            label = "gyro"
+        history = forward.history
+    else:
+        history, label = initial.history, "given"
+    q = np.array(initial.solution.quaternion, dtype=float)
+    b = np.array(initial.bias, dtype=float)
+    p = np.array(initial.covariance, dtype=float)
+    if history is not None:  # epochs the result flags keep the filter's raw estimate
+        missing = ~np.isfinite(q).all(axis=1)
+        q[missing] = history.filtered_quaternion[missing]
+        b[missing] = history.filtered_bias[missing]
+        p[missing] = history.filtered_covariance[missing]
+    return q, b, p, label
+
+
+def _fill_nodes(
+    q: Array, b: Array, p: Array, nodes: Array, gyro: PreparedGyro, prior: FilterPrior, dt: float
+) -> tuple[Rotation, Array, Array]:
+    """Node estimates with undetermined ones filled by gyro integration from the previous node."""
+    n = nodes.size
+    covariance = np.where(np.isfinite(p).all(axis=(1, 2))[:, None, None], p, np.nan)
+    attitudes = np.full((n, 4), np.nan)
+    bias = np.full((n, 3), np.nan)
+    large = np.diag([UNDETERMINED_SIGMA**2] * 3 + [np.inf] * 3)
+    for k in range(n):
+        ok = np.isfinite(q[k]).all() and np.isfinite(b[k]).all()
+        if ok:
+            attitudes[k], bias[k] = q[k], b[k]
+        elif k == 0:
+            attitudes[k], bias[k] = prior.attitude.as_quat(), prior.bias
+            covariance[k] = prior.covariance
+        else:
+            start, stop = nodes[k - 1], nodes[k]
+            a = propagate_attitude(
+                Rotation.from_quat(attitudes[k - 1]), gyro.rates[start:stop] - bias[k - 1], dt
+            )
+            attitudes[k], bias[k] = a.as_quat(), bias[k - 1]
+        if not np.isfinite(covariance[k]).all():
+            covariance[k] = large
+    return Rotation.from_quat(attitudes), bias, covariance
+
+
+@dataclass
+class _Outcome:
+    attitudes: Rotation
+    bias: Array
+    values: gtsam.Values
+    cost: float
+    converged: bool
+    message: str
+    iterations: int
+    evaluations: int
+    final_lambda: float
+    rebuilds: int
+
+
+def _damped(linear: gtsam.GaussianFactorGraph, n: int, lam: float) -> gtsam.GaussianFactorGraph:
+    damped = linear.clone()
+    root = np.sqrt(lam) * np.eye(3)
+    zero = np.zeros(3)
+    unit = gtsam.noiseModel.Unit.Create(3)
+    for k in range(n):
+        damped.add(gtsam.JacobianFactor(attitude_key(k), root, zero, unit))
+        damped.add(gtsam.JacobianFactor(bias_key(k), root, zero, unit))
+    return damped
+
+
+def _optimise(
+    problem: SmootherProblem,
+    rebuild: Callable[[Array], None],
+    attitudes: Rotation,
+    bias: Array,
+    durations: Array,
+    options: SmootherOptions,
+) -> _Outcome:
+    """Levenberg-Marquardt on ``problem`` from ``(attitudes, bias)`` (module docstring)."""
+    n, k_huber = problem.n, problem.huber_threshold
+    values = to_values(attitudes, bias)
+    cost = problem.cost(values)
+    lam = options.initial_lambda
+    iterations = evaluations = rebuilds = 0
+    converged, message = False, f"maximum iterations ({options.max_iterations}) reached"
+    while True:
+        linear = problem.linearize(values)
+        tolerance = options.absolute_tolerance + options.relative_tolerance * abs(cost)
+        step = _damped(linear, n, lam).optimize()
+        predicted = linear.error(step.scale(0.0)) - linear.error(step)
+        if predicted <= tolerance and lam <= options.initial_lambda:
+            converged, message = True, "predicted decrease within tolerance"
+            break
+        if iterations >= options.max_iterations:
+            break
+        iterations += 1
+        xi, d = step_arrays(step, n)
+        trial_attitudes, trial_bias = retract(attitudes, xi), bias + d
+        evaluations += 1
+        evaluated = [f.evaluate(trial_attitudes[f.node]) for f in problem.factors]
+        current = cost
+        trial = np.inf
+        if np.all(np.isfinite(xi)) and np.all(np.isfinite(d)):
+            trial_values = to_values(trial_attitudes, trial_bias)
+            trial = problem.graph.error(trial_values) + problem.prior.cost(trial_values)
+            for f, (nu, _, lost) in zip(problem.factors, evaluated, strict=True):
+                trial += f.cost(nu, k_huber, lost)
+                if lost.size:  # compare on the rows both points can predict
+                    current += f.current_cost(k_huber, lost) - f.current_cost(k_huber)
+        if np.isfinite(trial) and trial < current:
+            attitudes, bias, values = trial_attitudes, trial_bias, trial_values
+            for f, (nu, jac, lost) in zip(problem.factors, evaluated, strict=True):
+                f.accept(nu, jac, lost)
+            decrease, cost = current - trial, trial
+            lam = max(lam / options.lambda_factor, 1e-12)
+            drift = np.max(np.abs(bias[:-1] - problem.bias_hat[:-1]), axis=1) * durations
+            if drift.size and drift.max() > options.bias_relinearise_angle:
+                rebuild(bias)
+                rebuilds += 1
+                cost = problem.cost(values)
+            elif decrease <= tolerance:
+                converged, message = True, "decrease within tolerance"
+                break
+        else:
+            floor = np.isfinite(trial) and trial - current <= ROUNDING * abs(current)
+            if floor and lam <= options.initial_lambda * options.lambda_factor:
+                converged, message = True, "no decrease beyond the rounding level"
+                break
+            lam *= options.lambda_factor
+            if lam > options.max_lambda:
+                message = f"damping exceeded {options.max_lambda:g} without a decrease"
+                break
+    return _Outcome(
+        attitudes, bias, values, cost, converged, message, iterations, evaluations, lam, rebuilds
+    )
+
+
+def _marginals(
+    linear: gtsam.GaussianFactorGraph,
+    values: gtsam.Values,
+    nodes: range,
+    cross: bool,
+) -> Array:
+    """Error-state covariances ``(len(nodes), 6, 6)`` (module docstring)."""
+    marginals = gtsam.Marginals(linear, values)
+    out = np.zeros((len(nodes), STATE_SIZE, STATE_SIZE))
+    for i, k in enumerate(nodes):
+        x, b = attitude_key(k), bias_key(k)
+        if cross:
+            joint = marginals.jointMarginalCovariance([x, b])
+            out[i, :3, :3], out[i, 3:, 3:] = joint.at(x, x), joint.at(b, b)
+            out[i, :3, 3:] = joint.at(x, b)
+            out[i, 3:, :3] = out[i, :3, 3:].T
+        else:
+            out[i, :3, :3] = marginals.marginalCovariance(x)
+            out[i, 3:, 3:] = marginals.marginalCovariance(b)
+    return error_state_covariance(out)
+
+
+def smooth(
+    samples: GyroSamples,
+    t: Array,
+    measurements: Sequence[AttitudeMeasurement | None],
+    prior: FilterPrior,
+    model: GyroModel,
+    options: SmootherOptions | None = None,
+    initial: FilterResult | None = None,
+    method: str = "fg_batch",
+) -> SmootherResult:
+    """Smoothed attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
+
+    Inputs as for :func:`solvers.filters.mekf.mekf`: gyro record, epochs
+    ``t`` (gyro sample times), one measurement or ``None`` per epoch, the
+    prior at the first gyro sample and the gyro model.  ``initial``: a
+    filter's result on the same epochs to start from (else
+    ``options.initialisation``).  See the module docstring.
+    """
+    options = options or SmootherOptions()
+    begin = time.perf_counter()
+    index = validate_inputs(samples, t, measurements, prior)
+    check_model(model)
+    gyro = prepare_gyro(samples, options.filter)
+    offset = int(index[0] > 0)
+    nodes = np.concatenate([[0], index]) if offset else index
+    n, dt = nodes.size, samples.dt
+
+    q, b, p, label = _initial_estimate(samples, t, measurements, prior, model, options, initial)
+    if offset:
+        q = np.vstack([prior.attitude.as_quat(), q])
+        b = np.vstack([prior.bias, b])
+        p = np.concatenate([np.asarray(prior.covariance)[None], p])
+    attitudes, bias, covariance = _fill_nodes(q, b, p, nodes, gyro, prior, dt)
+    seconds = {"initialisation": time.perf_counter() - begin}
+
+    start = time.perf_counter()
+    counts = {name: np.zeros(len(measurements)) for name in COUNTS}
+    factors: list[EpochFactor] = []
+    for k, measurement in enumerate(measurements):
+        if measurement is None:
+            continue
+        node = k + offset
+        factor, epoch_counts = prepare_factor(
+            node,
+            measurement,
+            attitudes[node],
+            covariance[node, :3, :3],
+            options.filter.gate_probability,
+        )
+        for name in COUNTS:
+            counts[name][k] = epoch_counts[name]
+        if factor is not None:
+            factors.append(factor)
+    seconds["factors"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    intervals = gyro_intervals(nodes, gyro, model, dt)
+    problem = SmootherProblem(
+        gtsam.NonlinearFactorGraph(),
+        JointPrior(prior),
+        factors,
+        n,
+        offset,
+        options.huber_threshold,
+        bias.copy(),
+    )
+
+    def rebuild(bias_hat: Array) -> None:
+        problem.bias_hat = np.array(bias_hat)
+        problem.graph = gyro_graph(intervals, gyro, dt, problem.bias_hat)
+
+    rebuild(bias)
+    initial_cost = problem.cost(to_values(attitudes, bias))
+    outcome = _optimise(problem, rebuild, attitudes, bias, intervals.duration, options)
+    iterations, evaluations, rebuilds = outcome.iterations, outcome.evaluations, outcome.rebuilds
+    updates = 0
+    for _ in range(options.noise_updates):
+        updates += 1
+        for f in problem.factors:
+            a = outcome.attitudes[f.node]
+            f.noise = np.asarray(f.measurement.noise_covariance_at(a), dtype=float)
+            f.set_rows(f.rows)
+        outcome = _optimise(
+            problem, rebuild, outcome.attitudes, outcome.bias, intervals.duration, options
+        )
+        iterations += outcome.iterations
+        evaluations += outcome.evaluations
+        rebuilds += outcome.rebuilds
+    seconds["optimisation"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    linear = problem.linearize(outcome.values)
+    marginals_error = ""
+    try:
+        node_covariance = _marginals(
+            linear, outcome.values, range(offset, n), options.cross_covariance
+        )
+    except RuntimeError as exc:  # an indefinite system (should not happen: prior + gyro chain)
+        node_covariance = np.full((len(measurements), STATE_SIZE, STATE_SIZE), np.nan)
+        marginals_error = f"marginal covariance failed: {exc}"
+    seconds["marginals"] = time.perf_counter() - start
+
+    record = EpochRecord(len(measurements))
+    epoch_attitudes = outcome.attitudes[offset:]
+    record.quaternion = epoch_attitudes.as_quat()
+    record.bias = outcome.bias[offset:].copy()
+    repairs = np.zeros(len(measurements))
+    for k in range(len(measurements)):
+        if np.isfinite(node_covariance[k]).all():
+            node_covariance[k], repaired = repair_covariance(node_covariance[k])
+            repairs[k] = float(repaired)
+    record.covariance = node_covariance
+    for name in COUNTS:
+        record.diagnostics[name] = counts[name]
+    record.diagnostics["n_downweighted"] = np.zeros(len(measurements))
+    for f in problem.factors:
+        k = f.node - offset
+        record.diagnostics["nis"][k] = f.normalised_residual()
+        record.diagnostics["n_used"][k] = f.counts["n_used"]
+        record.diagnostics["n_unpredictable"][k] = f.counts["n_unpredictable"]
+        record.diagnostics["n_downweighted"][k] = f.n_downweighted(options.huber_threshold)
+    record.diagnostics["gyro_gap_s"] = np.where(index > 0, gyro.gap_s[index - 1], 0.0)
+    record.diagnostics["update_iterations"][:] = iterations
+    record.diagnostics["covariance_repairs"] = repairs
+    if marginals_error:
+        record.reason[:] = marginals_error
+    no_lost_track = replace(options.filter, max_rejected_epochs=np.iinfo(np.int64).max)
+    result = filter_result(method, record, no_lost_track)
+    solution = result.solution
+    message = outcome.message
+    if not outcome.converged:
+        message = (
+            f"smoother did not converge ({outcome.message}): cost {outcome.cost:.6g} "
+            f"after {iterations} iterations"
+        )
+        if options.flag_unconverged:
+            reason = np.where(solution.valid, message, solution.reason)
+            error = np.where(solution.valid, ConvergenceError, solution.error)
+            valid = np.zeros_like(solution.valid)
+            solution = replace(
+                solution,
+                quaternion=np.full_like(solution.quaternion, np.nan),
+                covariance=np.full_like(solution.covariance, np.nan),
+                loss=np.full_like(solution.loss, np.nan),
+                valid=valid,
+                reason=reason,
+                error=error,
+            )
+    seconds["total"] = time.perf_counter() - begin
+    report = SmootherReport(
+        converged=outcome.converged,
+        message=message,
+        iterations=iterations,
+        evaluations=evaluations,
+        initial_cost=float(initial_cost),
+        final_cost=float(outcome.cost),
+        final_lambda=float(outcome.final_lambda),
+        graph_rebuilds=rebuilds,
+        noise_updates=updates,
+        n_gated=int(counts["n_gated"].sum()),
+        n_nan=int(counts["n_nan"].sum()),
+        n_unpredictable=int(record.diagnostics["n_unpredictable"].sum()),
+        n_downweighted=int(record.diagnostics["n_downweighted"].sum()),
+        measurement_rows=int(sum(f.rows.size for f in problem.factors)),
+        initialisation=label,
+        seconds=seconds,
+        quaternion=record.quaternion.copy(),
+        bias=record.bias.copy(),
+        problem=problem,
+    )
+    valid = solution.valid
+    return SmootherResult(
+        solution=solution,
+        bias=np.where(valid[:, None], result.bias, np.nan),
+        covariance=np.where(valid[:, None, None], result.covariance, np.nan),
+        report=report,
+    )

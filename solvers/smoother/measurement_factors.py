@@ -1,0 +1,301 @@
+"""Measurement factors of the smoother: one stacked linear factor per epoch, interface only.
+
+Every measurement is an
+:class:`~formulations.attitude_measurement.AttitudeMeasurement` (SNRs of seed
+000 eq. 10 / seed 004 eq. 7 through
+:class:`~formulations.snr_measurement.SnrMeasurement`, unit vectors, Euler
+angles; nothing here is measurement-specific).  At an attitude estimate ``A``
+of the epoch's node, ``predict`` gives ``h`` and ``J = dh/d delta`` (CasADi
+AD, body-frame error ``exp(delta) A``) for all the epoch's rows at once, and
+the factor is the whitened residual of the innovation ``nu = innovation(h)``
+(``z - h`` with the model's angle wrapping or tangent-plane projection)::
+
+    e(xi) = -W nu(h(A(xi))),   A(xi) = exp(-xi) A,   de/dxi = -W K,
+    K = -(d nu / d h) J        (= J when nu = z - h),
+
+``W = L^-1`` with ``R = L L^T`` the Cholesky factor of the noise covariance
+over the epoch's used rows (``W`` is elementwise when ``R`` is diagonal) and
+``d nu / d h`` by central differences through ``innovation``
+(:func:`innovation_jacobian`).  The sign: ``delta = -xi``
+(:mod:`solvers.smoother.conventions`), so ``dh/dxi = -J``.  The linearisation
+``|| -W K xi - W nu ||^2`` is added to the linearised built-in factors as
+one ``gtsam.JacobianFactor`` on the epoch's
+attitude key, compressed by a QR factorisation of ``[-W K, W nu]`` to at most
+three rows (same information, fewer rows to eliminate).  No Python
+``CustomFactor`` is involved: GTSAM never calls back into Python, so the cost
+per iteration is linear in the pass (``docs/smoother.md``).
+
+Rows (:func:`prepare_factor`, at the initial estimate, once):
+
+* ``R = noise_covariance_at(A_init)``, held fixed while the optimiser runs
+  (the truncated SNR model's ``R`` depends on the attitude;
+  ``SmootherOptions.noise_updates`` re-evaluates it at the solution);
+* rows with a NaN value or that the model cannot predict are left out
+  (:func:`solvers.filters.common.usable_rows`), counted per block;
+* outliers are gated once on the innovation at the initial estimate,
+  ``S = J P J^T + R`` with ``P`` the initial estimate's attitude covariance
+  (:func:`solvers.filters.common.gate`; the same chi-square gate as the
+  filters), counted;
+* ``R`` is block-diagonal over the blocks (true of every implementation):
+  the Huber loss and the dropping of blocks rely on it;
+* a block that becomes unpredictable at a later iterate (outside the main
+  lobe) is dropped when that iterate is accepted, counted as unpredictable.
+
+Optional robust loss: Huber on the norm ``s`` of each block's whitened
+residual, ``rho(s) = s^2 / 2`` for ``s <= k`` and ``k s - k^2 / 2`` beyond,
+minimised by iteratively reweighted least squares (weight ``min(1, k / s)``
+per block at the current estimate); the blocks down-weighted at the solution
+are counted.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
+from scipy.spatial.transform import Rotation
+
+from formulations.attitude_measurement import AttitudeMeasurement
+from formulations.errors import InvalidObservationError
+from solvers.filters.common import gate, usable_rows
+from solvers.smoother.conventions import Array, attitude_key
+
+COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
+
+
+def huber_cost(norms: Array, threshold: float | None) -> float:
+    """``sum rho(s)`` of block residual norms ``s`` (``0.5 s^2`` without a threshold)."""
+    if threshold is None:
+        return 0.5 * float(norms @ norms)
+    quadratic = norms <= threshold
+    return float(
+        0.5 * np.sum(norms[quadratic] ** 2)
+        + np.sum(threshold * norms[~quadratic] - 0.5 * threshold**2)
+    )
+
+
+def huber_weights(norms: Array, threshold: float | None) -> Array:
+    """IRLS weights ``min(1, k / s)`` per block."""
+    if threshold is None:
+        return np.ones_like(norms)
+    with np.errstate(divide="ignore"):
+        return np.where(norms > threshold, threshold / norms, 1.0)
+
+
+FD_STEP = 1e-6
+"""Relative central-difference step of the innovation's derivative."""
+
+
+def block_members(blocks: NDArray[np.intp]) -> NDArray[np.intp]:
+    """``(m, s)``: for each row, the rows of its block in order (``-1`` padding), ``s``
+    the largest block size."""
+    labels, inverse, sizes = np.unique(blocks, return_inverse=True, return_counts=True)
+    order = np.argsort(inverse, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    members = np.full((labels.size, int(sizes.max()) if sizes.size else 0), -1, dtype=np.intp)
+    position = np.arange(blocks.size) - np.repeat(starts, sizes)
+    members[np.repeat(np.arange(labels.size), sizes), position] = order
+    return members[inverse]
+
+
+def innovation_jacobian(
+    measurement: AttitudeMeasurement,
+    predicted: Array,
+    jacobian: Array,
+    members: NDArray[np.intp],
+) -> Array:
+    """``-d nu / d delta`` ``(m, 3)`` of the innovation ``nu = innovation(h)``.
+
+    Chain rule ``d nu / d delta = (d nu / d h) J``.  The interface gives no
+    derivative of ``innovation``: it is taken by central differences, one
+    perturbation per row position within a block (a block's innovation
+    depends on that block's predictions only), all in one batched call.  For
+    ``z - h`` (SNRs) and wrapped angles ``d nu / d h = -I`` and the result is
+    ``J``; for unit vectors the tangent-plane projection adds terms of the
+    order of the residual, which a Gauss-Newton step with ``J`` alone would
+    leave out, moving its fixed point off the minimum of the cost by
+    ``O(sigma^2)``.
+    """
+    m, size = members.shape
+    step = FD_STEP * np.maximum(1.0, np.abs(predicted))
+    perturbed = np.tile(predicted, (2 * size, 1))
+    position = np.zeros(m, dtype=np.intp)
+    position[members[members >= 0]] = np.nonzero(members >= 0)[1]
+    for r in range(size):
+        on = position == r
+        perturbed[2 * r, on] += step[on]
+        perturbed[2 * r + 1, on] -= step[on]
+    with np.errstate(invalid="ignore"):
+        nu = measurement.innovation(perturbed)
+    out = np.zeros((m, 3))
+    for r in range(size):
+        column = members[:, r]
+        valid = column >= 0
+        source = np.where(valid, column, 0)
+        derivative = (nu[2 * r] - nu[2 * r + 1]) / (2.0 * step[source])
+        out -= np.where(valid, derivative, 0.0)[:, None] * jacobian[source]
+    return out
+
+
+class EpochFactor:
+    """The used rows of one epoch's measurement and their current linearisation."""
+
+    def __init__(
+        self,
+        node: int,
+        measurement: AttitudeMeasurement,
+        rows: NDArray[np.intp],
+        noise: Array,
+        counts: dict[str, float],
+    ) -> None:
+        self.node = node
+        self.key = attitude_key(node)
+        self.measurement = measurement
+        self.noise = noise
+        """``R`` over all the measurement's rows, fixed while optimising."""
+        self.counts = counts
+        self.members = block_members(measurement.blocks)
+        self.set_rows(rows)
+        self.innovation = np.zeros(rows.size)
+        self.jacobian = np.zeros((rows.size, 3))
+
+    def set_rows(self, rows: NDArray[np.intp]) -> None:
+        """Use ``rows`` from now on (whitener, block labels)."""
+        self.rows = rows
+        labels = self.measurement.blocks[rows]
+        self.block_ids, self.block_index = np.unique(labels, return_inverse=True)
+        r = self.noise[np.ix_(rows, rows)]
+        d = np.diagonal(r)
+        if not (np.all(np.isfinite(r)) and np.all(d > 0)):
+            raise InvalidObservationError(
+                f"node {self.node}: noise covariance not positive definite"
+            )
+        if np.count_nonzero(r) == np.count_nonzero(d):
+            self.scale: Array | None = 1.0 / np.sqrt(d)
+            self.cholesky: Array | None = None
+        else:
+            self.scale = None
+            try:
+                self.cholesky = np.linalg.cholesky(r)
+            except np.linalg.LinAlgError:
+                raise InvalidObservationError(
+                    f"node {self.node}: noise covariance not positive definite"
+                ) from None
+        self.counts["n_used"] = float(self.block_ids.size)
+
+    def whiten(self, x: Array) -> Array:
+        """``W x`` for ``x`` with the used rows on its first axis."""
+        if self.scale is not None:
+            return x * self.scale.reshape(-1, *([1] * (x.ndim - 1)))
+        return solve_triangular(self.cholesky, x, lower=True)
+
+    def evaluate(self, attitude: Rotation) -> tuple[Array, Array, NDArray[np.intp]]:
+        """Innovation ``nu`` and ``-d nu / d delta`` (:func:`innovation_jacobian`) over the
+        used rows at ``attitude``; the blocks that cannot be predicted there."""
+        predicted, jacobian = self.measurement.predict(attitude)
+        with np.errstate(invalid="ignore"):
+            nu = self.measurement.innovation(predicted[0])[self.rows]
+        jac = innovation_jacobian(self.measurement, predicted[0], jacobian[0], self.members)
+        jac = jac[self.rows]
+        bad = ~(np.isfinite(nu) & np.isfinite(jac).all(axis=1))
+        lost = np.unique(self.measurement.blocks[self.rows[bad]])
+        return nu, jac, lost
+
+    def _kept(self, lost: NDArray[np.intp]) -> NDArray[np.bool_]:
+        return ~np.isin(self.measurement.blocks[self.rows], lost)
+
+    def block_norms(self, nu: Array, keep: NDArray[np.bool_] | None = None) -> Array:
+        """Norms of the whitened residual per used block; blocks outside ``keep`` count 0.
+
+        ``R`` is block-diagonal over the blocks (every implementation), so its
+        Cholesky factor has no fill between blocks and zeroing the left-out
+        rows leaves the others' whitened values unchanged.
+        """
+        if keep is not None:
+            nu = np.where(keep, nu, 0.0)
+        r = self.whiten(nu)
+        return np.sqrt(np.bincount(self.block_index, r * r, self.block_ids.size))
+
+    def cost(self, nu: Array, threshold: float | None, lost: NDArray[np.intp]) -> float:
+        """Robust cost of the innovation ``nu`` over the used rows without the ``lost`` blocks."""
+        keep = self._kept(lost) if lost.size else None
+        return huber_cost(self.block_norms(nu, keep), threshold)
+
+    def accept(self, nu: Array, jac: Array, lost: NDArray[np.intp]) -> None:
+        """Make ``(nu, jac)`` the current linearisation, dropping the ``lost`` blocks."""
+        if lost.size:
+            keep = self._kept(lost)
+            self.counts["n_unpredictable"] += float(lost.size)
+            self.set_rows(self.rows[keep])
+            nu, jac = nu[keep], jac[keep]
+        self.innovation, self.jacobian = nu, jac
+
+    def current_cost(self, threshold: float | None, lost: NDArray[np.intp] | None = None) -> float:
+        return self.cost(self.innovation, threshold, np.zeros(0, np.intp) if lost is None else lost)
+
+    def weights(self, threshold: float | None) -> Array:
+        """IRLS weight of each used block at the current linearisation."""
+        return huber_weights(self.block_norms(self.innovation), threshold)
+
+    def linear_factor(self, threshold: float | None) -> gtsam.JacobianFactor | None:
+        """``|| -W K xi - W nu ||^2`` (IRLS-weighted) as a compressed ``JacobianFactor``;
+        ``None`` once every block has been dropped."""
+        if self.rows.size == 0:
+            return None
+        root = np.sqrt(self.weights(threshold))[self.block_index]
+        system = np.column_stack([-self.whiten(self.jacobian), self.whiten(self.innovation)])
+        system *= root[:, None]
+        if system.shape[0] > 3:
+            system = np.linalg.qr(system, mode="r")[:3]
+        m = system.shape[0]
+        return gtsam.JacobianFactor(
+            self.key, system[:, :3], system[:, 3], gtsam.noiseModel.Unit.Create(m)
+        )
+
+    def normalised_residual(self) -> float:
+        """``nu^T R^-1 nu`` over the used rows at the current linearisation (NaN if none)."""
+        if self.rows.size == 0:
+            return np.nan
+        r = self.whiten(self.innovation)
+        return float(r @ r)
+
+    def n_downweighted(self, threshold: float | None) -> int:
+        return int(np.count_nonzero(self.weights(threshold) < 1.0))
+
+
+def prepare_factor(
+    node: int,
+    measurement: AttitudeMeasurement,
+    attitude: Rotation,
+    attitude_covariance: Array,
+    gate_probability: float,
+) -> tuple[EpochFactor | None, dict[str, float]]:
+    """The epoch's factor at the initial estimate (rows, ``R``, gating; module docstring).
+
+    Returns ``None`` (with the counts) when no row is left.
+    """
+    counts = dict.fromkeys(COUNTS, 0.0)
+    if measurement.size == 0:
+        return None, counts
+    noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
+    predicted, jacobian = measurement.predict(attitude)
+    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
+    counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
+    rows = np.flatnonzero(keep)
+    if rows.size == 0:
+        return None, counts
+    with np.errstate(invalid="ignore"):
+        nu = measurement.innovation(predicted[0])[rows]
+    h = jacobian[0][rows]
+    s = h @ attitude_covariance @ h.T + noise[np.ix_(rows, rows)]
+    accepted = gate(nu, s, measurement.blocks[rows], gate_probability)
+    counts["n_gated"] = float(np.unique(measurement.blocks[rows[~accepted]]).size)
+    rows = rows[accepted]
+    if rows.size == 0:
+        return None, counts
+    factor = EpochFactor(node, measurement, rows, noise, counts)
+    with np.errstate(invalid="ignore"):
+        full = innovation_jacobian(measurement, predicted[0], jacobian[0], factor.members)
+    factor.accept(nu[accepted], full[rows], np.zeros(0, np.intp))
+    return factor, counts
