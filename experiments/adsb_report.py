@@ -836,6 +836,8 @@ def report(ctx: ReportContext) -> str:
     then the gyro-aided filters (:mod:`experiments.adsb_filter_report`)."""
     full = ctx
     ctx = single_frame_context(ctx)
+    if ctx.rows.empty:  # filters only (e.g. the filter benchmark)
+        return "\n".join(filter_report(full)) + "\n"
     n_trials = ctx.rows["trial_index"].nunique()
     epochs = _epochs(ctx.rows)
     bins = observation_bins(ctx)

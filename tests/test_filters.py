@@ -687,10 +687,7 @@ def test_lost_track_is_flagged_and_recovered(run_filter):
     options = FilterOptions()
     result = run_filter(run.gyro, run.t, run.measurements, prior, GYRO, options)
     solution = result.solution
-    lost = (
-        solution.reason
-        == f"lost track: every observation gated for {options.max_rejected_epochs} epochs"
-    )
+    lost = np.char.startswith(solution.reason.astype(str), "lost track")
     first = options.max_rejected_epochs - 1
     assert lost[first] and not lost[:first].any()
     assert solution.diagnostics["recoveries"].sum() >= 1

@@ -27,7 +27,8 @@ Faults (issue 5, sec. 5), all counted in the result's diagnostics:
 * a non-finite state stops the filter: that epoch and all later ones are
   flagged invalid (never a NaN attitude reported as valid);
 * a lost track: after ``max_rejected_epochs`` consecutive measurement epochs
-  with every observation gated, epochs are flagged until one is accepted and
+  with at least as many gated observation blocks as used ones, epochs are
+  flagged until one is accepted and
   the attitude covariance is inflated by ``recover_sigma^2 I`` to re-acquire
   (counted as ``recoveries``).
 """
@@ -40,7 +41,7 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
@@ -120,7 +121,8 @@ class FilterOptions:
             (:func:`solvers.filters.mekf.update`).
         max_update_iterations: at most this many passes of that update.
         max_rejected_epochs: after this many consecutive measurement epochs
-            whose every observation was gated, epochs are flagged as a lost
+            with at least as many gated observations as used ones
+            (:func:`rejected_epoch`), epochs are flagged as a lost
             track until an observation is accepted again, and the attitude
             covariance is inflated by ``recover_sigma^2 I`` (repeatedly, every
             ``max_rejected_epochs`` such epochs) so that the filter can
@@ -358,11 +360,22 @@ def record_epoch(
     return True
 
 
+def rejected_epoch(n_gated: ArrayLike, n_used: ArrayLike) -> NDArray[np.bool_]:
+    """An epoch whose gated observation blocks are at least as many as its used ones.
+
+    With two vectors, a Sun vector rejected while the magnetometer is used
+    counts (the filter has lost the rotation about the field); with many SNRs
+    a few gated outliers do not.
+    """
+    n_gated, n_used = np.asarray(n_gated), np.asarray(n_used)
+    return (n_gated > 0) & (n_gated >= n_used)
+
+
 @dataclass
 class TrackMonitor:
     """Detects a lost track and inflates the covariance to re-acquire (module docstring).
 
-    Counts consecutive measurement epochs whose every observation was gated;
+    Counts consecutive measurement epochs that were :func:`rejected_epoch`;
     at ``options.max_rejected_epochs`` the attitude covariance grows by
     ``options.recover_sigma^2 I``, ``recoveries`` is set in the epoch's counts
     and the count restarts.
@@ -375,10 +388,10 @@ class TrackMonitor:
         """The covariance to carry on with after an epoch's update ``counts``."""
         if counts is None:
             return covariance
-        if counts.get("n_used", 0.0) > 0:
-            self.run = 0
-        elif counts.get("n_gated", 0.0) > 0:
+        if rejected_epoch(counts.get("n_gated", 0.0), counts.get("n_used", 0.0)):
             self.run += 1
+        elif counts.get("n_used", 0.0) > 0:
+            self.run = 0
         if self.run < self.options.max_rejected_epochs:
             return covariance
         self.run = 0
@@ -389,12 +402,12 @@ class TrackMonitor:
 
 
 def _rejected_run(diagnostics: dict[str, Array]) -> Array:
-    """Consecutive measurement epochs with every observation gated, up to each epoch.
+    """Consecutive :func:`rejected_epoch` measurement epochs, up to each epoch.
 
     Epochs without a measurement neither extend nor reset the run.
     """
-    rejected = (diagnostics["n_gated"] > 0) & (diagnostics["n_used"] == 0)
-    accepted = diagnostics["n_used"] > 0
+    rejected = rejected_epoch(diagnostics["n_gated"], diagnostics["n_used"])
+    accepted = (diagnostics["n_used"] > 0) & ~rejected
     run = np.zeros(rejected.size)
     count = 0.0
     for k in range(rejected.size):
@@ -421,7 +434,7 @@ def filter_result(
     )
     lost = _rejected_run(record.diagnostics) >= options.max_rejected_epochs
     reason[lost & (reason == "")] = (
-        f"lost track: every observation gated for {options.max_rejected_epochs} epochs"
+        f"lost track: observations gated for {options.max_rejected_epochs} epochs"
     )
     valid = reason == ""
     error = np.full(record.n, None, dtype=object)

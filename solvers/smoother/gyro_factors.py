@@ -21,9 +21,9 @@ Between consecutive nodes ``i`` and ``i + 1`` (gyro sample times ``t_i``,
   ``sigma_v^2 T`` is the angle random walk, ``sigma_u^2 T^3 / 3`` the
   attitude effect of the bias wandering within the interval while the factor
   holds ``b_i`` (Markley and Crassidis 2014, eq. 6.93's ``Q11``; its
-  correlation with the bias step, ``Q12``, is neglected: negligible for the
-  MEMS gyro, a 1 s interval with seed 000's ``sigma_u`` gives 16 % of the
-  interval's attitude variance), ``h`` the gyro-gap growth of
+  correlation with the bias step, ``Q12``, is neglected: the correlation
+  coefficient is ``sigma_u T / (2 sqrt(sigma_v^2 + sigma_u^2 T^2 / 3))``,
+  8e-5 for the MEMS gyro over 1 s, 0.43 for seed 000's), ``h`` the gyro-gap growth of
   :func:`solvers.filters.common.prepare_gyro` summed over the interval (the
   filters' rule: a missing sample is replaced by the last valid one, and a
   gap of ``T_g`` adds ``(sigma_hold T_g)^2``);

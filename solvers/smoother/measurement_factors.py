@@ -27,19 +27,23 @@ per iteration is linear in the pass (``docs/smoother.md``).
 
 Rows (:func:`prepare_factor`, at the initial estimate, once):
 
-* ``R = noise_covariance_at(A_init)``, held fixed while the optimiser runs
+* ``R = noise_covariance_at(A_init)`` (``(m,)`` variances or an ``(m, m)``
+  matrix; work is linear in the rows for variances), held fixed while the optimiser runs
   (the truncated SNR model's ``R`` depends on the attitude;
   ``SmootherOptions.noise_updates`` re-evaluates it at the solution);
 * rows with a NaN value or that the model cannot predict are left out
   (:func:`solvers.filters.common.usable_rows`), counted per block;
 * outliers are gated once on the innovation at the initial estimate,
   ``S = J P J^T + R`` with ``P`` the initial estimate's attitude covariance
-  (:func:`solvers.filters.common.gate`; the same chi-square gate as the
-  filters), counted;
+  (:func:`solvers.filters.common.gate`, which forms only the diagonal blocks
+  of ``S``; the same chi-square gate as the filters), counted;
 * ``R`` is block-diagonal over the blocks (true of every implementation):
   the Huber loss and the dropping of blocks rely on it;
-* a block that becomes unpredictable at a later iterate (outside the main
-  lobe) is dropped when that iterate is accepted, counted as unpredictable.
+* a block that becomes unpredictable at a trial iterate (outside the main
+  lobe) is dropped, counted as unpredictable: at once if the step is accepted
+  (the costs are compared on the blocks both points predict), and also when
+  it is rejected, the step then being solved again without it (as the
+  MEKF's iterated update drops such blocks).
 
 Optional robust loss: Huber on the norm ``s`` of each block's whitened
 residual, ``rho(s) = s^2 / 2`` for ``s <= k`` and ``k s - k^2 / 2`` beyond,
@@ -58,7 +62,7 @@ from scipy.spatial.transform import Rotation
 
 from formulations.attitude_measurement import AttitudeMeasurement
 from formulations.errors import InvalidObservationError
-from solvers.filters.common import gate, usable_rows
+from solvers.filters.common import gate, noise_subset, usable_rows
 from solvers.smoother.conventions import Array, attitude_key
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
@@ -152,36 +156,52 @@ class EpochFactor:
         self.node = node
         self.key = attitude_key(node)
         self.measurement = measurement
-        self.noise = noise
-        """``R`` over all the measurement's rows, fixed while optimising."""
+        self.set_noise(noise)  # R over all the measurement's rows, fixed while optimising
         self.counts = counts
         self.members = block_members(measurement.blocks)
         self.set_rows(rows)
         self.innovation = np.zeros(rows.size)
         self.jacobian = np.zeros((rows.size, 3))
 
+    def set_noise(self, noise: Array) -> None:
+        """Hold ``R`` over all rows: ``(m,)`` variances (SNRs, vectors), kept as such, or
+        an ``(m, m)`` matrix (kept as its diagonal when it is diagonal), so that
+        nothing later costs ``O(m^2)`` for independent rows."""
+        noise = np.asarray(noise, dtype=float)
+        if noise.ndim == 1:
+            self.noise_diagonal: Array | None = noise
+            self.noise: Array | None = None
+            return
+        d = np.diagonal(noise).copy()
+        diagonal = np.count_nonzero(noise) == np.count_nonzero(d)
+        self.noise_diagonal = d if diagonal else None
+        self.noise = None if diagonal else noise
+
     def set_rows(self, rows: NDArray[np.intp]) -> None:
         """Use ``rows`` from now on (whitener, block labels)."""
         self.rows = rows
         labels = self.measurement.blocks[rows]
         self.block_ids, self.block_index = np.unique(labels, return_inverse=True)
-        r = self.noise[np.ix_(rows, rows)]
-        d = np.diagonal(r)
-        if not (np.all(np.isfinite(r)) and np.all(d > 0)):
-            raise InvalidObservationError(
-                f"node {self.node}: noise covariance not positive definite"
-            )
-        if np.count_nonzero(r) == np.count_nonzero(d):
-            self.scale: Array | None = 1.0 / np.sqrt(d)
-            self.cholesky: Array | None = None
-        else:
-            self.scale = None
-            try:
-                self.cholesky = np.linalg.cholesky(r)
-            except np.linalg.LinAlgError:
+        if self.noise_diagonal is not None:
+            d = self.noise_diagonal[rows]
+            if not np.all(d > 0):  # also False for NaN
                 raise InvalidObservationError(
                     f"node {self.node}: noise covariance not positive definite"
-                ) from None
+                )
+            self.scale: Array | None = 1.0 / np.sqrt(d)
+            self.cholesky: Array | None = None
+            self.counts["n_used"] = float(self.block_ids.size)
+            return
+        r = self.noise[np.ix_(rows, rows)]
+        self.scale = None
+        try:
+            if not np.all(np.isfinite(r)):
+                raise np.linalg.LinAlgError
+            self.cholesky = np.linalg.cholesky(r)
+        except np.linalg.LinAlgError:
+            raise InvalidObservationError(
+                f"node {self.node}: noise covariance not positive definite"
+            ) from None
         self.counts["n_used"] = float(self.block_ids.size)
 
     def whiten(self, x: Array) -> Array:
@@ -231,6 +251,11 @@ class EpochFactor:
             nu, jac = nu[keep], jac[keep]
         self.innovation, self.jacobian = nu, jac
 
+    def drop(self, lost: NDArray[np.intp]) -> None:
+        """Drop the ``lost`` blocks from the current linearisation (counted unpredictable)."""
+        if lost.size:
+            self.accept(self.innovation, self.jacobian, lost)
+
     def current_cost(self, threshold: float | None, lost: NDArray[np.intp] | None = None) -> float:
         return self.cost(self.innovation, threshold, np.zeros(0, np.intp) if lost is None else lost)
 
@@ -278,23 +303,30 @@ def prepare_factor(
     counts = dict.fromkeys(COUNTS, 0.0)
     if measurement.size == 0:
         return None, counts
-    noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
     predicted, jacobian = measurement.predict(attitude)
     keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
     counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
     rows = np.flatnonzero(keep)
     if rows.size == 0:
         return None, counts
+    noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
+    factor = EpochFactor(node, measurement, rows, noise, counts)
     with np.errstate(invalid="ignore"):
         nu = measurement.innovation(predicted[0])[rows]
     h = jacobian[0][rows]
-    s = h @ attitude_covariance @ h.T + noise[np.ix_(rows, rows)]
-    accepted = gate(nu, s, measurement.blocks[rows], gate_probability)
+    accepted = gate(
+        nu,
+        h.T,
+        attitude_covariance,
+        noise_subset(noise, rows),
+        measurement.blocks[rows],
+        gate_probability,
+    )
     counts["n_gated"] = float(np.unique(measurement.blocks[rows[~accepted]]).size)
     rows = rows[accepted]
     if rows.size == 0:
         return None, counts
-    factor = EpochFactor(node, measurement, rows, noise, counts)
+    factor.set_rows(rows)
     with np.errstate(invalid="ignore"):
         full = innovation_jacobian(measurement, predicted[0], jacobian[0], factor.members)
     factor.accept(nu[accepted], full[rows], np.zeros(0, np.intp))
