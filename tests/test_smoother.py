@@ -31,7 +31,7 @@ from formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasu
 from formulations.conventions import attitude_error
 from formulations.errors import InvalidObservationError
 from formulations.gain_patterns import SEED000_HELIX
-from formulations.gyro import MEMS_GYRO, GyroModel, GyroSamples, attitude_increment, simulate_gyro
+from formulations.gyro import GyroModel, GyroSamples, attitude_increment, simulate_gyro
 from formulations.snr_measurement import SnrMeasurement
 from formulations.snr_problem import SnrEpoch
 from solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
@@ -46,69 +46,22 @@ from solvers.smoother.conventions import (
 )
 from solvers.smoother.gyro_factors import JointPrior, gyro_graph, gyro_intervals
 from solvers.smoother.measurement_factors import prepare_factor
+from tests.filter_passes import (
+    GYRO,
+    RATE,
+    REFERENCES,
+    SIGMA,
+    Pass,
+    drawn_prior,
+    prior_covariance,
+    simulate_pass,
+)
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
-GYRO = dataclasses.replace(MEMS_GYRO, name="mems-2hz", rate_hz=2.0)
 COARSE = GyroModel("coarse-2hz", 2e-3, 2e-4, 0.01, rate_hz=2.0)
 """A poor gyro: the measurements and the gyro both matter (well-conditioned brute force)."""
-RATE = np.array([0.01, -0.02, 0.015])
-REFERENCES = np.array([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8]])
-SIGMA = 1e-3
 TIGHT = SmootherOptions(relative_tolerance=1e-15, absolute_tolerance=1e-14)
 """Tolerances for comparisons at 1e-8: stop only at the rounding floor."""
-
-
-@dataclasses.dataclass
-class Pass:
-    truth: Rotation
-    gyro: GyroSamples
-    bias: np.ndarray
-    t: np.ndarray
-    index: np.ndarray
-    measurements: list
-
-    @property
-    def truth_at_epochs(self) -> Rotation:
-        return self.truth[self.index]
-
-    @property
-    def bias_at_epochs(self) -> np.ndarray:
-        return self.bias[self.index]
-
-
-def simulate_pass(
-    rng: np.random.Generator,
-    duration: float = 60.0,
-    sigma: float = SIGMA,
-    noisy: bool = True,
-    simulated_gyro: GyroModel = GYRO,
-    references: np.ndarray = REFERENCES,
-) -> Pass:
-    dt = simulated_gyro.dt
-    t_gyro = np.arange(round(duration / dt) + 1) * dt
-    start = Rotation.random(random_state=rng)
-    truth = Rotation.from_rotvec(-np.outer(t_gyro, RATE)) * start
-    simulated = simulate_gyro(t_gyro, truth, simulated_gyro, rng)
-    t = np.arange(int(duration) + 1, dtype=float)
-    index = np.round(t / dt).astype(int)
-    measurements = []
-    for i in index:
-        body = truth[i].apply(references)
-        if noisy:
-            body = body + sigma * rng.standard_normal(body.shape)
-        measurements.append(VectorMeasurement(body, references, sigma))
-    return Pass(truth, simulated.samples, simulated.bias, t, index, measurements)
-
-
-def prior_covariance(attitude_sigma: float, model: GyroModel = GYRO) -> np.ndarray:
-    return np.diag([attitude_sigma**2] * 3 + [model.initial_bias_sigma**2] * 3)
-
-
-def drawn_prior(rng: np.random.Generator, run: Pass, covariance: np.ndarray) -> FilterPrior:
-    """Prior whose error ``[delta, delta_beta]`` is drawn from ``covariance``."""
-    error = rng.multivariate_normal(np.zeros(6), covariance)
-    attitude = Rotation.from_rotvec(-error[:3]) * run.truth[0]  # A_true = exp(delta) A_est
-    return FilterPrior(attitude, run.bias[0] - error[3:], covariance)
 
 
 def state_errors(result, run: Pass) -> np.ndarray:
@@ -134,7 +87,7 @@ def test_noise_free_pass_recovers_truth_and_bias():
     rng = np.random.default_rng(1)
     bias_only = GyroModel("bias-only", 0.0, 0.0, GYRO.initial_bias_sigma, GYRO.rate_hz)
     declared = GyroModel("declared", 1e-7, 1e-9, GYRO.initial_bias_sigma, GYRO.rate_hz)
-    run = simulate_pass(rng, sigma=1e-6, noisy=False, simulated_gyro=bias_only)
+    run = simulate_pass(rng, duration=60.0, sigma=1e-6, noisy=False, simulated_gyro=bias_only)
     axis = np.array([1.0, 1.0, -1.0]) / math.sqrt(3.0)
     prior = FilterPrior(
         Rotation.from_rotvec(np.radians(20.0) * axis) * run.truth[0],
