@@ -48,7 +48,7 @@ from scipy.stats import chi2
 from formulations.attitude_measurement import AttitudeMeasurement
 from formulations.attitude_model import increment_matrix
 from formulations.errors import ConvergenceError, InvalidObservationError
-from formulations.gyro import GyroModel, GyroSamples, attitude_increment
+from formulations.gyro import GyroModel, GyroSamples, attitude_increment, error_state_transition
 from solvers.result import BatchSolution
 
 Array = NDArray[np.float64]
@@ -183,6 +183,23 @@ def epoch_samples(samples: GyroSamples, t: Array) -> NDArray[np.intp]:
     if np.any(np.diff(index) <= 0) or t[0] < samples.t[0]:
         raise InvalidObservationError("epochs must increase and start at or after the gyro")
     return index
+
+
+def propagate_covariance(
+    covariance: Array, rates: Array, hold_variance: Array, model: GyroModel, dt: float
+) -> tuple[Array, Array]:
+    """``P <- Phi_j P Phi_j^T + Q_j`` over consecutive gyro steps at the estimated
+    ``rates``, and the steps' product ``Phi``.
+
+    ``Phi_j`` is :func:`~formulations.gyro.error_state_transition`, ``Q_j`` the
+    step's :func:`step_noise` (with the gap growth ``hold_variance``).
+    """
+    total = np.eye(STATE_SIZE)
+    noise = step_noise(model, dt, hold_variance)
+    for phi, q in zip(error_state_transition(rates, dt), noise, strict=True):
+        covariance = phi @ covariance @ phi.T + q
+        total = phi @ total
+    return covariance, total
 
 
 def step_noise(model: GyroModel, dt: float, hold_variance: Array) -> Array:

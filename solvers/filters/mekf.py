@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.gyro import GyroModel, GyroSamples, error_state_transition
+from formulations.gyro import GyroModel, GyroSamples
 from solvers.filters.common import (
     STATE_SIZE,
     Array,
@@ -48,10 +48,10 @@ from solvers.filters.common import (
     noise_subset,
     prepare_gyro,
     propagate_attitude,
+    propagate_covariance,
     record_epoch,
     repair_covariance,
     solve_noise,
-    step_noise,
     usable_rows,
     validate_inputs,
 )
@@ -68,12 +68,9 @@ def propagate(
 ) -> tuple[Rotation, Array, Array]:
     """Attitude, covariance and the transition ``Phi`` over gyro steps ``steps``."""
     rates = gyro.rates[steps] - bias
-    transitions = error_state_transition(rates, dt)
-    noise = step_noise(model, dt, gyro.hold_variance[steps])
-    total = np.eye(STATE_SIZE)
-    for phi, q in zip(transitions, noise, strict=True):
-        covariance = phi @ covariance @ phi.T + q
-        total = phi @ total
+    covariance, total = propagate_covariance(
+        covariance, rates, gyro.hold_variance[steps], model, dt
+    )
     return propagate_attitude(attitude, rates, dt), covariance, total
 
 

@@ -128,7 +128,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.gyro import GyroModel, GyroSamples, error_state_transition
+from formulations.gyro import GyroModel, GyroSamples
 from solvers.filters.common import (
     STATE_SIZE,
     Array,
@@ -148,9 +148,9 @@ from solvers.filters.common import (
     noise_subset,
     prepare_gyro,
     propagate_attitude,
+    propagate_covariance,
     record_epoch,
     repair_covariance,
-    step_noise,
     usable_rows,
     validate_inputs,
 )
@@ -195,11 +195,8 @@ def carried(covariance: Array, state: Array) -> Array:
 def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: float) -> Array:
     """Process noise (U4) accumulated over consecutive gyro steps at the mean ``rates``,
     with the gap growth ``hold_variance`` (:func:`~solvers.filters.common.step_noise`)."""
-    total = np.zeros((STATE_SIZE, STATE_SIZE))
-    noise = step_noise(model, dt, hold_variance)
-    for phi, q in zip(error_state_transition(rates, dt), noise, strict=True):
-        total = phi @ total @ phi.T + q
-    return total
+    zero = np.zeros((STATE_SIZE, STATE_SIZE))
+    return propagate_covariance(zero, rates, hold_variance, model, dt)[0]
 
 
 def propagate(
