@@ -41,6 +41,8 @@ Array = NDArray[np.float64]
 
 GYRO_STREAM = 1
 """Spawn-key suffix of the gyro-and-prior stream of a trial."""
+TO_DEG_H = np.degrees(1.0) * 3600.0
+"""rad/s -> deg/h (bias columns)."""
 INITIAL_ATTITUDE_SIGMA_DEG = 10.0
 """Default per-axis standard deviation of the filters' initial attitude error."""
 
@@ -214,11 +216,10 @@ def filter_columns(
         nees[valid] = np.einsum(
             "ei,eij,ej->e", error[valid], np.linalg.inv(result.covariance[valid]), error[valid]
         )
-    to_deg_h = np.degrees(1.0) * 3600.0
     sigma = np.sqrt(np.diagonal(result.covariance[:, 3:, 3:], axis1=1, axis2=2))
-    columns = {f"bias_{a}_deg_h": to_deg_h * result.bias[:, i] for i, a in enumerate("xyz")}
-    columns |= {f"bias_err_{a}_deg_h": to_deg_h * bias_error[:, i] for i, a in enumerate("xyz")}
-    columns |= {f"bias_sigma_{a}_deg_h": to_deg_h * sigma[:, i] for i, a in enumerate("xyz")}
+    columns = {f"bias_{a}_deg_h": TO_DEG_H * result.bias[:, i] for i, a in enumerate("xyz")}
+    columns |= {f"bias_err_{a}_deg_h": TO_DEG_H * bias_error[:, i] for i, a in enumerate("xyz")}
+    columns |= {f"bias_sigma_{a}_deg_h": TO_DEG_H * sigma[:, i] for i, a in enumerate("xyz")}
     columns["nees_full"] = nees
     for name in ("n_used", "n_gated", "n_unpredictable", "update_iterations"):
         columns[name] = result.solution.diagnostics[name]

@@ -263,7 +263,6 @@ def _discussion(ctx: ReportContext, summary: pd.DataFrame, consistency: pd.DataF
 SETTLE_S = 120.0
 """Figures scale their y axes to the errors after this time (the filters converge
 from the initial attitude error within it)."""
-TO_DEG_H = np.degrees(1.0) * 3600.0
 
 
 def _filters(ctx: ReportContext) -> list[str]:

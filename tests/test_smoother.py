@@ -152,8 +152,8 @@ def _whitened_residual(factor, measurement, rotation: gtsam.Rot3) -> np.ndarray:
     return -factor.whiten(measurement.innovation(predicted[0])[factor.rows])
 
 
-def _snr_measurement(rng: np.random.Generator) -> SnrMeasurement:
-    los, antenna, ranges, snr, _ = _geometry(rng, TRUTH, (6, 6))
+def _snr_measurement(rng: np.random.Generator, truth: Rotation = TRUTH) -> SnrMeasurement:
+    los, antenna, ranges, snr, _ = _geometry(rng, truth, (6, 6))
     epoch = SnrEpoch.from_ranges(
         snr + rng.standard_normal(snr.shape),
         los,
@@ -401,17 +401,7 @@ def _snr_pass(rng: np.random.Generator, epochs: int = 40) -> tuple[Pass, FilterP
     index = np.round(t / GYRO.dt).astype(int)
     measurements = []
     for i in index:
-        los, antenna, ranges, snr, _ = _geometry(rng, truth[i], (6, 6))
-        epoch = SnrEpoch.from_ranges(
-            snr + rng.standard_normal(snr.shape),
-            los,
-            antenna,
-            BORESIGHTS,
-            ranges,
-            SEED000_HELIX,
-            BUDGET,
-        )
-        measurements.append(SnrMeasurement(epoch, truncated=True))
+        measurements.append(_snr_measurement(rng, truth[i]))
     run = Pass(truth, gyro.samples, gyro.bias, t, index, measurements)
     return run, drawn_prior(rng, run, prior_covariance(np.radians(5.0)))
 
