@@ -18,6 +18,21 @@ rate-integrating gyro (:mod:`formulations.gyro`, 10 Hz) per entry of the
 * ``usque_snr``: the USQUE unscented filter on the same SNR measurements.
 * ``rts_snr``: the multiplicative RTS backward pass over ``mekf_snr`` (its
   ``runtime_s`` includes the forward MEKF).
+* ``fg_online``: the causal fixed-lag factor-graph smoother
+  (:func:`solvers.smoother.smooth_online`) on the same SNR measurements.
+* ``fg_batch``: the whole-pass factor-graph smoother
+  (:func:`solvers.smoother.smooth`) started from ``fg_online``'s estimates (or
+  from ``rts_snr``'s when ``fg_online`` is not asked for); ``runtime_s``
+  includes that start.
+* ``fg_batch_offsets``: ``fg_batch`` with one power-offset variable per
+  aircraft (prior ``offset_prior_sigma_db``), for data simulated with
+  ``power_offset_sigma_db > 0`` (issue 6 sec. 2).  Not in the default list:
+  its cost grows with the number of aircraft in view at once (``docs/smoother.md``).
+
+Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a ``fg_*``
+row is asked for: the posterior Cramer-Rao bound of the pass
+(:func:`experiments.filtering.posterior_bound`, offsets not modelled), the
+same for every method of that gyro.
 
 Every filter starts from the prior of
 :func:`experiments.filtering.simulate_filter_inputs` (attitude error drawn
@@ -37,12 +52,14 @@ import numpy as np
 import pandas as pd
 
 from experiments.filtering import (
+    SMOOTHER_KINDS,
     FilterInputs,
     GyroTruth,
     child_rng,
     filter_columns,
     gyro_truth,
     in_orbit_frame,
+    posterior_bound,
     run_filter,
     run_filters,
     simulate_filter_inputs,
@@ -58,8 +75,19 @@ from solvers.filters import FilterResult
 from solvers.result import BatchSolution
 
 SNR_SUFFIX = "_snr"
-FILTER_METHODS = {"mekf_paper": "mekf", "mekf_snr": "mekf", "usque_snr": "usque", "rts_snr": "rts"}
+FILTER_METHODS = {
+    "mekf_paper": "mekf",
+    "mekf_snr": "mekf",
+    "usque_snr": "usque",
+    "rts_snr": "rts",
+    "fg_online": "fg_online",
+    "fg_batch": "fg_batch",
+    "fg_batch_offsets": "fg_batch_offsets",
+}
 """Filter rows and the filter kind each runs."""
+DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online", "fg_batch"]
+"""The filter rows of a default run (``fg_batch_offsets`` is asked for with the
+power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
 PAPER_SOURCE = "nlse"
 """The single-frame method whose Euler angles ``mekf_paper`` filters (seed 000)."""
@@ -167,12 +195,17 @@ def filter_rows(
             if paper is None:
                 raise ValueError(f"mekf_paper needs the {PAPER_SOURCE} solution")
             runs["mekf_paper"] = run_filter("mekf", inputs, truth, paper, "mekf_paper")
-        kinds = [FILTER_METHODS[m] for m in wanted if m.endswith(SNR_SUFFIX)]
-        for kind, run in run_filters(kinds, inputs, truth, snr, SNR_SUFFIX).items():
-            runs[kind + SNR_SUFFIX] = run
+        kinds = [FILTER_METHODS[m] for m in wanted if m != "mekf_paper"]
+        for kind, run in run_filters(
+            kinds, inputs, truth, snr, SNR_SUFFIX, setting["offset_prior_sigma_db"]
+        ).items():
+            runs[kind if kind in SMOOTHER_KINDS else kind + SNR_SUFFIX] = run
+        bound = {}
+        if set(SMOOTHER_KINDS) & set(wanted):
+            sigma = np.degrees(posterior_bound(inputs, truth, snr, next(iter(runs.values()))[0]))
+            bound = {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
         for method in wanted:
             result, seconds = runs[method]
-            frames.append(
-                _rows(method, gyro, result, seconds, inputs, truth, common, true_attitude_orbit)
-            )
+            frame = _rows(method, gyro, result, seconds, inputs, truth, common, true_attitude_orbit)
+            frames.append(frame.assign(**bound))
     return frames

@@ -97,7 +97,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from experiments.adsb_filters import FILTER_METHODS, PAPER_SOURCE, check_parameters, filter_rows
+from experiments.adsb_filters import DEFAULT_FILTERS, PAPER_SOURCE, check_parameters, filter_rows
 from experiments.adsb_report import (
     AXES,
     MANY_OBSERVATIONS,
@@ -107,7 +107,7 @@ from experiments.adsb_report import (
     signed_max,
 )
 from experiments.experiment import Experiment, Setting
-from experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG
+from experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG, OFFSET_PRIOR_SIGMA_DB, child_rng
 from experiments.metrics import error_columns
 from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_chunks
 from experiments.sweep.aggregate import valid_mask
@@ -127,6 +127,8 @@ PATTERN = SEED000_HELIX
 LINK_BUDGET = LinkBudget()
 NO_GYRO = "none"
 """``gyro`` column of the single-frame rows."""
+OFFSET_STREAM = 100
+"""Child stream (:func:`experiments.filtering.child_rng`) of the transmitters' power offsets."""
 WRONG_MINIMUM_RTOL = 1e-6
 """Relative loss excess over the truth-started solve that counts as a wrong minimum."""
 WRONG_MINIMUM_ATOL = 1e-9
@@ -138,10 +140,12 @@ PARAMETERS: dict[str, Any] = {
     "n_aircraft": 10_000,
     "traffic_seed": 0,
     "snr_sigma_db": 1.0,
+    "power_offset_sigma_db": 0.0,
+    "offset_prior_sigma_db": OFFSET_PRIOR_SIGMA_DB,
     "threshold_db": 6.0,
     "wrong_minimum_every": 20,
     "methods": ["deterministic", "nlse", "nlp", "nlp_truncated"],
-    "filters": list(FILTER_METHODS),
+    "filters": DEFAULT_FILTERS,
     "gyros": ["seed000", "mems"],
     "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
     "paper_sigma_deg": 1.0,
@@ -172,6 +176,7 @@ class NoiseFreePass:
     truth: Rotation
     epoch_index: NDArray[np.intp]
     antenna: NDArray[np.intp]
+    aircraft: NDArray[np.intp]
     los_orbit: NDArray[np.float64]
     p0_dbw: NDArray[np.float64]
     true_snr_db: NDArray[np.float64]
@@ -196,7 +201,9 @@ def _noise_free_pass(
     duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int
 ) -> NoiseFreePass:
     geometry = build_adsb_geometry(duration_s, step_s, n_aircraft, traffic_seed)
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("epoch", "antenna", "los", "p0")}
+    parts: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("epoch", "antenna", "aircraft", "los", "p0")
+    }
     snr_parts, jac_parts = [], []
     for table in observation_chunks(geometry, np.degrees(PATTERN.max_off_boresight_rad)):
         p0 = LINK_BUDGET.isotropic_power_dbw(table.range_m)
@@ -209,7 +216,9 @@ def _noise_free_pass(
             PATTERN,
         )
         for key, value in zip(
-            parts, (table.epoch_index, table.antenna, table.los_orbit, p0), strict=True
+            parts,
+            (table.epoch_index, table.antenna, table.aircraft, table.los_orbit, p0),
+            strict=True,
         ):
             parts[key].append(value)
         snr_parts.append(snr[:, 0])
@@ -219,6 +228,7 @@ def _noise_free_pass(
         truth=geometry.truth,
         epoch_index=np.concatenate(parts["epoch"]),
         antenna=np.concatenate(parts["antenna"]),
+        aircraft=np.concatenate(parts["aircraft"]),
         los_orbit=np.concatenate(parts["los"]),
         p0_dbw=np.concatenate(parts["p0"]),
         true_snr_db=np.concatenate(snr_parts),
@@ -228,18 +238,42 @@ def _noise_free_pass(
 
 @dataclass(frozen=True)
 class NoisyPass:
-    """One trial's measurements: which rows were received, and the epochs to solve."""
+    """One trial's measurements: which rows were received, and the epochs to solve.
+
+    ``true_snr_db`` is the scenario's true SNR plus the transmitters' power
+    offsets (equal to it without offsets).
+    """
 
     measured_db: NDArray[np.float64]
     received: NDArray[np.bool_]
     epochs: list[SnrEpoch]
+    true_snr_db: NDArray[np.float64]
+
+
+def power_offsets(
+    scenario: NoiseFreePass, seed: np.random.SeedSequence, sigma_db: float
+) -> NDArray[np.float64]:
+    """Each row's transmitter power offset (dB): one ``N(0, sigma_db^2)`` draw per
+    aircraft of the fleet from child stream :data:`OFFSET_STREAM` of the trial's seed
+    (issue 6 sec. 2; zeros when ``sigma_db`` is 0)."""
+    if sigma_db == 0:
+        return np.zeros(scenario.aircraft.size)
+    n_fleet = int(scenario.aircraft.max()) + 1 if scenario.aircraft.size else 0
+    per_aircraft = sigma_db * child_rng(seed, OFFSET_STREAM).standard_normal(n_fleet)
+    return per_aircraft[scenario.aircraft]
 
 
 def simulate_pass(
-    scenario: NoiseFreePass, rng: np.random.Generator, sigma_db: float, threshold_db: float
+    scenario: NoiseFreePass,
+    rng: np.random.Generator,
+    sigma_db: float,
+    threshold_db: float,
+    offset_db: NDArray[np.float64] | None = None,
 ) -> NoisyPass:
-    """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring, 3-4)."""
-    measured = scenario.true_snr_db + sigma_db * rng.standard_normal(scenario.true_snr_db.size)
+    """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
+    3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset."""
+    true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
+    measured = true_snr + sigma_db * rng.standard_normal(true_snr.size)
     received = measured >= threshold_db
     rows = np.flatnonzero(received)
     bounds = np.searchsorted(scenario.epoch_index[rows], np.arange(scenario.n_epochs + 1))
@@ -254,10 +288,11 @@ def simulate_pass(
             pattern=PATTERN,
             sigma_db=sigma_db,
             threshold_db=threshold_db,
+            transmitter=scenario.aircraft[take],
         )
         for take in (rows[start:stop] for start, stop in itertools.pairwise(bounds))
     ]
-    return NoisyPass(measured, received, epochs)
+    return NoisyPass(measured, received, epochs, true_snr)
 
 
 def _per_epoch_sum(values: np.ndarray, epoch: np.ndarray, n_epochs: int) -> np.ndarray:
@@ -289,13 +324,13 @@ def epoch_statistics(
     n_obs = counts.sum(axis=1)
     jac = scenario.jacobian[kept]
     outer = jac[:, :, None] * jac[:, None, :] / sigma_db**2
-    factor = truncated_information_factor(scenario.true_snr_db[kept], sigma_db, threshold_db)
+    factor = truncated_information_factor(noisy.true_snr_db[kept], sigma_db, threshold_db)
     fishers = {
         "bound": _per_epoch_sum(outer, epoch, n),
         "bound_truncated": _per_epoch_sum(factor[:, None, None] * outer, epoch, n),
     }
     bias_sum = np.bincount(
-        epoch, weights=noisy.measured_db[kept] - scenario.true_snr_db[kept], minlength=n
+        epoch, weights=noisy.measured_db[kept] - noisy.true_snr_db[kept], minlength=n
     )
     with np.errstate(invalid="ignore", divide="ignore"):
         bias = bias_sum / n_obs
@@ -386,7 +421,10 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
     )
     sigma = setting["snr_sigma_db"]
-    noisy = simulate_pass(scenario, np.random.default_rng(seed), sigma, setting["threshold_db"])
+    offsets = power_offsets(scenario, seed, setting["power_offset_sigma_db"])
+    noisy = simulate_pass(
+        scenario, np.random.default_rng(seed), sigma, setting["threshold_db"], offsets
+    )
     common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
     frames, solutions = [], {}
     for name in setting["methods"]:

@@ -15,7 +15,11 @@ attitude error), it times:
   optimisation and marginals, with the number of passes over the
   measurements, each one ``predict`` per epoch);
 * ``predict``: one pass of ``predict`` over all epochs at the truth, the
-  interface's cost that bounds the smoother's from below.
+  interface's cost that bounds the smoother's from below;
+* ``online`` (with ``--online``): :func:`solvers.smoother.smooth_online`
+  with its default options (causal estimates, split into factor set-up and
+  iSAM2 updates with marginals, with its ratio to the MEKF of the same run,
+  its model evaluations per epoch and its window).
 
 and reports each method's RMS attitude error (body axes, degrees, all valid
 epochs and those after 300 s), the posterior Cramer-Rao bound of the pass
@@ -28,24 +32,30 @@ pass are strongly correlated in time, so its RMS can differ from the bound
 by tens of per cent either way; the RMS-to-bound ratio needs Monte Carlo.
 
 Run with ``python -m experiments.bench_smoother`` (``--durations 900 1800
-3600`` for other lengths; building the 4 h scenario takes about a minute).
+3600`` for other lengths; building the 4 h scenario takes about a minute;
+``--online`` adds the online smoother).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from experiments.adsb_filters import adsb_gyro_truth, snr_measurements
 from experiments.adsb_snr import PARAMETERS, noise_free_pass, simulate_pass
-from experiments.filtering import child_rng, referenced, simulate_filter_inputs
+from experiments.filtering import (
+    child_rng,
+    posterior_bound,
+    referenced,
+    simulate_filter_inputs,
+)
 from formulations.conventions import attitude_error
 from formulations.gyro import GYRO_MODELS
-from solvers.filters import FilterOptions, mekf, rts_smooth
-from solvers.smoother import SmootherOptions, smooth
+from solvers.filters import mekf, rts_smooth
+from solvers.smoother import OnlineReport, smooth, smooth_online
 
 BURN_IN_S = 300.0
 
@@ -71,6 +81,8 @@ class Row:
     bound_deg: float
     sigma_deg: float
     nees: float
+    online_s: float | None = None
+    online: OnlineReport | None = None
 
 
 def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
@@ -84,7 +96,7 @@ def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
     )
 
 
-def run(duration_s: float, seed: int, gyro: str) -> Row:
+def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     """One pass of ``duration_s`` (module docstring)."""
     start = time.perf_counter()
     scenario = noise_free_pass(duration_s, 1.0, PARAMETERS["n_aircraft"], 0)
@@ -121,33 +133,20 @@ def run(duration_s: float, seed: int, gyro: str) -> Row:
     smoother_s = time.perf_counter() - start
     report = result.report
 
-    # posterior bound: the marginal covariance at the truth, no gating
-    at_truth = replace(
-        backward,
-        solution=replace(backward.solution, quaternion=true_attitude.as_quat()),
-        bias=inputs.gyro.bias[truth.epoch_samples],
-    )
-    bound_options = SmootherOptions(
-        max_iterations=0, flag_unconverged=False, filter=FilterOptions(gate_probability=1.0)
-    )
-    bound = smooth(
-        inputs.gyro.samples,
-        t,
-        measurements,
-        inputs.prior,
-        model,
-        bound_options,
-        initial=at_truth,
-    )
-    trace = np.trace(bound.solution.covariance, axis1=1, axis2=2)
+    orbit_frame = snr_measurements(noisy.epochs, "truncated")
+    trace = np.sum(posterior_bound(inputs, truth, orbit_frame, backward) ** 2, axis=1)
 
+    solutions = {"mekf": forward, "rts": backward, "smoother": result}
+    online_s = None
+    if online:
+        start = time.perf_counter()
+        solutions["online"] = smooth_online(
+            inputs.gyro.samples, t, measurements, inputs.prior, model
+        )
+        online_s = time.perf_counter() - start
     rms, rms_late = {}, {}
-    for name, solution in (
-        ("mekf", forward.solution),
-        ("rts", backward.solution),
-        ("smoother", result.solution),
-    ):
-        rms[name], rms_late[name] = _rms(solution, true_attitude, late)
+    for name, estimate in solutions.items():
+        rms[name], rms_late[name] = _rms(estimate.solution, true_attitude, late)
     valid = result.solution.valid
     error = attitude_error(result.solution.attitude(), true_attitude[valid])
     nees = np.einsum("ki,kij,kj->k", error, np.linalg.inv(result.solution.covariance[valid]), error)
@@ -173,6 +172,8 @@ def run(duration_s: float, seed: int, gyro: str) -> Row:
             np.degrees(np.sqrt(np.nanmean(np.trace(result.solution.covariance, axis1=1, axis2=2))))
         ),
         nees=float(np.mean(nees)),
+        online_s=online_s,
+        online=solutions["online"].report if online else None,
     )
 
 
@@ -217,7 +218,41 @@ def format_table(rows: list[Row], gyro: str) -> str:
             f"| {r.duration_s / 60:.0f} min | {cells} | {r.bound_deg:.4f} | "
             f"{r.rms_deg['smoother'] / r.bound_deg:.3f} | {r.sigma_deg:.4f} | {r.nees:.2f} |"
         )
+    if all(r.online is not None for r in rows):
+        lines += ["", *format_online(rows)]
     return "\n".join(lines)
+
+
+def format_online(rows: list[Row]) -> list[str]:
+    """The online smoother's cost against the MEKF of the same run, and its RMS."""
+    lag = rows[0].online.lag_s
+    lines = [
+        f"Online smoother (lag {lag:g} s, default options; causal estimates); times in "
+        "seconds, ratios against the MEKF of the same run:",
+        "",
+        "| pass | online | factors / updates | per doubling | online / mekf | "
+        "us per SNR | updates (extra) | predicts per epoch (reused) | window | "
+        "RMS online / mekf (all; late) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    previous = None
+    for r in rows:
+        o = r.online
+        doubling = ""
+        if previous is not None:
+            exponent = np.log2(r.duration_s / previous.duration_s)
+            doubling = f"{(r.online_s / previous.online_s) ** (1.0 / exponent):.2f}"
+        lines.append(
+            f"| {r.duration_s / 60:.0f} min | {r.online_s:.1f} | {o.seconds['factors']:.1f} / "
+            f"{o.seconds['update']:.1f} | {doubling} | "
+            f"{r.online_s / r.mekf_s:.2f} | {1e6 * r.online_s / r.observations:.1f} | "
+            f"{o.updates} ({o.extra_updates}) | {o.evaluations / r.epochs:.2f} "
+            f"({o.reused / r.epochs:.2f}) | {o.max_window} | "
+            f"{r.rms_deg['online']:.4f} / {r.rms_deg['mekf']:.4f}; "
+            f"{r.rms_late_deg['online']:.4f} / {r.rms_late_deg['mekf']:.4f} |"
+        )
+        previous = r
+    return lines
 
 
 def main() -> None:
@@ -225,14 +260,16 @@ def main() -> None:
     parser.add_argument("--durations", type=float, nargs="+", default=[900.0, 3600.0, 14400.0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--gyro", default="mems", choices=sorted(GYRO_MODELS))
+    parser.add_argument("--online", action="store_true", help="also time smooth_online")
     args = parser.parse_args()
     rows = []
     for duration in sorted(args.durations):
-        rows.append(run(duration, args.seed, args.gyro))
+        rows.append(run(duration, args.seed, args.gyro, args.online))
         r = rows[-1]
+        online = f", online {r.online_s:.1f} s" if args.online else ""
         print(
             f"{duration:.0f} s: smoother {r.smoother_s:.1f} s ({r.evaluations + 1} passes), "
-            f"mekf {r.mekf_s:.1f} s, build {r.build_s:.1f} s",
+            f"mekf {r.mekf_s:.1f} s{online}, build {r.build_s:.1f} s",
             flush=True,
         )
     print(format_table(rows, args.gyro))

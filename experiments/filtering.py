@@ -34,8 +34,9 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
-from solvers.filters import FilterPrior, FilterResult, mekf, rts_smooth, usque
+from solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, rts_smooth, usque
 from solvers.result import BatchSolution
+from solvers.smoother import SmootherOptions, SmootherResult, smooth, smooth_online
 
 Array = NDArray[np.float64]
 
@@ -128,8 +129,15 @@ def referenced(
     ]
 
 
-FILTERS = ("mekf", "usque", "rts")
-"""Filter kinds: the MEKF, USQUE, and the RTS pass over the MEKF."""
+FILTERS = ("mekf", "usque", "rts", "fg_online", "fg_batch", "fg_batch_offsets")
+"""Filter kinds: the MEKF, USQUE, the RTS pass over the MEKF, and the factor-graph
+smoother (:mod:`solvers.smoother`): causal fixed-lag (``fg_online``), batch over the
+whole pass (``fg_batch``), and batch with one power offset per transmitter
+(``fg_batch_offsets``, SNR measurements only).  The smoother rows keep their
+names; the others take the caller's suffix."""
+SMOOTHER_KINDS = ("fg_online", "fg_batch", "fg_batch_offsets")
+OFFSET_PRIOR_SIGMA_DB = 2.0
+"""Default prior standard deviation of a transmitter's power offset (issue 6 sec. 2)."""
 
 
 def run_filter(
@@ -143,12 +151,12 @@ def run_filter(
 
     ``rts`` runs the MEKF and smooths it.
     """
-    if kind not in FILTERS:
-        raise ValueError(f"unknown filter kind {kind!r}; known: {FILTERS}")
+    if kind not in ("mekf", "usque", "rts", "fg_online"):
+        raise ValueError(f"run_filter runs mekf, usque, rts or fg_online, not {kind!r}")
     inertial = referenced(measurements, truth.epoch_frames)
     t_epochs = truth.t[truth.epoch_samples]
     start = time.perf_counter()
-    run = usque if kind == "usque" else mekf
+    run = {"usque": usque, "fg_online": smooth_online}.get(kind, mekf)
     result = run(inputs.gyro.samples, t_epochs, inertial, inputs.prior, inputs.model, method=method)
     if kind == "rts":
         result = rts_smooth(result, method=method)
@@ -161,26 +169,98 @@ def run_filters(
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
     suffix: str = "",
+    offset_sigma: float = OFFSET_PRIOR_SIGMA_DB,
 ) -> dict[str, tuple[FilterResult, float]]:
-    """Each filter kind's result and wall time (s), methods named ``kind + suffix``.
+    """Each filter kind's result and wall time (s), methods named ``kind + suffix``
+    (smoother kinds keep their names).
 
     The RTS pass smooths the MEKF run (run once even when both are asked for);
-    its time includes the MEKF's.
+    its time includes the MEKF's.  The batch smoothers start from the online
+    smoother's causal estimates when ``fg_online`` is asked for (issue 6: an
+    online pass followed by a batch solve), else from the MEKF and RTS passes;
+    their times include that initialisation's.  ``fg_batch_offsets`` estimates
+    one offset per transmitter with prior ``N(0, offset_sigma^2)``.
     """
     unknown = sorted(set(kinds) - set(FILTERS))
     if unknown:
         raise ValueError(f"unknown filter kinds {unknown}; known: {FILTERS}")
+    wanted = set(kinds)
+    batch = {"fg_batch", "fg_batch_offsets"} & wanted
     out: dict[str, tuple[FilterResult, float]] = {}
-    if {"mekf", "rts"} & set(kinds):
+    if {"mekf", "rts"} & wanted or (batch and "fg_online" not in wanted):
         out["mekf"] = run_filter("mekf", inputs, truth, measurements, "mekf" + suffix)
-    if "rts" in kinds:
+    if "rts" in wanted or (batch and "fg_online" not in wanted):
         filtered, seconds = out["mekf"]
         start = time.perf_counter()
         smoothed = rts_smooth(filtered, method="rts" + suffix)
         out["rts"] = (smoothed, seconds + time.perf_counter() - start)
-    if "usque" in kinds:
+    if "usque" in wanted:
         out["usque"] = run_filter("usque", inputs, truth, measurements, "usque" + suffix)
+    if "fg_online" in wanted:
+        out["fg_online"] = run_filter("fg_online", inputs, truth, measurements, "fg_online")
+    for kind in sorted(batch):
+        start_from = out["fg_online" if "fg_online" in wanted else "rts"]
+        options = SmootherOptions(offset_sigma=offset_sigma if kind == "fg_batch_offsets" else None)
+        result, seconds = run_smoother(inputs, truth, measurements, kind, options, start_from[0])
+        out[kind] = (result, start_from[1] + seconds)
     return {kind: out[kind] for kind in kinds}
+
+
+def run_smoother(
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+    method: str,
+    options: SmootherOptions,
+    initial: FilterResult,
+) -> tuple[SmootherResult, float]:
+    """The batch smoother on orbit-frame ``measurements`` from ``initial``; its wall time (s)."""
+    inertial = referenced(measurements, truth.epoch_frames)
+    t_epochs = truth.t[truth.epoch_samples]
+    start = time.perf_counter()
+    result = smooth(
+        inputs.gyro.samples,
+        t_epochs,
+        inertial,
+        inputs.prior,
+        inputs.model,
+        options,
+        initial,
+        method,
+    )
+    return result, time.perf_counter() - start
+
+
+def posterior_bound(
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+    template: FilterResult,
+) -> Array:
+    """Per-epoch posterior Cramer-Rao bound of the attitude (rad, ``(N, 3)`` body axes).
+
+    The square roots of the diagonal of the attitude block of the smoother's
+    marginal covariance at the TRUTH (attitude and bias), every received
+    measurement used (no gating), offsets not modelled: the inverse of the
+    whole pass's information at the truth (issue 6 sec. 1).  ``template``: any
+    result on the same epochs (its estimates are replaced by the truth).
+    """
+    at_truth = replace(
+        template,
+        solution=replace(
+            template.solution, quaternion=truth.attitude[truth.epoch_samples].as_quat()
+        ),
+        bias=inputs.gyro.bias[truth.epoch_samples],
+        history=None,
+    )
+    options = SmootherOptions(
+        max_iterations=0,
+        flag_unconverged=False,
+        cross_covariance=False,
+        filter=FilterOptions(gate_probability=1.0),
+    )
+    bound, _ = run_smoother(inputs, truth, measurements, "bound", options, at_truth)
+    return np.sqrt(np.diagonal(bound.covariance[:, :3, :3], axis1=1, axis2=2))
 
 
 def in_orbit_frame(solution: BatchSolution, eci_to_orbit: Rotation) -> BatchSolution:

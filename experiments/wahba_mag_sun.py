@@ -22,7 +22,10 @@ depend on the filters.  Filter rows carry the single-frame columns plus
 6-state NEES ``nees_full``, update counts), the bias estimates
 ``bias_{x,y,z}_deg_h`` and ``runtime_s``, the wall time of the pass (for
 ``rts``: the MEKF's plus the backward pass's); single-frame rows have NaN
-there.
+there.  ``fg_batch`` is the GTSAM whole-pass smoother (:mod:`solvers.smoother`)
+started from the RTS estimates (its ``runtime_s`` includes them); with it,
+the gyro-aided rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao
+bound of the pass (:func:`experiments.filtering.posterior_bound`).
 """
 
 from __future__ import annotations
@@ -40,11 +43,13 @@ from experiments.filtering import (
     FILTERS,
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
+    SMOOTHER_KINDS,
     GyroTruth,
     child_rng,
     filter_columns,
     gyro_truth,
     in_orbit_frame,
+    posterior_bound,
     run_filters,
     simulate_filter_inputs,
 )
@@ -65,6 +70,8 @@ from formulations.wahba_covariance import quest_covariance
 from solvers.wahba import WAHBA_SOLVERS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
+VECTOR_FILTERS = tuple(k for k in FILTERS if k != "fg_batch_offsets")
+"""Filter kinds for vector measurements (no transmitter offsets to estimate)."""
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": 6000.0,
@@ -72,7 +79,7 @@ PARAMETERS: dict[str, Any] = {
     "mag_sigma": MAG_SIGMA,
     "sun_sigma": SUN_SIGMA,
     "methods": list(WAHBA_SOLVERS),
-    "filters": list(FILTERS),
+    "filters": ["mekf", "usque", "rts", "fg_batch"],
     "gyro": "mems",
     "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
 }
@@ -90,9 +97,9 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
     if unknown:
         raise ValueError(f"unknown methods {unknown}; registered: {sorted(WAHBA_SOLVERS)}")
     filters = list(parameters.get("filters", []))
-    unknown = sorted(set(filters) - set(FILTERS))
+    unknown = sorted(set(filters) - set(VECTOR_FILTERS))
     if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {list(FILTERS)}")
+        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
     names = [*parameters["methods"], *filters]
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -192,9 +199,14 @@ def _filter_rows(
         for k in range(geometry.t.size)
     ]
     frames = []
-    for name, (result, seconds) in run_filters(
-        setting["filters"], inputs, truth, measurements
-    ).items():
+    runs = run_filters(setting["filters"], inputs, truth, measurements)
+    bound = {}
+    if set(SMOOTHER_KINDS) & set(runs):
+        sigma = np.degrees(
+            posterior_bound(inputs, truth, measurements, next(iter(runs.values()))[0])
+        )
+        bound = {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
+    for name, (result, seconds) in runs.items():
         solution = in_orbit_frame(result.solution, truth.epoch_frames)
         frames.append(
             pd.DataFrame(
@@ -205,6 +217,7 @@ def _filter_rows(
                     "valid": solution.valid,
                     "reason": solution.reason.astype(str),
                     **filter_columns(result, inputs, truth),
+                    **bound,
                     "runtime_s": seconds,
                 }
             )

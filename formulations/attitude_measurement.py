@@ -73,6 +73,18 @@ class AttitudeMeasurement(ABC):
         """``R`` at an attitude (models whose noise depends on it override this)."""
         return self.noise_covariance
 
+    sources: NDArray[np.intp] | None = None
+    """``(m,)`` identifier of the unknown additive offset inside each row's model (a
+    transmitter's power offset, dB: issue 6 sec. 2), or ``None`` for models without one."""
+
+    def with_offsets(self, offsets: Array) -> AttitudeMeasurement:
+        """The measurement whose model adds ``offsets`` ``(m,)`` to its rows' offset parameter."""
+        raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
+
+    def offset_slope(self, attitude: Rotation) -> Array:
+        """``dh / d offset`` ``(m,)`` of each row at one attitude (CasADi AD)."""
+        raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
+
 
 def _check_vector(name: str, value: ArrayLike) -> Array:
     a = np.array(value, dtype=float)
@@ -206,6 +218,7 @@ class ReferencedMeasurement(AttitudeMeasurement):
         self.z = inner.z
         self.noise_covariance = inner.noise_covariance
         self.blocks = inner.blocks
+        self.sources = inner.sources
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         return self.inner.predict(attitude * self.frame_inverse, jacobian)
@@ -215,3 +228,9 @@ class ReferencedMeasurement(AttitudeMeasurement):
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
         return self.inner.noise_covariance_at(attitude * self.frame_inverse)
+
+    def with_offsets(self, offsets: Array) -> ReferencedMeasurement:
+        return ReferencedMeasurement(self.inner.with_offsets(offsets), self.frame_inverse.inv())
+
+    def offset_slope(self, attitude: Rotation) -> Array:
+        return self.inner.offset_slope(attitude * self.frame_inverse)

@@ -29,9 +29,11 @@ predicted and is returned as NaN (the filters leave it out and count it).
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from functools import lru_cache
 from typing import Any
 
+import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -41,6 +43,7 @@ from formulations.gain_patterns import GainPattern
 from formulations.snr_model import observation_mask, predict_snr, snr_db
 from formulations.snr_problem import SnrEpoch
 from formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
+from formulations.symbolic import CASADI
 
 
 @lru_cache(maxsize=16)
@@ -52,6 +55,18 @@ def truncated_mean_model(pattern: GainPattern, sigma_db: float, threshold_db: fl
         return f + sigma_db * inverse_mills_ratio((f - threshold_db) / sigma_db)
 
     return truncated_snr
+
+
+@lru_cache(maxsize=16)
+def truncated_mean_slope(sigma_db: float, threshold_db: float) -> ca.Function:
+    """``d E[y | y >= tau] / d f`` by CasADi AD (scalar function; maps over a row of ``f``).
+
+    It equals :func:`~formulations.snr_truncation.truncated_information_factor`
+    (the truncated variance over ``sigma^2``), an identity the tests check.
+    """
+    f = ca.SX.sym("f")
+    mean = f + sigma_db * inverse_mills_ratio((f - threshold_db) / sigma_db, CASADI)
+    return ca.Function("truncated_mean_slope", [f], [ca.jacobian(mean, f)])
 
 
 class SnrMeasurement(AttitudeMeasurement):
@@ -68,6 +83,7 @@ class SnrMeasurement(AttitudeMeasurement):
         sigma = np.broadcast_to(epoch.sigma_db, (epoch.m,))
         self.noise_covariance = sigma**2
         self.blocks = np.arange(epoch.m)
+        self.sources = epoch.transmitter
         self._model = None
         if truncated:
             if epoch.m and np.ptp(sigma) > 0:
@@ -125,3 +141,23 @@ class SnrMeasurement(AttitudeMeasurement):
         f = self._snr(matrices, self._usable(matrices))[0]
         factor = truncated_information_factor(f, self.sigma, self.epoch.threshold_db)
         return self.sigma**2 * np.where(np.isfinite(factor), factor, 1.0)
+
+    def with_offsets(self, offsets: Array) -> SnrMeasurement:
+        """The SNRs with each transmitter's power raised by ``offsets`` ``(m,)`` dB: the
+        offsets enter as ``10 lg P0 + o`` (seed 000 eq. 13)."""
+        epoch = replace(self.epoch, p0_dbw=self.epoch.p0_dbw + np.asarray(offsets, dtype=float))
+        return SnrMeasurement(epoch, truncated=self.truncated)
+
+    def offset_slope(self, attitude: Rotation) -> Array:
+        """``dh / d (10 lg P0)`` ``(m,)``: 1 for the Gaussian model, the AD slope of the
+        truncated mean (:func:`truncated_mean_slope`) at ``f(A)`` for the truncated one."""
+        if not self.truncated:
+            return np.ones(self.epoch.m)
+        matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
+        f = self._snr(matrices, self._usable(matrices))[0]
+        slope = truncated_mean_slope(self.sigma, self.epoch.threshold_db)
+        out = np.full(f.shape, np.nan)
+        usable = np.isfinite(f)
+        if usable.any():
+            out[usable] = np.asarray(slope(f[usable][None, :])).ravel()
+        return out

@@ -84,6 +84,9 @@ class SnrEpoch:
         pattern: the receive gain pattern (main lobe only).
         sigma_db: SNR standard deviation(s), scalar or ``(m,)`` (eq. 22's ``sigma_ij``).
         threshold_db: reception threshold; measured SNRs below it are rejected.
+        transmitter: ``(m,)`` identifier of each observation's transmitter (the
+            aircraft), or ``None``; the factor-graph smoother estimates one
+            power offset per transmitter with it (issue 6 sec. 2).
 
     Arrays are stored as read-only float copies (``antenna`` as integers);
     instances compare and hash by identity.
@@ -98,6 +101,7 @@ class SnrEpoch:
     pattern: GainPattern = field(repr=False)
     sigma_db: NDArray[np.float64] | float = SNR_SIGMA_DB
     threshold_db: float = RECEPTION_THRESHOLD_DB
+    transmitter: NDArray[np.intp] | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -146,6 +150,13 @@ class SnrEpoch:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "noise_dbw", noise)
         object.__setattr__(self, "threshold_db", threshold)
+        if self.transmitter is not None:
+            ids = np.asarray(self.transmitter)
+            if ids.shape != (m,) or (m and not np.issubdtype(ids.dtype, np.integer)):
+                raise InvalidObservationError(
+                    f"transmitter must be ({m},) integer identifiers, got {ids.shape} {ids.dtype}"
+                )
+            object.__setattr__(self, "transmitter", _readonly(ids, np.intp))
 
     @classmethod
     def from_ranges(

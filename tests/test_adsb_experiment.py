@@ -213,6 +213,52 @@ def test_snr_filters_beat_the_papers_mekf(sweep, gyro):
     )
 
 
+@pytest.mark.parametrize("gyro", PARAMETERS["gyros"])
+def test_factor_graph_rows_beat_the_filters_and_carry_the_posterior_bound(sweep, gyro):
+    """The batch smoother (started from the online one) is at least as good as the
+    online one and the RTS pass; the online one is as good as the MEKF; every
+    gyro-aided row carries the same finite posterior bound, below the batch RMS
+    of this short settling pass at most by the margin of one trial."""
+    rows = sweep.rows[sweep.rows["gyro"] == gyro]
+    batch = _filter_rms(rows, "fg_batch", gyro, 0.0)
+    assert batch <= 1.02 * _filter_rms(rows, "fg_online", gyro, 0.0)
+    # both approximate the same MAP estimate; one trial's RMS differs either way
+    # (measured 0.364 against 0.346 deg with the seed000 gyro)
+    assert batch <= 1.1 * _filter_rms(rows, "rts_snr", gyro, 0.0)
+    assert _filter_rms(rows, "fg_online", gyro, 0.0) < 1.1 * _filter_rms(
+        rows, "mekf_snr", gyro, 0.0
+    )
+    bound = rows[[f"pbound_{a}_deg" for a in "xyz"]].to_numpy()
+    assert np.isfinite(bound).all() and (bound > 0).all()
+    per_method = rows.groupby("method")["pbound_x_deg"].apply(lambda b: b.to_numpy())
+    for method in per_method.index:
+        np.testing.assert_array_equal(per_method[method], per_method["fg_batch"])
+    settled = rows[(rows["method"] == "fg_batch") & (rows["t"] >= 60.0)]
+    ratio = _filter_rms(settled, "fg_batch", gyro, 60.0) / np.sqrt(
+        sum((settled[f"pbound_{a}_deg"] ** 2).mean() for a in "xyz")
+    )
+    assert 0.5 < ratio < 2.0
+
+
+def test_power_offsets_modelled_by_the_smoother():
+    """Aircraft power offsets of 2 dB (issue 6 sec. 2) on a short pass: the
+    smoother that estimates one offset per aircraft is far better than the one
+    that does not (measured on 300 s: RMS 0.20 deg against 2.3 deg)."""
+    setting = {
+        **PARAMETERS,
+        "duration_s": 90.0,
+        "methods": [],
+        "filters": ["fg_batch", "fg_batch_offsets"],
+        "gyros": ["mems"],
+        "power_offset_sigma_db": 2.0,
+    }
+    rows = EXPERIMENT.trial(EXPERIMENT.grid(setting)[0], np.random.SeedSequence(3))
+    assert rows["valid"].all()
+    plain = _filter_rms(rows, "fg_batch", "mems", 30.0)
+    modelled = _filter_rms(rows, "fg_batch_offsets", "mems", 30.0)
+    assert modelled < 0.5 * plain
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [

@@ -195,7 +195,7 @@ def test_measurement_factor_jacobian_is_minus_interface_jacobian(kind):
         assert np.abs(analytic - interface).max() < 1e-9 * scale
     else:  # the projection's terms, relative size of the residual (sigma = 1e-3)
         assert 1e-5 * scale < np.abs(analytic - interface).max() < 1e-2 * scale
-    compressed = factor.linear_factor(None)
+    (compressed,) = factor.linear_factors(None)
     a, b = compressed.getA().copy(), compressed.getb().copy()
     residual = factor.whiten(factor.innovation)
     assert np.allclose(a.T @ a, analytic.T @ analytic, rtol=1e-10, atol=0)

@@ -12,7 +12,7 @@ from experiments.scenarios.wahba_mag_sun import build_geometry
 from experiments.sweep import run_sweep
 from experiments.wahba_mag_sun import EXPERIMENT, PARAMETERS, interval_labels
 
-FILTERS = ["mekf", "usque", "rts"]
+FILTERS = ["mekf", "usque", "rts", "fg_batch"]
 SHORT = {
     "duration_s": 1300.0,
     "methods": ["triad", "q_method", "quest", "sdp"],
@@ -102,6 +102,23 @@ def test_filters_carry_the_attitude_through_the_eclipse(sweep):
         assert spread.max() < 1e-6
     single = sweep.rows[sweep.rows["method"].isin(SHORT["methods"])]
     assert single["runtime_s"].isna().all() and single["nees_full"].isna().all()
+
+
+def test_factor_graph_smoother_reaches_the_posterior_bound_through_the_eclipse(sweep):
+    """``fg_batch`` (vectors + gyro through the eclipse, from the RTS estimates): at
+    most the MEKF's RMS, about the RTS pass's (same MAP problem), and near the
+    posterior bound of the pass that every gyro-aided row carries."""
+    rows = sweep.rows[sweep.rows["method"].isin(FILTERS) & (sweep.rows["t"] >= SETTLED_S)]
+
+    def rms(method: str, column: str = "err_{}_deg") -> float:
+        chosen = rows[rows["method"] == method]
+        return float(np.sqrt(sum((chosen[column.format(a)] ** 2).mean() for a in "xyz")))
+
+    assert rms("fg_batch") < rms("mekf")
+    assert abs(rms("fg_batch") / rms("rts") - 1.0) < 0.05
+    assert 0.7 < rms("fg_batch") / rms("fg_batch", "pbound_{}_deg") < 1.3
+    bounds = rows.pivot_table(index=["trial_index", "t"], columns="method", values="pbound_x_deg")
+    assert (bounds.max(axis=1) - bounds.min(axis=1)).max() == 0.0
 
 
 @pytest.fixture(scope="module")

@@ -7,5 +7,16 @@ from solvers.smoother.batch import (
     SmootherResult,
     smooth,
 )
+from solvers.smoother.online import OnlineOptions, OnlineReport, OnlineResult, smooth_online
 
-__all__ = ["SmootherOptions", "SmootherProblem", "SmootherReport", "SmootherResult", "smooth"]
+__all__ = [
+    "OnlineOptions",
+    "OnlineReport",
+    "OnlineResult",
+    "SmootherOptions",
+    "SmootherProblem",
+    "SmootherReport",
+    "SmootherResult",
+    "smooth",
+    "smooth_online",
+]

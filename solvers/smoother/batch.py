@@ -77,6 +77,7 @@ from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from formulations.attitude_measurement import AttitudeMeasurement
@@ -102,6 +103,7 @@ from solvers.smoother.conventions import (
     attitude_key,
     bias_key,
     error_state_covariance,
+    offset_key,
     retract,
     step_arrays,
     to_values,
@@ -138,6 +140,10 @@ class SmootherOptions:
             the current bias when ``|b - b_hat| T`` exceeds this (rad).
         cross_covariance: joint attitude-bias marginals (else block-diagonal).
         flag_unconverged: flag every epoch invalid when the optimiser did not converge.
+        offset_sigma: estimate one additive offset per transmitter (the
+            measurements' ``sources``: an aircraft's power offset, dB) shared by
+            every epoch it is seen in, with prior ``N(0, offset_sigma^2)``
+            (issue 6 sec. 2); ``None`` (default): offsets not modelled.
         filter: gating, gyro-gap and validity rules shared with the filters
             (and the options of the initialising MEKF).
     """
@@ -154,6 +160,7 @@ class SmootherOptions:
     bias_relinearise_angle: float = 1e-5
     cross_covariance: bool = True
     flag_unconverged: bool = True
+    offset_sigma: float | None = None
     filter: FilterOptions = field(default_factory=FilterOptions)
 
     def __post_init__(self) -> None:
@@ -163,6 +170,8 @@ class SmootherOptions:
             raise ValueError("huber_threshold must be positive (or None)")
         if self.max_iterations < 0 or self.lambda_factor <= 1 or self.initial_lambda <= 0:
             raise ValueError("need max_iterations >= 0, lambda_factor > 1, initial_lambda > 0")
+        if self.offset_sigma is not None and not self.offset_sigma > 0:
+            raise ValueError("offset_sigma must be positive (or None)")
 
 
 @dataclass
@@ -180,6 +189,9 @@ class SmootherProblem:
     offset: int
     huber_threshold: float | None
     bias_hat: Array
+    n_offsets: int = 0
+    ordering: gtsam.Ordering | None = None
+    """Elimination ordering (with offsets: :func:`_time_ordering`; else GTSAM's default)."""
 
     def measurement_cost(self) -> float:
         return sum(f.current_cost(self.huber_threshold) for f in self.factors)
@@ -193,8 +205,7 @@ class SmootherProblem:
         linear = self.graph.linearize(values)
         linear.add(self.prior.linearize(values))
         for f in self.factors:
-            factor = f.linear_factor(self.huber_threshold)
-            if factor is not None:
+            for factor in f.linear_factors(self.huber_threshold):
                 linear.add(factor)
         return linear
 
@@ -204,7 +215,9 @@ class SmootherReport:
     """How the optimisation went (whole pass).
 
     ``quaternion`` and ``bias`` are the final estimates at the output epochs
-    even where the result flags them (e.g. not converged); ``seconds`` splits
+    even where the result flags them (e.g. not converged); ``offsets`` and
+    ``offset_sigmas`` the transmitter offsets of ``offset_ids`` with their
+    marginal standard deviations (empty unless ``offset_sigma`` is set); ``seconds`` splits
     the wall time into ``initialisation``, ``factors`` (``R`` and gating),
     ``optimisation``, ``marginals`` and ``total``.  ``history`` has one entry per
     trial step: (cost before, cost at the trial, decrease predicted by the
@@ -235,6 +248,9 @@ class SmootherReport:
     seconds: dict[str, float]
     quaternion: Array
     bias: Array
+    offset_ids: NDArray[np.intp]
+    offsets: Array
+    offset_sigmas: Array
     problem: SmootherProblem
 
 
@@ -320,6 +336,7 @@ def _fill_nodes(
 class _Outcome:
     attitudes: Rotation
     bias: Array
+    offsets: Array
     values: gtsam.Values
     cost: float
     converged: bool
@@ -331,7 +348,27 @@ class _Outcome:
     history: list[tuple[float, float, float, float, bool]]
 
 
-def _damped(linear: gtsam.GaussianFactorGraph, n: int, lam: float) -> gtsam.GaussianFactorGraph:
+def _values(attitudes: Rotation, bias: Array, offsets: Array) -> gtsam.Values:
+    """``to_values`` plus the transmitter offsets (1-vectors)."""
+    values = to_values(attitudes, bias)
+    for j, o in enumerate(offsets):
+        values.insert(offset_key(j), np.array([o]))
+    return values
+
+
+def _offset_priors(n_offsets: int, sigma: float | None) -> gtsam.NonlinearFactorGraph:
+    """``N(0, sigma^2)`` priors on the transmitter offsets (built-in factors)."""
+    graph = gtsam.NonlinearFactorGraph()
+    if n_offsets:
+        model = gtsam.noiseModel.Isotropic.Sigma(1, float(sigma))
+        for j in range(n_offsets):
+            graph.add(gtsam.PriorFactorVector(offset_key(j), np.zeros(1), model))
+    return graph
+
+
+def _damped(
+    linear: gtsam.GaussianFactorGraph, n: int, n_offsets: int, lam: float
+) -> gtsam.GaussianFactorGraph:
     damped = linear.clone()
     root = np.sqrt(lam) * np.eye(3)
     zero = np.zeros(3)
@@ -339,6 +376,11 @@ def _damped(linear: gtsam.GaussianFactorGraph, n: int, lam: float) -> gtsam.Gaus
     for k in range(n):
         damped.add(gtsam.JacobianFactor(attitude_key(k), root, zero, unit))
         damped.add(gtsam.JacobianFactor(bias_key(k), root, zero, unit))
+    unit1 = gtsam.noiseModel.Unit.Create(1)
+    for j in range(n_offsets):
+        damped.add(
+            gtsam.JacobianFactor(offset_key(j), np.sqrt(lam) * np.eye(1), np.zeros(1), unit1)
+        )
     return damped
 
 
@@ -347,12 +389,13 @@ def _optimise(
     rebuild: Callable[[Array], None],
     attitudes: Rotation,
     bias: Array,
+    offsets: Array,
     durations: Array,
     options: SmootherOptions,
 ) -> _Outcome:
-    """Levenberg-Marquardt on ``problem`` from ``(attitudes, bias)`` (module docstring)."""
+    """Levenberg-Marquardt on ``problem`` from ``(attitudes, bias, offsets)`` (module docstring)."""
     n, k_huber = problem.n, problem.huber_threshold
-    values = to_values(attitudes, bias)
+    values = _values(attitudes, bias, offsets)
     cost = problem.cost(values)
     lam = options.initial_lambda
     iterations = evaluations = rebuilds = 0
@@ -361,7 +404,8 @@ def _optimise(
     while True:
         linear = problem.linearize(values)
         tolerance = options.absolute_tolerance + options.relative_tolerance * abs(cost)
-        step = _damped(linear, n, lam).optimize()
+        damped = _damped(linear, n, problem.n_offsets, lam)
+        step = damped.optimize(problem.ordering) if problem.ordering else damped.optimize()
         predicted = linear.error(step.scale(0.0)) - linear.error(step)
         if predicted <= tolerance and lam <= options.initial_lambda:
             converged, message = True, "predicted decrease within tolerance"
@@ -370,13 +414,16 @@ def _optimise(
             break
         iterations += 1
         xi, d = step_arrays(step, n)
+        trial_offsets = offsets + np.array([step.at(offset_key(j))[0] for j in range(offsets.size)])
         trial_attitudes, trial_bias = retract(attitudes, xi), bias + d
+        trial_modelled = trial_offsets if problem.n_offsets else None
         evaluations += 1
-        evaluated = [f.evaluate(trial_attitudes[f.node]) for f in problem.factors]
+        evaluated = [f.evaluate(trial_attitudes[f.node], trial_modelled) for f in problem.factors]
         current = cost
         trial = np.inf
-        if np.all(np.isfinite(xi)) and np.all(np.isfinite(d)):
-            trial_values = to_values(trial_attitudes, trial_bias)
+        finite = np.all(np.isfinite(xi)) and np.all(np.isfinite(d))
+        if finite and np.all(np.isfinite(trial_offsets)):
+            trial_values = _values(trial_attitudes, trial_bias, trial_offsets)
             trial = problem.graph.error(trial_values) + problem.prior.cost(trial_values)
             for f, (nu, _, lost) in zip(problem.factors, evaluated, strict=True):
                 trial += f.cost(nu, k_huber, lost)
@@ -386,6 +433,7 @@ def _optimise(
         history.append((float(current), float(trial), float(predicted), float(lam), accepted))
         if accepted:
             attitudes, bias, values = trial_attitudes, trial_bias, trial_values
+            offsets = trial_offsets
             for f, (nu, jac, lost) in zip(problem.factors, evaluated, strict=True):
                 f.accept(nu, jac, lost)
             decrease, cost = current - trial, trial
@@ -415,6 +463,7 @@ def _optimise(
     return _Outcome(
         attitudes,
         bias,
+        offsets,
         values,
         cost,
         converged,
@@ -431,8 +480,11 @@ def _marginals(
     linear: gtsam.GaussianFactorGraph,
     nodes: range,
     cross: bool,
-) -> Array:
-    """Error-state covariances ``(len(nodes), 6, 6)`` (module docstring).
+    n_offsets: int = 0,
+    ordering: gtsam.Ordering | None = None,
+) -> tuple[Array, Array]:
+    """Error-state covariances ``(len(nodes), 6, 6)`` (module docstring) and the
+    transmitter offsets' variances ``(n_offsets,)``.
 
     The marginals ``gtsam.Marginals`` computes, from a Bayes tree eliminated
     in a METIS (nested-dissection) ordering: ``Marginals`` eliminates in
@@ -440,7 +492,7 @@ def _marginals(
     then cost time growing with the pass (45 s for the 6-state joints of
     14,400 epochs, against 4 s here; same values to rounding).
     """
-    tree = linear.eliminateMultifrontal(gtsam.Ordering.MetisGaussianFactorGraph(linear))
+    tree = linear.eliminateMultifrontal(ordering or gtsam.Ordering.MetisGaussianFactorGraph(linear))
     out = np.zeros((len(nodes), STATE_SIZE, STATE_SIZE))
     for i, k in enumerate(nodes):
         x, b = attitude_key(k), bias_key(k)
@@ -452,7 +504,51 @@ def _marginals(
         else:
             out[i, :3, :3] = tree.marginalCovariance(x)
             out[i, 3:, 3:] = tree.marginalCovariance(b)
-    return error_state_covariance(out)
+    variances = np.array([tree.marginalCovariance(offset_key(j))[0, 0] for j in range(n_offsets)])
+    return error_state_covariance(out), variances
+
+
+def _time_ordering(n: int, factors: list[EpochFactor], n_offsets: int) -> gtsam.Ordering:
+    """Nodes in time order, each transmitter offset right after the last node that sees it.
+
+    The separators are then the offsets of the transmitters in view across
+    the current time, so elimination cost grows linearly with the pass (GTSAM's
+    COLAMD and METIS orderings of this graph were measured to be far slower,
+    and METIS aborted in gtsam 4.3.0).
+    """
+    last = np.zeros(n_offsets, dtype=np.intp)
+    for f in factors:
+        if f.offset_index is not None:
+            seen = f.offset_index[f.rows]
+            last[seen] = np.maximum(last[seen], f.node)
+    after = np.argsort(last, kind="stable")
+    bounds = np.searchsorted(last[after], np.arange(n + 1))
+    ordering = gtsam.Ordering()
+    for k in range(n):
+        ordering.push_back(attitude_key(k))
+        ordering.push_back(bias_key(k))
+        for j in after[bounds[k] : bounds[k + 1]]:
+            ordering.push_back(offset_key(int(j)))
+    return ordering
+
+
+def _transmitter_offsets(
+    measurements: Sequence[AttitudeMeasurement | None], sigma: float | None
+) -> tuple[NDArray[np.intp], list[NDArray[np.intp] | None]]:
+    """The transmitters of the pass (sorted ids) and, per measurement, each row's
+    index among them (``None`` where offsets are not modelled)."""
+    none: list[NDArray[np.intp] | None] = [None] * len(measurements)
+    if sigma is None:
+        return np.zeros(0, np.intp), none
+    sources = [m.sources for m in measurements if m is not None and m.sources is not None]
+    if not sources:
+        raise InvalidObservationError("offset_sigma is set but no measurement has sources")
+    ids = np.unique(np.concatenate(sources))
+    index = [
+        None if m is None or m.sources is None else np.searchsorted(ids, m.sources)
+        for m in measurements
+    ]
+    return ids, index
 
 
 def smooth(
@@ -493,6 +589,8 @@ def smooth(
     start = time.perf_counter()
     counts = {name: np.zeros(len(measurements)) for name in COUNTS}
     factors: list[EpochFactor] = []
+    offset_ids, offset_index = _transmitter_offsets(measurements, options.offset_sigma)
+    offset_variance = 0.0 if options.offset_sigma is None else options.offset_sigma**2
     for k, measurement in enumerate(measurements):
         if measurement is None:
             continue
@@ -503,6 +601,8 @@ def smooth(
             attitudes[node],
             covariance[node, :3, :3],
             options.filter.gate_probability,
+            offset_index[k],
+            offset_variance,
         )
         for name in COUNTS:
             counts[name][k] = epoch_counts[name]
@@ -520,15 +620,21 @@ def smooth(
         offset,
         options.huber_threshold,
         bias.copy(),
+        offset_ids.size,
     )
+    offset_priors = _offset_priors(offset_ids.size, options.offset_sigma)
+    if offset_ids.size:
+        problem.ordering = _time_ordering(n, factors, offset_ids.size)
 
     def rebuild(bias_hat: Array) -> None:
         problem.bias_hat = np.array(bias_hat)
         problem.graph = gyro_graph(intervals, gyro, dt, problem.bias_hat)
+        problem.graph.push_back(offset_priors)
 
     rebuild(bias)
-    initial_cost = problem.cost(to_values(attitudes, bias))
-    outcome = _optimise(problem, rebuild, attitudes, bias, intervals.duration, options)
+    offsets = np.zeros(offset_ids.size)
+    initial_cost = problem.cost(_values(attitudes, bias, offsets))
+    outcome = _optimise(problem, rebuild, attitudes, bias, offsets, intervals.duration, options)
     iterations, evaluations, rebuilds = outcome.iterations, outcome.evaluations, outcome.rebuilds
     history = list(outcome.history)
     updates = 0
@@ -536,10 +642,16 @@ def smooth(
         updates += 1
         for f in problem.factors:
             a = outcome.attitudes[f.node]
-            f.set_noise(f.measurement.noise_covariance_at(a))
+            f.set_noise(f.shifted(outcome.offsets).noise_covariance_at(a))
             f.set_rows(f.rows)
         outcome = _optimise(
-            problem, rebuild, outcome.attitudes, outcome.bias, intervals.duration, options
+            problem,
+            rebuild,
+            outcome.attitudes,
+            outcome.bias,
+            outcome.offsets,
+            intervals.duration,
+            options,
         )
         iterations += outcome.iterations
         evaluations += outcome.evaluations
@@ -551,9 +663,12 @@ def smooth(
     linear = problem.linearize(outcome.values)
     marginals_error = ""
     try:
-        node_covariance = _marginals(linear, range(offset, n), options.cross_covariance)
+        node_covariance, offset_variances = _marginals(
+            linear, range(offset, n), options.cross_covariance, offset_ids.size, problem.ordering
+        )
     except RuntimeError as exc:  # an indefinite system (should not happen: prior + gyro chain)
         node_covariance = np.full((len(measurements), STATE_SIZE, STATE_SIZE), np.nan)
+        offset_variances = np.full(offset_ids.size, np.nan)
         marginals_error = f"marginal covariance failed: {exc}"
     seconds["marginals"] = time.perf_counter() - start
 
@@ -624,6 +739,9 @@ def smooth(
         seconds=seconds,
         quaternion=record.quaternion.copy(),
         bias=record.bias.copy(),
+        offset_ids=offset_ids,
+        offsets=outcome.offsets,
+        offset_sigmas=np.sqrt(offset_variances),
         problem=problem,
     )
     valid = solution.valid

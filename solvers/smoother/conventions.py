@@ -48,6 +48,11 @@ def bias_key(k: int) -> int:
     return gtsam.symbol("b", k)
 
 
+def offset_key(j: int) -> int:
+    """GTSAM key of the ``j``-th transmitter offset (1-vector) of a pass."""
+    return gtsam.symbol("o", j)
+
+
 def rot3(attitude: Rotation) -> gtsam.Rot3:
     """``R = A^T`` (body -> reference) of one attitude ``A``."""
     return gtsam.Rot3(attitude.as_matrix().T)

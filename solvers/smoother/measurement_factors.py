@@ -63,9 +63,10 @@ from scipy.spatial.transform import Rotation
 from formulations.attitude_measurement import AttitudeMeasurement
 from formulations.errors import InvalidObservationError
 from solvers.filters.common import gate, noise_subset, usable_rows
-from solvers.smoother.conventions import Array, attitude_key
+from solvers.smoother.conventions import Array, attitude_key, offset_key
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
+UNIT1 = gtsam.noiseModel.Unit.Create(1)
 
 
 def huber_cost(norms: Array, threshold: float | None) -> float:
@@ -143,7 +144,11 @@ def innovation_jacobian(
 
 
 class EpochFactor:
-    """The used rows of one epoch's measurement and their current linearisation."""
+    """The used rows of one epoch's measurement and their current linearisation.
+
+    ``offset_index`` ``(m,)``: per row, the index of its transmitter's offset
+    variable in the pass (``None``: offsets not modelled; module docstring).
+    """
 
     def __init__(
         self,
@@ -152,11 +157,17 @@ class EpochFactor:
         rows: NDArray[np.intp],
         noise: Array,
         counts: dict[str, float],
+        offset_index: NDArray[np.intp] | None = None,
     ) -> None:
         self.node = node
         self.key = attitude_key(node)
         self.measurement = measurement
+        self.offset_index = offset_index
         self.set_noise(noise)  # R over all the measurement's rows, fixed while optimising
+        if offset_index is not None and self.noise_diagonal is None:
+            raise InvalidObservationError(
+                f"node {node}: offsets are modelled row by row and need independent rows"
+            )
         self.counts = counts
         self.members = block_members(measurement.blocks)
         self.set_rows(rows)
@@ -210,14 +221,30 @@ class EpochFactor:
             return x * self.scale.reshape(-1, *([1] * (x.ndim - 1)))
         return solve_triangular(self.cholesky, x, lower=True)
 
-    def evaluate(self, attitude: Rotation) -> tuple[Array, Array, NDArray[np.intp]]:
+    def shifted(self, offsets: Array | None) -> AttitudeMeasurement:
+        """The measurement with the pass's current ``offsets`` inside its model."""
+        if self.offset_index is None or offsets is None:
+            return self.measurement
+        return self.measurement.with_offsets(offsets[self.offset_index])
+
+    def evaluate(
+        self, attitude: Rotation, offsets: Array | None = None
+    ) -> tuple[Array, Array, NDArray[np.intp]]:
         """Innovation ``nu`` and ``-d nu / d delta`` (:func:`innovation_jacobian`) over the
-        used rows at ``attitude``; the blocks that cannot be predicted there."""
-        predicted, jacobian = self.measurement.predict(attitude)
+        used rows at ``attitude``; the blocks that cannot be predicted there.
+
+        With ``offsets`` (the pass's offset variables, when modelled) the
+        Jacobian has a fourth column, ``-d nu / d o`` of each row's own offset
+        (``dh / d o`` from :meth:`~AttitudeMeasurement.offset_slope`).
+        """
+        measurement = self.shifted(offsets)
+        predicted, jacobian = measurement.predict(attitude)
         with np.errstate(invalid="ignore"):
-            nu = self.measurement.innovation(predicted[0])[self.rows]
-        jac = innovation_jacobian(self.measurement, predicted[0], jacobian[0], self.members)
+            nu = measurement.innovation(predicted[0])[self.rows]
+        jac = innovation_jacobian(measurement, predicted[0], jacobian[0], self.members)
         jac = jac[self.rows]
+        if self.offset_index is not None and offsets is not None:
+            jac = np.column_stack([jac, measurement.offset_slope(attitude)[self.rows]])
         bad = ~(np.isfinite(nu) & np.isfinite(jac).all(axis=1))
         lost = np.unique(self.measurement.blocks[self.rows[bad]])
         return nu, jac, lost
@@ -263,20 +290,46 @@ class EpochFactor:
         """IRLS weight of each used block at the current linearisation."""
         return huber_weights(self.block_norms(self.innovation), threshold)
 
-    def linear_factor(self, threshold: float | None) -> gtsam.JacobianFactor | None:
-        """``|| -W K xi - W nu ||^2`` (IRLS-weighted) as a compressed ``JacobianFactor``;
-        ``None`` once every block has been dropped."""
+    def linear_factors(self, threshold: float | None) -> list[gtsam.JacobianFactor]:
+        """``|| -W K xi - W nu ||^2`` (IRLS-weighted) as ``JacobianFactor`` s; none once
+        every block has been dropped.
+
+        Without offsets: one factor on the attitude key, compressed by QR to
+        at most three rows.  With offsets: one single-row factor per used row
+        on the attitude key and the row's offset key, ``+W (dh / d o)`` on the
+        latter (``e = -W nu``, ``nu = z - h``); rows cannot be compressed
+        without coupling every offset seen at the epoch.
+        """
         if self.rows.size == 0:
-            return None
+            return []
         root = np.sqrt(self.weights(threshold))[self.block_index]
-        system = np.column_stack([-self.whiten(self.jacobian), self.whiten(self.innovation)])
+        system = np.column_stack([-self.whiten(self.jacobian[:, :3]), self.whiten(self.innovation)])
         system *= root[:, None]
+        if self.jacobian.shape[1] > 3:
+            offset_column = self.whiten(self.jacobian[:, 3]) * root
+            keys = [offset_key(j) for j in self.offset_index[self.rows]]
+            return [
+                gtsam.JacobianFactor(self.key, row[None, :3], key, np.array([[c]]), row[3:], UNIT1)
+                for row, key, c in zip(system, keys, offset_column, strict=True)
+            ]
         if system.shape[0] > 3:
             system = np.linalg.qr(system, mode="r")[:3]
         m = system.shape[0]
-        return gtsam.JacobianFactor(
-            self.key, system[:, :3], system[:, 3], gtsam.noiseModel.Unit.Create(m)
-        )
+        return [
+            gtsam.JacobianFactor(
+                self.key, system[:, :3], system[:, 3], gtsam.noiseModel.Unit.Create(m)
+            )
+        ]
+
+    def whitened_system(self, nu: Array, jac: Array, lost: NDArray[np.intp]) -> tuple[Array, Array]:
+        """``e = -W nu`` and ``de/dxi = -W K`` over the used rows from an :meth:`evaluate`
+        result ``(nu, jac, lost)``, the rows of the ``lost`` blocks zero (finite where the
+        model cannot predict): the nonlinear factor that GTSAM relinearises itself in
+        :mod:`solvers.smoother.online` (no Huber weights, no compression)."""
+        if lost.size:
+            keep = self._kept(lost)
+            nu, jac = np.where(keep, nu, 0.0), np.where(keep[:, None], jac, 0.0)
+        return -self.whiten(nu), -self.whiten(jac)
 
     def normalised_residual(self) -> float:
         """``nu^T R^-1 nu`` over the used rows at the current linearisation (NaN if none)."""
@@ -295,10 +348,15 @@ def prepare_factor(
     attitude: Rotation,
     attitude_covariance: Array,
     gate_probability: float,
+    offset_index: NDArray[np.intp] | None = None,
+    offset_variance: float = 0.0,
 ) -> tuple[EpochFactor | None, dict[str, float]]:
     """The epoch's factor at the initial estimate (rows, ``R``, gating; module docstring).
 
-    Returns ``None`` (with the counts) when no row is left.
+    With offsets modelled (``offset_index``, all offsets 0 initially) the gate
+    adds the offsets' prior variance to ``R``, so that a transmitter's offset
+    is not rejected as an outlier.  Returns ``None`` (with the counts) when no
+    row is left.
     """
     counts = dict.fromkeys(COUNTS, 0.0)
     if measurement.size == 0:
@@ -310,15 +368,20 @@ def prepare_factor(
     if rows.size == 0:
         return None, counts
     noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
-    factor = EpochFactor(node, measurement, rows, noise, counts)
+    factor = EpochFactor(node, measurement, rows, noise, counts, offset_index)
     with np.errstate(invalid="ignore"):
         nu = measurement.innovation(predicted[0])[rows]
     h = jacobian[0][rows]
+    gate_noise = noise_subset(noise, rows)
+    if offset_variance:
+        gate_noise = gate_noise + offset_variance * (
+            1.0 if gate_noise.ndim == 1 else np.eye(rows.size)
+        )
     accepted = gate(
         nu,
         h.T,
         attitude_covariance,
-        noise_subset(noise, rows),
+        gate_noise,
         measurement.blocks[rows],
         gate_probability,
     )
