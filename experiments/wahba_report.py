@@ -47,6 +47,7 @@ FILTER_LABELS = {
     "mekf": "MEKF",
     "usque": "USQUE",
     "rts": "RTS smoother over the MEKF",
+    "fg_batch": "GTSAM batch smoother (fg_batch)",
 }
 FIGURE_FILTERS = ("mekf", "rts")
 """Filters drawn in ``filter_errors.png`` (USQUE's curve is indistinguishable from the MEKF's)."""
@@ -389,9 +390,39 @@ def _filter_section(ctx: ReportContext, consistency: pd.DataFrame) -> list[str]:
             f"| {FILTER_LABELS.get(method, method)} | {sigma} | {bias} | {seconds:.2f} | "
             f"{seconds * 3600.0 / duration:.2f} |"
         )
+    lines += ["", *_bound_lines(ctx, filters)]
     lines += ["", *_filter_discussion(ctx, filters, consistency, runtime), ""]
     lines += [f"![{n}]({n})" for n in _filter_figures(ctx, filters)]
     return [*lines, ""]
+
+
+def _bound_lines(ctx: ReportContext, filters: list[str]) -> list[str]:
+    """RMS of each gyro-aided method against the posterior bound of the pass (issue 6)."""
+    rows = ctx.rows[ctx.rows["method"].isin(filters) & ctx.rows["valid"].astype(bool)]
+    if "pbound_x_deg" not in rows or rows["pbound_x_deg"].isna().all():
+        return []
+    lines = [
+        "RMS (deg) against the posterior Cramer-Rao bound of the whole pass (`bound`: RMS of "
+        "the smoother's marginal sigma at the truth, gyro and every vector; "
+        "`experiments.filtering.posterior_bound`), per interval:",
+        "",
+        "| filter | " + " | ".join(f"{i}: RMS / bound" for i in INTERVAL_ORDER) + " |",
+        "|---|" + "---|" * len(INTERVAL_ORDER),
+    ]
+    for method in filters:
+        cells = []
+        for interval in INTERVAL_ORDER:
+            chosen = rows[(rows["method"] == method) & (rows["interval"] == interval)]
+            if not len(chosen):
+                cells.append("-")
+                continue
+            rms, bound = (
+                float(np.sqrt(sum((chosen[c.format(a)] ** 2).mean() for a in "xyz")))
+                for c in ("err_{}_deg", "pbound_{}_deg")
+            )
+            cells.append(f"{rms:.3f} / {bound:.3f} = {rms / bound:.2f}")
+        lines.append(f"| {FILTER_LABELS.get(method, method)} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _total_rms(c: pd.Series) -> float:

@@ -36,7 +36,8 @@ from formulations.snr_measurement import SnrMeasurement
 from formulations.snr_problem import SnrEpoch
 from solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
 from solvers.filters.common import prepare_gyro
-from solvers.smoother import SmootherOptions, smooth
+from solvers.result import BatchSolution
+from solvers.smoother import SmootherOptions, single_frame_initial, smooth
 from solvers.smoother.conventions import (
     attitude_key,
     bias_key,
@@ -535,13 +536,9 @@ def test_non_convergence_is_reported_not_silent():
     assert converged.report.converged and converged.solution.valid.all()
 
 
-def test_gyro_gap_is_bridged_and_long_gaps_flagged():
-    """Gyro samples missing from 20 s to 40 s and no measurement from 25 s to 35 s:
-    the held rate (the true one is constant) bridges the gap with a growing
-    covariance (sigma at 30 s above that at 10 s), errors stay within 4 sigma;
-    with ``max_gyro_gap_s = 5`` the epochs more than 5 s into the gap are
-    flagged as the filters flag them."""
-    rng = np.random.default_rng(31)
+def _gap_pass(seed: int = 31):
+    """Gyro samples missing from 20 s to 40 s and no measurement from 25 s to 35 s."""
+    rng = np.random.default_rng(seed)
     run = simulate_pass(rng, duration=60.0)
     rates = run.gyro.rates.copy()
     rates[(run.gyro.t[:-1] >= 20.0) & (run.gyro.t[:-1] < 40.0)] = np.nan
@@ -549,17 +546,84 @@ def test_gyro_gap_is_bridged_and_long_gaps_flagged():
     for k in range(25, 36):
         run.measurements[k] = None
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
+    return run, gyro, prior
+
+
+def test_gyro_gap_is_bridged_below_the_limit():
+    """A 20 s gap below ``max_gyro_gap_s``: the held rate (the true one is
+    constant) bridges it with a growing covariance (sigma at 30 s above that at
+    10 s), errors stay within 4 sigma, every epoch valid."""
+    run, gyro, prior = _gap_pass()
     result = smooth(gyro, run.t, run.measurements, prior, GYRO)
     assert result.report.converged and result.solution.valid.all()
     errors = state_errors(result, run)[:, :3]
     sigma = np.sqrt(np.einsum("kii->ki", result.solution.covariance))
     assert np.all(np.abs(errors) < 4.0 * sigma)
     assert sigma[30].min() > 2.0 * sigma[10].max()
+    assert result.solution.diagnostics["gyro_gap_s"].max() == pytest.approx(20.0)
+
+
+def test_long_gyro_gap_splits_the_pass_into_segments():
+    """The same gap above ``max_gyro_gap_s = 5``: no AHRS factor spans it (the
+    attitude segments are not linked, the bias walk still is); the epochs in the
+    gap with measurements are determined by them alone and valid, those without
+    (25-35 s) are undetermined (diffuse prior only) and flagged by the 30 deg
+    sigma rule; no motion is invented."""
+    run, gyro, prior = _gap_pass()
     strict = SmootherOptions(filter=FilterOptions(max_gyro_gap_s=5.0))
-    flagged = smooth(gyro, run.t, run.measurements, prior, GYRO, strict)
-    gap = result.solution.diagnostics["gyro_gap_s"]
-    assert np.array_equal(~flagged.solution.valid, gap > 5.0)
-    assert gap.max() == pytest.approx(20.0)
+    result = smooth(gyro, run.t, run.measurements, prior, GYRO, strict)
+    assert result.report.converged, result.report.message
+    intervals = gyro_intervals(
+        np.round(run.t / GYRO.dt).astype(int), prepare_gyro(gyro, strict.filter), GYRO, GYRO.dt, 5.0
+    )
+    np.testing.assert_array_equal(np.flatnonzero(intervals.broken), np.arange(20, 40))
+    graph = result.report.problem.graph
+    ahrs = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.AHRSFactor)]
+    assert len(ahrs) == run.t.size - 1 - 20
+    blind = np.zeros(run.t.size, dtype=bool)
+    blind[25:36] = True
+    assert np.array_equal(~result.solution.valid, blind)
+    assert set(result.solution.reason[blind]) == {"attitude not determined: 1-sigma above 30 deg"}
+    valid = result.solution.valid
+    delta = attitude_error(
+        Rotation.from_quat(result.solution.quaternion[valid]), run.truth_at_epochs[valid]
+    )
+    sigma = np.sqrt(np.einsum("kii->ki", result.solution.covariance[valid]))
+    assert np.all(np.abs(delta) < 4.0 * sigma)
+    # inside the gap with measurements: one epoch's vectors only (no gyro link)
+    covariance = result.solution.covariance
+    assert np.trace(covariance[22]) > 4.0 * np.trace(covariance[10])
+
+
+def test_single_frame_initialisation_reaches_the_same_optimum():
+    """Starting from single-epoch solutions (1 deg noise, a third of the epochs
+    invalid and filled by gyro integration) the smoother converges to the
+    optimum it reaches from the RTS estimate (issue 6 sec. 1)."""
+    rng = np.random.default_rng(41)
+    run = simulate_pass(rng, duration=90.0)
+    prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0)))
+    n = run.t.size
+    sigma = np.radians(1.0)
+    noisy = Rotation.from_rotvec(sigma * rng.standard_normal((n, 3))) * run.truth_at_epochs
+    valid = rng.uniform(size=n) > 1.0 / 3.0
+    snapshots = BatchSolution(
+        method="snapshot",
+        quaternion=np.where(valid[:, None], noisy.as_quat(), np.nan),
+        covariance=np.where(valid[:, None, None], sigma**2 * np.eye(3), np.nan),
+        loss=np.zeros(n),
+        valid=valid,
+        reason=np.where(valid, "", "invalid").astype(object),
+        error=np.full(n, None, dtype=object),
+        diagnostics={},
+    )
+    start = single_frame_initial(snapshots, prior)
+    from_snapshots = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT, start)
+    from_rts = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
+    assert from_snapshots.report.converged, from_snapshots.report.message
+    assert from_snapshots.report.initialisation == "given"
+    difference = attitude_error(from_snapshots.solution.attitude(), from_rts.solution.attitude())
+    assert np.abs(difference).max() < 1e-8
+    np.testing.assert_allclose(from_snapshots.bias, from_rts.bias, atol=1e-10)
 
 
 def test_first_epoch_after_the_gyro_start_gets_a_prior_node():

@@ -5,6 +5,7 @@ from solvers.smoother.batch import (
     SmootherProblem,
     SmootherReport,
     SmootherResult,
+    single_frame_initial,
     smooth,
 )
 from solvers.smoother.online import OnlineOptions, OnlineReport, OnlineResult, smooth_online
@@ -17,6 +18,7 @@ __all__ = [
     "SmootherProblem",
     "SmootherReport",
     "SmootherResult",
+    "single_frame_initial",
     "smooth",
     "smooth_online",
 ]

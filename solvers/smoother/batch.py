@@ -98,6 +98,7 @@ from solvers.filters.common import (
 )
 from solvers.filters.mekf import mekf
 from solvers.filters.rts import rts_smooth
+from solvers.result import BatchSolution
 from solvers.smoother.conventions import (
     Array,
     attitude_key,
@@ -105,6 +106,7 @@ from solvers.smoother.conventions import (
     error_state_covariance,
     offset_key,
     retract,
+    rot3,
     step_arrays,
     to_values,
 )
@@ -305,6 +307,26 @@ def _initial_estimate(
     return q, b, p, label
 
 
+def single_frame_initial(solution: BatchSolution, prior: FilterPrior) -> FilterResult:
+    """A starting estimate for :func:`smooth` from single-epoch solutions (issue 6
+    sec. 1): their attitudes (same reference frame as the smoother's) where valid,
+    the prior's bias everywhere; :func:`smooth` fills the other epochs by gyro
+    integration from the previous node.  The covariance (used to gate the
+    measurements) is the solution's attitude block and the prior's bias block.
+    """
+    n = len(solution)
+    covariance = np.full((n, STATE_SIZE, STATE_SIZE), np.nan)
+    covariance[:, :3, :3] = solution.covariance
+    covariance[:, :3, 3:] = covariance[:, 3:, :3] = 0.0
+    covariance[:, 3:, 3:] = np.asarray(prior.covariance)[3:, 3:]
+    quaternion = np.where(solution.valid[:, None], solution.quaternion, np.nan)
+    return FilterResult(
+        solution=replace(solution, quaternion=quaternion),
+        bias=np.tile(np.asarray(prior.bias, dtype=float), (n, 1)),
+        covariance=covariance,
+    )
+
+
 def _fill_nodes(
     q: Array, b: Array, p: Array, nodes: Array, gyro: PreparedGyro, prior: FilterPrior, dt: float
 ) -> tuple[Rotation, Array, Array]:
@@ -492,7 +514,13 @@ def _marginals(
     then cost time growing with the pass (45 s for the 6-state joints of
     14,400 epochs, against 4 s here; same values to rounding).
     """
-    tree = linear.eliminateMultifrontal(ordering or gtsam.Ordering.MetisGaussianFactorGraph(linear))
+    if ordering is None:
+        ordering = (
+            gtsam.Ordering.ColamdGaussianFactorGraph(linear)
+            if _has_isolated_keys(linear)
+            else gtsam.Ordering.MetisGaussianFactorGraph(linear)
+        )
+    tree = linear.eliminateMultifrontal(ordering)
     out = np.zeros((len(nodes), STATE_SIZE, STATE_SIZE))
     for i, k in enumerate(nodes):
         x, b = attitude_key(k), bias_key(k)
@@ -530,6 +558,18 @@ def _time_ordering(n: int, factors: list[EpochFactor], n_offsets: int) -> gtsam.
         for j in after[bounds[k] : bounds[k + 1]]:
             ordering.push_back(offset_key(int(j)))
     return ordering
+
+
+def _has_isolated_keys(linear: gtsam.GaussianFactorGraph) -> bool:
+    """Whether some variable shares no factor with another (a node in a long gyro gap
+    without measurements): gtsam 4.3.0's METIS ordering crashes on such graphs."""
+    keys, linked = set(), set()
+    for i in range(linear.size()):
+        factor_keys = linear.at(i).keys()
+        keys.update(factor_keys)
+        if len(factor_keys) > 1:
+            linked.update(factor_keys)
+    return keys != linked
 
 
 def _transmitter_offsets(
@@ -611,7 +651,7 @@ def smooth(
     seconds["factors"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    intervals = gyro_intervals(nodes, gyro, model, dt)
+    intervals = gyro_intervals(nodes, gyro, model, dt, options.filter.max_gyro_gap_s)
     problem = SmootherProblem(
         gtsam.NonlinearFactorGraph(),
         JointPrior(prior),
@@ -622,14 +662,17 @@ def smooth(
         bias.copy(),
         offset_ids.size,
     )
-    offset_priors = _offset_priors(offset_ids.size, options.offset_sigma)
+    fixed_priors = _offset_priors(offset_ids.size, options.offset_sigma)
+    diffuse = gtsam.noiseModel.Isotropic.Sigma(3, UNDETERMINED_SIGMA)
+    for k in intervals.segment_starts:
+        fixed_priors.add(gtsam.PriorFactorRot3(attitude_key(int(k)), rot3(attitudes[k]), diffuse))
     if offset_ids.size:
         problem.ordering = _time_ordering(n, factors, offset_ids.size)
 
     def rebuild(bias_hat: Array) -> None:
         problem.bias_hat = np.array(bias_hat)
         problem.graph = gyro_graph(intervals, gyro, dt, problem.bias_hat)
-        problem.graph.push_back(offset_priors)
+        problem.graph.push_back(fixed_priors)
 
     rebuild(bias)
     offsets = np.zeros(offset_ids.size)
@@ -696,8 +739,11 @@ def smooth(
     record.diagnostics["covariance_repairs"] = repairs
     if marginals_error:
         record.reason[:] = marginals_error
-    no_lost_track = replace(options.filter, max_rejected_epochs=np.iinfo(np.int64).max)
-    result = filter_result(method, record, no_lost_track)
+    # no lost-track rule, and a long gyro gap splits the pass instead of being flagged
+    own_rules = replace(
+        options.filter, max_rejected_epochs=np.iinfo(np.int64).max, max_gyro_gap_s=np.inf
+    )
+    result = filter_result(method, record, own_rules)
     solution = result.solution
     message = outcome.message
     if not outcome.converged:

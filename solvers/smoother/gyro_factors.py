@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 
 from formulations.errors import InvalidObservationError
@@ -74,10 +75,31 @@ class GyroIntervals:
     """``(n - 1,)`` AHRS factor variance per axis (rad^2)."""
     bias_sigma: Array
     """``(n - 1,)`` bias random-walk standard deviation ``sigma_u sqrt(T)`` (rad/s)."""
+    broken: NDArray[np.bool_]
+    """``(n - 1,)`` intervals inside a gyro gap longer than the limit: no AHRS factor."""
+
+    @property
+    def segment_starts(self) -> NDArray[np.intp]:
+        """Nodes after a broken interval: each starts a new attitude segment."""
+        return np.flatnonzero(self.broken) + 1
 
 
-def gyro_intervals(nodes: Array, gyro: PreparedGyro, model: GyroModel, dt: float) -> GyroIntervals:
-    """Noise of each interval's factors (module docstring)."""
+def long_gap_steps(gyro: PreparedGyro, max_gap_s: float) -> NDArray[np.bool_]:
+    """``(n - 1,)`` gyro steps inside a run of missing samples longer than ``max_gap_s``."""
+    missing = gyro.gap_s > 0
+    if not missing.any():
+        return missing
+    starts = missing & ~np.concatenate([[False], missing[:-1]])
+    ends = missing & ~np.concatenate([missing[1:], [False]])
+    run = np.cumsum(starts) - 1
+    return missing & (gyro.gap_s[ends][run.clip(0)] > max_gap_s)
+
+
+def gyro_intervals(
+    nodes: Array, gyro: PreparedGyro, model: GyroModel, dt: float, max_gap_s: float = np.inf
+) -> GyroIntervals:
+    """Noise of each interval's factors (module docstring); intervals that contain a
+    step of a gyro gap longer than ``max_gap_s`` are broken."""
     nodes = np.asarray(nodes)
     duration = np.diff(nodes) * dt
     hold = (
@@ -86,13 +108,21 @@ def gyro_intervals(nodes: Array, gyro: PreparedGyro, model: GyroModel, dt: float
         else np.zeros(0)
     )
     variance = model.sigma_v**2 * duration + model.sigma_u**2 * duration**3 / 3.0 + hold
-    return GyroIntervals(nodes, duration, variance, model.sigma_u * np.sqrt(duration))
+    long = long_gap_steps(gyro, max_gap_s)
+    broken = (
+        np.logical_or.reduceat(long[: nodes[-1]], nodes[:-1])
+        if nodes.size > 1
+        else np.zeros(0, dtype=bool)
+    )
+    return GyroIntervals(nodes, duration, variance, model.sigma_u * np.sqrt(duration), broken)
 
 
 def gyro_graph(
     intervals: GyroIntervals, gyro: PreparedGyro, dt: float, bias_hat: Array
 ) -> gtsam.NonlinearFactorGraph:
-    """AHRS and bias random-walk factors between all consecutive nodes.
+    """AHRS and bias random-walk factors between all consecutive nodes (no AHRS
+    factor over a broken interval: the gyro says nothing there, so the attitude
+    segments on either side are not linked; the bias walk still links them).
 
     ``bias_hat`` ``(n, 3)``: the bias about which interval ``i`` is
     preintegrated (node ``i``'s estimate).
@@ -106,10 +136,11 @@ def gyro_graph(
             p = gtsam.PreintegratedRotationParams()
             p.setGyroscopeCovariance(density * np.eye(3))
             params[density] = p
-        pim = gtsam.PreintegratedAhrsMeasurements(params[density], np.asarray(bias_hat[i]))
-        for rate in gyro.rates[nodes[i] : nodes[i + 1]]:
-            pim.integrateMeasurement(rate, dt)
-        graph.add(gtsam.AHRSFactor(attitude_key(i), attitude_key(i + 1), bias_key(i), pim))
+        if not intervals.broken[i]:
+            pim = gtsam.PreintegratedAhrsMeasurements(params[density], np.asarray(bias_hat[i]))
+            for rate in gyro.rates[nodes[i] : nodes[i + 1]]:
+                pim.integrateMeasurement(rate, dt)
+            graph.add(gtsam.AHRSFactor(attitude_key(i), attitude_key(i + 1), bias_key(i), pim))
         graph.add(
             gtsam.BetweenFactorVector(
                 bias_key(i),

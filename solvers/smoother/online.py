@@ -256,6 +256,7 @@ def interval_factors(
         intervals.duration[i : i + 1],
         intervals.attitude_variance[i : i + 1],
         intervals.bias_sigma[i : i + 1],
+        intervals.broken[i : i + 1],
     )
     graph = gyro_graph(one, gyro, dt, np.asarray(bias_hat, dtype=float)[None])
     keys = {
