@@ -1,0 +1,371 @@
+"""Experiment ``geo-snr-stations``: Garuda-1's boresight from ground-station SNRs (seed 004).
+
+One trial simulates the hour of :mod:`experiments.scenarios.geo_snr_stations`
+(SNR noise from the trial's seed) and solves it with, per epoch:
+
+* ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12);
+* ``lsq``: least-squares boresight over every station that hears the satellite;
+* ``nlp``: the CasADi/IPOPT NLP of :mod:`solvers.snr.nlp` on every heard
+  station's SNR (the seed's eq. 7 model through
+  :func:`formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight;
+* ``usque``: the unscented filter of sec. V.B on the three filter stations;
+* ``usque_detect``: the same with manoeuvre detection and automatic
+  re-initialisation (:mod:`solvers.geo.manoeuvre`), run with and without the
+  manoeuvre so that false alarms show;
+* ``fg_batch``: the factor-graph smoother (:func:`solvers.smoother.smooth`) on
+  the filters' SNRs, started from ``usque_detect`` (``usque`` would carry the
+  manoeuvre's unmodelled rate into the start).
+
+Rate input (seed 004 sec. V.B: "the UKF is provided with ... position and body
+rate information").  A ground observer has no gyro on the broadcaster; the
+filters get the *assumed* body rate, that of the nominal slew without the
+manoeuvre (:func:`assumed_rates`, noise-free), as a gyro record whose model
+(:func:`rate_model`) turns the seed's "process noise ... 0.1 degree" into an
+angle random walk of ``rate_arw_deg_sqrt_h`` (default 0.1 deg/h^(1/2)), a rate
+random walk of ``rate_rrw_deg_h_sqrt_h`` and a 1 deg/h initial rate-error sigma.
+
+Prior.  The seed starts its filter with 5 deg per axis.  An attitude error is
+drawn with that sigma from the trial's child stream
+(:func:`experiments.filtering.child_rng`) and its boresight is replaced by
+``cone``'s at the first epoch (:func:`solvers.geo.manoeuvre.boresight_prior`,
+yaw kept, yaw sigma 5 deg): from the raw draw (up to 9 deg off) the
+stations fall outside the 9 deg main lobe at the sigma points and USQUE
+never updates (measured: no update in the hour).
+
+Error columns.  ``err_{x,y,z}_deg`` is the pointing error: the rotation vector
+(true body frame) of the smallest rotation carrying the true boresight to the
+estimated one (:func:`pointing_error`), so its ``z`` (yaw) component is zero
+by construction.  Yaw about the boresight is unobservable from SNRs
+(``docs/geo.md``): ``yaw_observable`` is False on every row and the filters'
+own yaw error (the ``z`` component of ``estimate * truth.inv()``, which they
+carry with a large sigma) is in ``yaw_err_deg``.  ``sigma_{x,y,z}_deg``: the
+method's own standard deviations (NaN for ``cone``/``lsq``);
+``bound_{x,y}_deg``: the filters' and smoother's own sigma, and for the
+snapshot methods the Cramer-Rao bound of their stations' SNRs
+(:func:`formulations.geo_fisher.snr_fisher_information`, pseudo-inverse: the
+boresight axis is its nullspace).  ``usque_detect`` rows add the windowed
+test's ``p_value`` and ``detected`` at the epochs it restarted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from experiments.experiment import Experiment, Setting
+from experiments.filtering import GYRO_STREAM, child_rng
+from experiments.geo_report import report
+from experiments.scenarios.geo_snr_stations import (
+    MANOEUVRE_START_S,
+    SNR_SIGMA_DB,
+    GeoSnrScenario,
+    build_geo_snr_scenario,
+    true_attitude,
+)
+from formulations.errors import AttoptError
+from formulations.geo_fisher import snr_fisher_information
+from formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
+from formulations.gyro import GyroModel, GyroSamples, mean_rates
+from solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
+from solvers.geo.boresight import (
+    StationCones,
+    cone_intersection,
+    least_squares_boresight,
+    station_cones,
+)
+from solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
+from solvers.smoother import SmootherOptions, smooth
+from solvers.snr.nlp import NlpSolver
+
+Array = NDArray[np.float64]
+
+FILTER_STATIONS = ("Surabaya", "General Santos", "Labuan")
+"""The three stations of the cone intersection and the filters: those that hear
+Garuda-1 during the whole hour (``docs/geo.md``)."""
+FILTER_OPTIONS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.radians(90.0))
+"""No innovation gate (the seed's filter has none; :mod:`solvers.geo.manoeuvre`),
+and a 90 deg validity limit: the yaw sigma is large by nature, not a failure."""
+
+MIN_WINDOW = 3
+"""Fewest epochs in the detection window (a 120 s window is 2 epochs at 60 s steps, where
+the first epoch after the manoeuvre's start alone can miss ``false_alarm``)."""
+
+PARAMETERS: dict[str, Any] = {
+    "duration_s": 3600.0,
+    "step_s": 10.0,
+    "manoeuvre": [False, True],
+    "initial_sigma_deg": 5.0,
+    "rate_arw_deg_sqrt_h": 0.1,
+    "rate_rrw_deg_h_sqrt_h": 1.0,
+    "detection_window_s": 120.0,
+    "false_alarm": 1e-6,
+}
+
+
+def grid(parameters: Mapping[str, Any]) -> list[Setting]:
+    """One setting per ``manoeuvre`` value; every method runs inside each trial."""
+    values = parameters["manoeuvre"]
+    values = values if isinstance(values, list | tuple) else [values]
+    if parameters["step_s"] <= 0 or parameters["duration_s"] < 2 * parameters["step_s"]:
+        raise ValueError("need step_s > 0 and at least two epochs")
+    return [{**parameters, "manoeuvre": bool(value)} for value in values]
+
+
+def detection_window(setting: Mapping[str, Any]) -> int:
+    """Epochs in the NIS test's window: ``detection_window_s``, at least :data:`MIN_WINDOW`."""
+    return max(MIN_WINDOW, round(setting["detection_window_s"] / setting["step_s"]))
+
+
+def rate_model(setting: Mapping[str, Any]) -> GyroModel:
+    """The assumed-rate "gyro" (module docstring), one sample per epoch."""
+    per_sqrt_s = np.radians(1.0) / 60.0
+    return GyroModel(
+        name="assumed_rate",
+        sigma_v=setting["rate_arw_deg_sqrt_h"] * per_sqrt_s,
+        sigma_u=setting["rate_rrw_deg_h_sqrt_h"] * per_sqrt_s / 3600.0,
+        initial_bias_sigma=np.radians(1.0) / 3600.0,
+        rate_hz=1.0 / setting["step_s"],
+    )
+
+
+def assumed_rates(scenario: GeoSnrScenario) -> GyroSamples:
+    """Body rates of the nominal slew (no manoeuvre) at the epochs."""
+    dt = float(scenario.t[1] - scenario.t[0])
+    return GyroSamples(scenario.t, mean_rates(true_attitude(scenario.t), dt), dt)
+
+
+def pointing_error(truth: Rotation, boresight: Array) -> Array:
+    """``(N, 3)`` rad: smallest rotation true -> estimated boresight, true body frame.
+
+    With ``A_est = exp(delta) A_true`` and no yaw, ``A_true B_est = exp(-delta) z``:
+    ``delta = angle (b_y, -b_x, 0) / |(b_x, b_y)|``, ``b = A_true B_est``.
+    """
+    b = truth.apply(boresight)
+    across = np.hypot(b[:, 0], b[:, 1])
+    angle = np.arctan2(across, b[:, 2])
+    scale = np.divide(angle, across, out=np.zeros_like(angle), where=across > 0)
+    return np.stack([scale * b[:, 1], -scale * b[:, 0], np.zeros_like(angle)], axis=1)
+
+
+def crb_sigma(scenario: GeoSnrScenario, k: int, stations: NDArray[np.intp]) -> Array:
+    """Cramer-Rao standard deviations (rad) about body x, y of epoch ``k``'s ``stations``."""
+    fisher = snr_fisher_information(
+        scenario.truth[k],
+        scenario.satellite_eci_km[k],
+        scenario.stations_eci_km[k, stations],
+        SNR_SIGMA_DB,
+        scenario.link,
+    )
+    return np.sqrt(np.diag(np.linalg.pinv(fisher, rcond=1e-9, hermitian=True))[:2])
+
+
+class _Rows:
+    """Accumulates one method's per-epoch columns (module docstring)."""
+
+    def __init__(self, method: str, scenario: GeoSnrScenario) -> None:
+        n = scenario.t.size
+        self.method, self.scenario = method, scenario
+        self.boresight = np.full((n, 3), np.nan)
+        self.sigma = np.full((n, 3), np.nan)
+        self.bound = np.full((n, 2), np.nan)
+        self.yaw = np.full(n, np.nan)
+        self.reason = np.full(n, "", dtype=object)
+        self.extra: dict[str, Array] = {}
+
+    def frame(self) -> pd.DataFrame:
+        valid = np.isfinite(self.boresight).all(axis=1)
+        error = np.full_like(self.boresight, np.nan)
+        truth = self.scenario.truth[valid]
+        error[valid] = pointing_error(truth, self.boresight[valid])
+        columns: dict[str, Any] = {"method": self.method, "t_s": self.scenario.t}
+        for i, axis in enumerate("xyz"):
+            columns[f"err_{axis}_deg"] = np.degrees(error[:, i])
+        for i, axis in enumerate("xyz"):
+            columns[f"sigma_{axis}_deg"] = np.degrees(self.sigma[:, i])
+        for i, axis in enumerate("xy"):
+            columns[f"bound_{axis}_deg"] = np.degrees(self.bound[:, i])
+        columns |= {
+            "yaw_err_deg": np.degrees(self.yaw),
+            "yaw_observable": False,
+            "valid": valid,
+            "reason": np.where(valid, "", self.reason),
+            **self.extra,
+        }
+        return pd.DataFrame(columns)
+
+
+def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.intp]) -> list:
+    """``cone``, ``lsq`` and ``nlp`` per epoch (module docstring)."""
+    cone, lsq, nlp = (_Rows(m, scenario) for m in ("cone", "lsq", "nlp"))
+    solver = NlpSolver()
+    for k in range(scenario.t.size):
+        heard = np.flatnonzero(np.isfinite(snr[k]))
+        for rows, stations, solve in (
+            (cone, np.intersect1d(filter_idx, heard), cone_intersection),
+            (lsq, heard, least_squares_boresight),
+        ):
+            try:
+                rows.boresight[k] = solve(epoch_cones(scenario, snr, k, stations)).direction
+                rows.bound[k] = crb_sigma(scenario, k, stations)
+            except AttoptError as error:
+                rows.reason[k] = str(error)
+        if not np.isfinite(lsq.boresight[k]).all():
+            nlp.reason[k] = "no least-squares start"
+            continue
+        epoch = geo_snr_epoch(
+            snr[k, heard],
+            scenario.satellite_eci_km[k],
+            scenario.stations_eci_km[k, heard],
+            SNR_SIGMA_DB,
+            scenario.link,
+        )
+        estimate = solver.estimate(epoch, attitude_pointing(lsq.boresight[k]))
+        if estimate.failure is not None or estimate.attitude is None:
+            nlp.reason[k] = estimate.failure or "no estimate"
+            continue
+        nlp.boresight[k] = estimate.attitude.inv().apply(BORESIGHT_BODY)
+        nlp.sigma[k] = np.sqrt(np.diag(estimate.covariance))
+        nlp.bound[k] = lsq.bound[k]
+    return [cone, lsq, nlp]
+
+
+def epoch_cones(
+    scenario: GeoSnrScenario, snr: Array, k: int, stations: NDArray[np.intp]
+) -> StationCones:
+    """The cones of epoch ``k``'s ``stations`` from the measured SNRs ``snr`` ``(N, m)``."""
+    return station_cones(
+        snr[k, stations],
+        scenario.satellite_eci_km[k],
+        scenario.stations_eci_km[k, stations],
+        scenario.stations_up_eci[k, stations],
+        SNR_SIGMA_DB,
+        scenario.link,
+    )
+
+
+def _filter_rows(method: str, scenario: GeoSnrScenario, result: FilterResult) -> _Rows:
+    rows = _Rows(method, scenario)
+    solution = result.solution
+    valid = solution.valid
+    rows.reason[~valid] = solution.reason[~valid]
+    if valid.any():
+        estimate = solution.attitude()
+        rows.boresight[valid] = estimate.inv().apply(BORESIGHT_BODY)
+        rows.yaw[valid] = (estimate * scenario.truth[valid].inv()).as_rotvec()[:, 2]
+    rows.sigma = np.sqrt(np.diagonal(solution.covariance, axis1=1, axis2=2))
+    rows.bound = rows.sigma[:, :2]
+    rows.extra["nis"] = solution.loss
+    return rows
+
+
+def _filter_prior(
+    setting: Setting, scenario: GeoSnrScenario, rng: np.random.Generator, cone_start: Array
+) -> FilterPrior:
+    """The seed's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
+    sigma0 = np.radians(setting["initial_sigma_deg"])
+    draw = Rotation.from_rotvec(sigma0 * rng.standard_normal(3)) * scenario.truth[0]
+    start = DetectionOptions(yaw_sigma=sigma0, bias_sigma=rate_model(setting).initial_bias_sigma)
+    return boresight_prior(draw, cone_start, np.zeros(3), start)
+
+
+def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
+    """One noisy pass solved by every method (module docstring)."""
+    scenario = build_geo_snr_scenario(
+        setting["duration_s"], setting["step_s"], setting["manoeuvre"]
+    )
+    snr = scenario.simulate_snr(np.random.default_rng(seed))
+    names = [station.name for station in scenario.stations]
+    filter_idx = np.array([names.index(name) for name in FILTER_STATIONS])
+    snapshot = _snapshot_rows(scenario, snr, filter_idx)
+    cone = snapshot[0]
+    if not np.isfinite(cone.boresight[0]).all():
+        raise ValueError(f"no cone intersection at the first epoch: {cone.reason[0]}")
+    filter_snr = np.full_like(snr, np.nan)
+    filter_snr[:, filter_idx] = snr[:, filter_idx]
+    measurements = [scenario.measurement(k, row) for k, row in enumerate(filter_snr)]
+    samples, model = assumed_rates(scenario), rate_model(setting)
+    prior = _filter_prior(setting, scenario, child_rng(seed, GYRO_STREAM), cone.boresight[0])
+    plain = usque(samples, scenario.t, measurements, prior, model, FILTER_OPTIONS)
+    detection = DetectionOptions(
+        window=detection_window(setting), false_alarm=setting["false_alarm"]
+    )
+    boresight: Callable[[int], Array] = _cone_or_lsq(cone, snapshot[1])
+    run = detect_and_reinitialise(
+        samples, scenario.t, measurements, prior, model, boresight, detection, FILTER_OPTIONS
+    )
+    smoothed = smooth(
+        samples,
+        scenario.t,
+        measurements,
+        prior,
+        model,
+        SmootherOptions(filter=FILTER_OPTIONS),
+        initial=run.result,
+    )
+    detect_rows = _filter_rows("usque_detect", scenario, run.result)
+    detect_rows.extra["p_value"] = run.p_value
+    detect_rows.extra["detected"] = np.isin(np.arange(scenario.t.size), run.detections)
+    frames = [
+        *snapshot,
+        _filter_rows("usque", scenario, plain),
+        detect_rows,
+        _filter_rows("fg_batch", scenario, smoothed),
+    ]
+    return pd.concat([rows.frame() for rows in frames], ignore_index=True)
+
+
+def _cone_or_lsq(cone: _Rows, lsq: _Rows) -> Callable[[int], Array]:
+    """Snapshot boresight of epoch ``k`` for a restart: the cones', else least squares'."""
+
+    def boresight(k: int) -> Array:
+        return cone.boresight[k] if np.isfinite(cone.boresight[k]).all() else lsq.boresight[k]
+
+    return boresight
+
+
+def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
+    """Per group: restarts per trial, mean first-detection delay after the manoeuvre
+    start, and the filters' yaw RMS and share of epochs with the yaw error inside
+    3 sigma (reported apart: yaw is unobservable)."""
+    detected = rows["detected"].astype("boolean").fillna(False).astype(bool)
+    yaw = rows["yaw_err_deg"]
+    work = rows[[*keys, "trial_index", "t_s"]].assign(
+        detected=detected,
+        yaw_ms=yaw**2,
+        yaw_inside=(yaw.abs() <= 3 * rows["sigma_z_deg"]).where(yaw.notna()).astype(float),
+    )
+    groups = work.groupby(keys, dropna=False)
+    out = pd.DataFrame(
+        {
+            "restarts_per_trial": groups["detected"].sum() / groups["trial_index"].nunique(),
+            "filter_yaw_rms_deg": np.sqrt(groups["yaw_ms"].mean()),
+            "yaw_inside_3sigma": groups["yaw_inside"].mean(),
+        }
+    )
+    after = work[work["detected"] & (work["t_s"] >= MANOEUVRE_START_S)]
+    first = after.groupby([*keys, "trial_index"], dropna=False)["t_s"].min() - MANOEUVRE_START_S
+    out["detection_delay_s"] = first.groupby(level=list(range(len(keys)))).mean()
+    return out.reset_index()
+
+
+EXPERIMENT = Experiment(
+    name="geo-snr-stations",
+    summary=(
+        "Seed 004: GEO broadcaster boresight from ground-station SNRs (cones, least squares, "
+        "NLP, USQUE with manoeuvre detection, factor-graph smoother)"
+    ),
+    parameters=PARAMETERS,
+    grid=grid,
+    trial=trial,
+    default_trials=4,
+    quick_trials=1,
+    quick_parameters={"duration_s": 3600.0, "step_s": 60.0},
+    report=report,
+    summary_columns=summary_columns,
+)
+"""The experiment (:mod:`experiments.registry` name ``geo-snr-stations``)."""
