@@ -18,6 +18,8 @@ EXPERIMENTS: dict[str, str] = {
     "noop": "experiments.sweep.toys:NOOP",
     "wahba-mag-sun": "experiments.wahba_mag_sun:EXPERIMENT",
     "adsb-snr": "experiments.adsb_snr:EXPERIMENT",
+    "doa-ground": "experiments.doa_ground:EXPERIMENT",
+    "geo-snr-stations": "experiments.geo_snr_stations:EXPERIMENT",
 }
 
 
