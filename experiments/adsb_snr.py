@@ -466,7 +466,7 @@ EXPERIMENT = Experiment(
     name="adsb-snr",
     summary=(
         "Seed 000: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) and "
-        "gyro-aided filters (MEKF, USQUE, RTS) over an hour, vs the CRB"
+        "gyro-aided filters (MEKF, USQUE, RTS) and GTSAM smoothers over an hour, vs the CRB"
     ),
     parameters=PARAMETERS,
     grid=grid,
