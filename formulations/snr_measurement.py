@@ -120,7 +120,7 @@ class SnrMeasurement(AttitudeMeasurement):
             x = (f - epoch.threshold_db) / self.sigma
             return f + self.sigma * inverse_mills_ratio(x), None
         values, jac = predict_snr(
-            Rotation.from_matrix(matrices),
+            Rotation.from_quat(attitude.as_quat().reshape(-1, 4)),  # a stack, even of one
             epoch.unit_los[None],
             epoch.boresight_rows[None],
             epoch.p0_dbw[None],
