@@ -55,11 +55,11 @@ from experiments.filtering import (
     SMOOTHER_KINDS,
     FilterInputs,
     GyroTruth,
+    bound_columns,
     child_rng,
     filter_columns,
     gyro_truth,
     in_orbit_frame,
-    posterior_bound,
     run_filter,
     run_filters,
     simulate_filter_inputs,
@@ -200,10 +200,7 @@ def filter_rows(
             kinds, inputs, truth, snr, SNR_SUFFIX, setting["offset_prior_sigma_db"]
         ).items():
             runs[kind if kind in SMOOTHER_KINDS else kind + SNR_SUFFIX] = run
-        bound = {}
-        if set(SMOOTHER_KINDS) & set(wanted):
-            sigma = np.degrees(posterior_bound(inputs, truth, snr, next(iter(runs.values()))[0]))
-            bound = {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
+        bound = bound_columns(runs, inputs, truth, snr)
         for method in wanted:
             result, seconds = runs[method]
             frame = _rows(method, gyro, result, seconds, inputs, truth, common, true_attitude_orbit)

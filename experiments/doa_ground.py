@@ -37,13 +37,25 @@ fewer than two).  One ``music`` row per trial carries the DOA statistics over
 all estimates: counts, acceptance and mean squared errors of ``theta`` and
 ``phi`` and of their CRBs at the true DOAs (``doa_*`` columns, deg^2).
 
-Not implemented: the factor-graph smoother with DOA factors and gyro (issue 7
-sec. 3) and a gyro-driven MEKF.
+4. ``filters`` (default ``mekf`` and ``fg_batch``): the gyro-aided MEKF and
+   the GTSAM whole-pass smoother (:func:`experiments.filtering.run_filters`)
+   on the same unit vectors plus a MEMS-class gyro sampled at the epochs
+   (``GYRO``; seed 003 has none: its EKF propagates the dynamics), started
+   from a prior drawn with ``gyro_initial_sigma_deg`` per axis around the
+   truth (child stream :data:`experiments.filtering.GYRO_STREAM` of the
+   trial's seed; not the EKF's 98 deg start, which the vector measurements'
+   linearisation does not survive in a gyro-driven filter).  Their rows
+   carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of the pass
+   (:func:`experiments.filtering.posterior_bound`), and ``runtime_s``.
+
+Not implemented: the attitude bound of the seed's EKF itself, and DOA
+factors in angle form (the smoother uses the unit vectors, like the EKF).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -52,6 +64,17 @@ from scipy.spatial.transform import Rotation
 
 from experiments.doa_report import report
 from experiments.experiment import Experiment, Setting
+from experiments.filtering import (
+    GYRO_STREAM,
+    INITIAL_ATTITUDE_SIGMA_DEG,
+    VECTOR_FILTERS,
+    GyroTruth,
+    bound_columns,
+    child_rng,
+    in_orbit_frame,
+    run_filters,
+    simulate_filter_inputs,
+)
 from experiments.metrics import error_columns
 from experiments.scenarios.doa_ground import (
     DURATION_S,
@@ -72,6 +95,7 @@ from formulations.doa_array import (
 )
 from formulations.doa_crb import stochastic_crb
 from formulations.doa_measurement import DoaMeasurement
+from formulations.gyro import MEMS_GYRO
 from solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf
 from solvers.doa.music import DoaEstimates, MusicEstimator
 from solvers.result import BatchSolution
@@ -98,13 +122,20 @@ PARAMETERS: dict[str, Any] = {
     "initial_sigma_deg": 60.0,
     "initial_rate_sigma_deg_s": 0.5,
     "process_noise": PROCESS_NOISE,
+    "filters": ["mekf", "fg_batch"],
+    "gyro_initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
 }
+GYRO = MEMS_GYRO
+"""The gyro of the gyro-aided rows, sampled at the epochs (``rate_hz = 1 / step_s``)."""
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
     """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2."""
     pairs = [(float(s), int(parameters["table1_snapshots"])) for s in parameters["table1_snr_db"]]
     pairs += [(float(parameters["table2_snr_db"]), int(n)) for n in parameters["table2_snapshots"]]
+    unknown = sorted(set(parameters["filters"]) - set(VECTOR_FILTERS))
+    if unknown:
+        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
     if any(n < 1 for _, n in pairs):
         raise ValueError("numbers of snapshots must be >= 1")
     if parameters["row_step_s"] < parameters["step_s"]:
@@ -166,9 +197,58 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     frames = [
         _ekf_rows(ekf, geometry, row_epochs, common),
         _wahba_rows(geometry, vectors, row_epochs, common, setting),
+        *_gyro_rows(setting, seed, geometry, vectors, row_epochs, common),
         pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]),
     ]
     return pd.concat(frames, ignore_index=True)
+
+
+def _gyro_rows(
+    setting: Setting,
+    seed: np.random.SeedSequence,
+    geometry: DoaGroundGeometry,
+    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
+    rows: np.ndarray,
+    common: Mapping[str, Any],
+) -> list[pd.DataFrame]:
+    """Rows of the gyro-aided filters and smoothers (module docstring, 4)."""
+    if not setting["filters"]:
+        return []
+    model = replace(GYRO, rate_hz=1.0 / setting["step_s"])
+    truth = GyroTruth(
+        t=geometry.t,
+        attitude=geometry.truth * geometry.eci_to_orbit,
+        epoch_frames=geometry.eci_to_orbit,
+        epoch_samples=np.arange(geometry.t.size),
+    )
+    inputs = simulate_filter_inputs(
+        truth, model, child_rng(seed, GYRO_STREAM), setting["gyro_initial_sigma_deg"]
+    )
+    accepted = np.isfinite(vectors[0]).all(axis=-1).any(axis=-1)
+    measurements = [
+        VectorMeasurement(*(v[k] for v in vectors)) if accepted[k] else None
+        for k in range(geometry.t.size)
+    ]
+    runs = run_filters(setting["filters"], inputs, truth, measurements)
+    bound = {k: v[rows] for k, v in bound_columns(runs, inputs, truth, measurements).items()}
+    frames = []
+    for method, (result, seconds) in runs.items():
+        solution = in_orbit_frame(result.solution, truth.epoch_frames)
+        errors = error_columns(solution, geometry.truth)
+        frames.append(
+            pd.DataFrame(
+                {
+                    "method": method,
+                    **common,
+                    **{name: column[rows] for name, column in errors.items()},
+                    **bound,
+                    "valid": solution.valid[rows],
+                    "reason": solution.reason[rows].astype(str),
+                    "runtime_s": seconds,
+                }
+            )
+        )
+    return frames
 
 
 def unit_vector_observations(

@@ -25,7 +25,7 @@ methods' data.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -136,6 +136,8 @@ whole pass (``fg_batch``), and batch with one power offset per transmitter
 (``fg_batch_offsets``, SNR measurements only).  The smoother rows keep their
 names; the others take the caller's suffix."""
 SMOOTHER_KINDS = ("fg_online", "fg_batch", "fg_batch_offsets")
+VECTOR_FILTERS = tuple(k for k in FILTERS if k != "fg_batch_offsets")
+"""Filter kinds for measurements without transmitter offsets to estimate."""
 OFFSET_PRIOR_SIGMA_DB = 2.0
 """Default prior standard deviation of a transmitter's power offset (issue 6 sec. 2)."""
 
@@ -229,6 +231,21 @@ def run_smoother(
         method,
     )
     return result, time.perf_counter() - start
+
+
+def bound_columns(
+    runs: Mapping[str, tuple[FilterResult, float]],
+    inputs: FilterInputs,
+    truth: GyroTruth,
+    measurements: Sequence[AttitudeMeasurement | None],
+) -> dict[str, Array]:
+    """``pbound_{x,y,z}_deg`` per epoch (:func:`posterior_bound`) when ``runs`` has a
+    factor-graph smoother, else nothing."""
+    if not set(SMOOTHER_KINDS) & set(runs):
+        return {}
+    template = next(iter(runs.values()))[0]
+    sigma = np.degrees(posterior_bound(inputs, truth, measurements, template))
+    return {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
 
 
 def posterior_bound(

@@ -40,16 +40,15 @@ import pandas as pd
 
 from experiments.experiment import Experiment, Setting
 from experiments.filtering import (
-    FILTERS,
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
-    SMOOTHER_KINDS,
+    VECTOR_FILTERS,
     GyroTruth,
+    bound_columns,
     child_rng,
     filter_columns,
     gyro_truth,
     in_orbit_frame,
-    posterior_bound,
     run_filters,
     simulate_filter_inputs,
 )
@@ -70,8 +69,7 @@ from formulations.wahba_covariance import quest_covariance
 from solvers.wahba import WAHBA_SOLVERS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
-VECTOR_FILTERS = tuple(k for k in FILTERS if k != "fg_batch_offsets")
-"""Filter kinds for vector measurements (no transmitter offsets to estimate)."""
+
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": 6000.0,
@@ -200,12 +198,7 @@ def _filter_rows(
     ]
     frames = []
     runs = run_filters(setting["filters"], inputs, truth, measurements)
-    bound = {}
-    if set(SMOOTHER_KINDS) & set(runs):
-        sigma = np.degrees(
-            posterior_bound(inputs, truth, measurements, next(iter(runs.values()))[0])
-        )
-        bound = {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
+    bound = bound_columns(runs, inputs, truth, measurements)
     for name, (result, seconds) in runs.items():
         solution = in_orbit_frame(result.solution, truth.epoch_frames)
         frames.append(
