@@ -389,7 +389,10 @@ def _doa_row(
 
 EXPERIMENT = Experiment(
     name="doa-ground",
-    summary="Seed 003: attitude from MUSIC DOAs of ground stations, EKF and Wahba, Tables 1-2",
+    summary=(
+        "Seed 003: attitude from MUSIC DOAs of ground stations, EKF, Wahba, gyro-aided MEKF "
+        "and GTSAM smoother, Tables 1-2"
+    ),
     parameters=PARAMETERS,
     grid=grid,
     trial=trial,
