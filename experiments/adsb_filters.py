@@ -52,7 +52,6 @@ import numpy as np
 import pandas as pd
 
 from experiments.filtering import (
-    SMOOTHER_KINDS,
     FilterInputs,
     GyroTruth,
     bound_columns,
@@ -60,6 +59,7 @@ from experiments.filtering import (
     filter_columns,
     gyro_truth,
     in_orbit_frame,
+    method_name,
     run_filter,
     run_filters,
     simulate_filter_inputs,
@@ -199,7 +199,7 @@ def filter_rows(
         for kind, run in run_filters(
             kinds, inputs, truth, snr, SNR_SUFFIX, setting["offset_prior_sigma_db"]
         ).items():
-            runs[kind if kind in SMOOTHER_KINDS else kind + SNR_SUFFIX] = run
+            runs[method_name(kind, SNR_SUFFIX)] = run
         bound = bound_columns(runs, inputs, truth, snr)
         for method in wanted:
             result, seconds = runs[method]

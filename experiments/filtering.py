@@ -165,6 +165,11 @@ def run_filter(
     return result, time.perf_counter() - start
 
 
+def method_name(kind: str, suffix: str) -> str:
+    """The row name of filter ``kind``: ``kind + suffix``; smoother kinds keep their names."""
+    return kind if kind in SMOOTHER_KINDS else kind + suffix
+
+
 def run_filters(
     kinds: Sequence[str],
     inputs: FilterInputs,
@@ -190,14 +195,16 @@ def run_filters(
     batch = {"fg_batch", "fg_batch_offsets"} & wanted
     out: dict[str, tuple[FilterResult, float]] = {}
     if {"mekf", "rts"} & wanted or (batch and "fg_online" not in wanted):
-        out["mekf"] = run_filter("mekf", inputs, truth, measurements, "mekf" + suffix)
+        out["mekf"] = run_filter("mekf", inputs, truth, measurements, method_name("mekf", suffix))
     if "rts" in wanted or (batch and "fg_online" not in wanted):
         filtered, seconds = out["mekf"]
         start = time.perf_counter()
-        smoothed = rts_smooth(filtered, method="rts" + suffix)
+        smoothed = rts_smooth(filtered, method=method_name("rts", suffix))
         out["rts"] = (smoothed, seconds + time.perf_counter() - start)
     if "usque" in wanted:
-        out["usque"] = run_filter("usque", inputs, truth, measurements, "usque" + suffix)
+        out["usque"] = run_filter(
+            "usque", inputs, truth, measurements, method_name("usque", suffix)
+        )
     if "fg_online" in wanted:
         out["fg_online"] = run_filter("fg_online", inputs, truth, measurements, "fg_online")
     for kind in sorted(batch):

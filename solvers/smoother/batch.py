@@ -105,6 +105,7 @@ from solvers.smoother.conventions import (
     attitude_key,
     bias_key,
     error_state_covariance,
+    node_marginal,
     offset_key,
     retract,
     rot3,
@@ -539,15 +540,7 @@ def _marginals(
     tree = linear.eliminateMultifrontal(ordering)
     out = np.zeros((len(nodes), STATE_SIZE, STATE_SIZE))
     for i, k in enumerate(nodes):
-        x, b = attitude_key(k), bias_key(k)
-        if cross:
-            joint = tree.jointMarginalCovariance([x, b])
-            out[i, :3, :3], out[i, 3:, 3:] = joint.at(x, x), joint.at(b, b)
-            out[i, :3, 3:] = joint.at(x, b)
-            out[i, 3:, :3] = out[i, :3, 3:].T
-        else:
-            out[i, :3, :3] = tree.marginalCovariance(x)
-            out[i, 3:, 3:] = tree.marginalCovariance(b)
+        out[i] = node_marginal(tree, k, cross)
     variances = np.array([tree.marginalCovariance(offset_key(j))[0, 0] for j in range(n_offsets)])
     return error_state_covariance(out), variances
 

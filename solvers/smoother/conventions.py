@@ -73,6 +73,21 @@ def error_state_covariance(covariance: Array) -> Array:
     return SIGN @ np.asarray(covariance, dtype=float) @ SIGN
 
 
+def node_marginal(source: object, node: int, cross: bool) -> Array:
+    """Marginal covariance ``(6, 6)`` of ``[xi, d]`` at ``node`` from a
+    ``GaussianBayesTree`` or ``ISAM2`` (both answer the same queries): the joint
+    ``6 x 6`` (``cross``) or the per-key blocks with zero cross blocks."""
+    x, b = attitude_key(node), bias_key(node)
+    out = np.zeros((6, 6))
+    if cross:
+        joint = source.jointMarginalCovariance([x, b])
+        out[:3, :3], out[3:, 3:], out[:3, 3:] = joint.at(x, x), joint.at(b, b), joint.at(x, b)
+        out[3:, :3] = out[:3, 3:].T
+    else:
+        out[:3, :3], out[3:, 3:] = source.marginalCovariance(x), source.marginalCovariance(b)
+    return out
+
+
 def to_values(attitudes: Rotation, bias: Array) -> gtsam.Values:
     """``gtsam.Values`` with one ``Rot3`` and one bias vector per node."""
     values = gtsam.Values()

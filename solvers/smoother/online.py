@@ -98,6 +98,7 @@ from solvers.smoother.conventions import (
     attitude_key,
     bias_key,
     error_state_covariance,
+    node_marginal,
     rot3,
 )
 from solvers.smoother.gyro_factors import (
@@ -331,13 +332,7 @@ def _isam2_params(options: OnlineOptions) -> gtsam.ISAM2Params:
 
 def _node_covariance(isam: gtsam.ISAM2, node: int, cross: bool) -> Array:
     """Error-state covariance ``(6, 6)`` of ``[delta, delta_beta]`` at ``node``."""
-    x, b = attitude_key(node), bias_key(node)
-    if cross:
-        joint = isam.jointMarginalCovariance([x, b]).fullMatrix()
-    else:
-        joint = np.zeros((STATE_SIZE, STATE_SIZE))
-        joint[:3, :3], joint[3:, 3:] = isam.marginalCovariance(x), isam.marginalCovariance(b)
-    return error_state_covariance(joint)
+    return error_state_covariance(node_marginal(isam, node, cross))
 
 
 def _settle(
