@@ -15,6 +15,14 @@ run:
   set) and one set per call, with two references measured in the same run:
   one ``numpy.linalg.eigh`` of a 12 x 12 complex covariance and one
   pyroomacoustics MUSIC call (1-degree grid over the same 70-degree cone).
+* Cost of one ``doa-ground`` pass (``--pass-sets``, default 20000 sets, about
+  one 5000-s pass) at SNR 0 dB (given), L = 100 and 1000, random directions
+  in the seed's 62-degree cone: drawing the sample covariances directly
+  (:func:`formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
+  8-10) and :meth:`MusicEstimator.estimate_covariance`, against simulating the
+  snapshots and :meth:`MusicEstimator.estimate` in chunks of
+  ``CHUNK_ELEMENTS`` samples (as ``experiments/doa_ground.py`` does); both
+  measured in the same run, with their ratio.
 """
 
 from __future__ import annotations
@@ -27,13 +35,15 @@ from dataclasses import dataclass
 import numpy as np
 import pyroomacoustics as pra
 
-from formulations.doa_array import SEED003_UCA, simulate_snapshots
+from formulations.doa_array import SEED003_UCA, simulate_sample_covariance, simulate_snapshots
 from formulations.doa_crb import stochastic_crb
 from solvers.doa import MusicEstimator
 
 THETA, PHI = np.radians(45.0), np.radians(60.0)
 SNR_SWEEP_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 SNAPSHOT_SWEEP = (1, 10, 20, 50, 100, 1000)
+CHUNK_ELEMENTS = 1 << 22
+"""Complex snapshot samples simulated and estimated at once in the pass timing (64 MB)."""
 SEED003_TABLE1 = {  # SNR dB -> RMSE of theta, phi (deg), L = 100
     -14.0: (11.118, 68.128),
     -12.0: (4.106, 17.337),
@@ -145,6 +155,42 @@ def single_call_costs(estimator: MusicEstimator, seed: int) -> dict[str, float]:
     }
 
 
+def pass_costs(estimator: MusicEstimator, sets: int, seed: int) -> list[str]:
+    """Table of the seconds per ``doa-ground`` pass of ``sets`` sets: covariance draw
+    and snapshot draw (module docstring)."""
+    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(98,)))
+    theta = np.arccos(rng.uniform(np.cos(np.radians(62.0)), 1.0, sets))
+    phi = rng.uniform(0.0, 2.0 * np.pi, sets)
+    snr_db = 0.0
+
+    def covariance_path(n_snapshots: int) -> None:
+        drawn = simulate_sample_covariance(theta, phi, snr_db, n_snapshots, rng)
+        estimator.estimate_covariance(drawn, n_snapshots, snr_db=snr_db)
+
+    def snapshot_path(n_snapshots: int) -> None:
+        chunk = max(1, CHUNK_ELEMENTS // (SEED003_UCA.n_elements * n_snapshots))
+        for start in range(0, sets, chunk):
+            rows = slice(start, start + chunk)
+            x = simulate_snapshots(theta[rows], phi[rows], snr_db, n_snapshots, rng)
+            estimator.estimate(x, snr_db=snr_db)
+
+    lines = [
+        f"| L | covariance draw + MUSIC (s per {sets} sets) | snapshots + MUSIC (s) | ratio |",
+        "|---|---|---|---|",
+    ]
+    for n_snapshots in (100, 1000):
+        seconds = []
+        for path in (covariance_path, snapshot_path):
+            start = time.perf_counter()
+            path(n_snapshots)
+            seconds.append(time.perf_counter() - start)
+        lines.append(
+            f"| {n_snapshots} | {seconds[0]:.2f} | {seconds[1]:.2f} | "
+            f"{seconds[1] / seconds[0]:.1f} |"
+        )
+    return lines
+
+
 def format_rows(rows: list[AccuracyRow]) -> list[str]:
     lines = [
         "| SNR dB | L | accepted | RMSE theta / CRB (deg) | ratio | RMSE phi / CRB (deg) | ratio "
@@ -166,6 +212,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pass-sets", type=int, default=20000)
     args = parser.parse_args()
     estimator = MusicEstimator()
     estimator.estimate(_snapshots(0.0, 100, 2, args.seed, 999))  # build the grid and functions
@@ -181,6 +228,9 @@ def main() -> None:
     print()
     for name, ms in single_call_costs(estimator, args.seed).items():
         print(f"{name}: {ms:.3f} ms")
+    print()
+    print(f"One doa-ground pass: {args.pass_sets} sets at SNR 0 dB (given)")
+    print("\n".join(pass_costs(estimator, args.pass_sets, args.seed)))
 
 
 if __name__ == "__main__":

@@ -2,77 +2,80 @@
 
 Settings are seed 003's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
-once).  One trial is one pass of :mod:`experiments.scenarios.doa_ground`:
+once).  One trial is one pass of :mod:`experiments.scenarios.doa_ground`
+(geometry and truth are the same in every trial, as in the seed; only the
+noise is drawn), and every estimator sees the same DOAs:
 
-1. snapshots (eqs. 8-10) of every visible station at every epoch, drawn from
-   ``numpy.random.default_rng(seed)``, and MUSIC DOAs with refinement
-   (:class:`~solvers.doa.music.MusicEstimator`, eq. 11), all sets of a trial
-   batched (in chunks of at most :data:`CHUNK_ELEMENTS` complex samples, so
-   ``L = 1000`` fits in memory).  MUSIC is given the input SNR for its
-   covariance (the link budget's value; it also makes ``L = 1`` usable).
-   Rejected estimates (ambiguous peak, horizon) give no measurement.
-2. ``ekf_seed003``: the EKF of seed 003 (:mod:`solvers.doa.ekf`) over all
-   epochs from the paper's initial condition (50 deg Euler angles, 0.5 deg/s
-   rates; :mod:`experiments.scenarios.doa_ground` explains that reading) with
-   prior sigmas ``initial_sigma_deg`` and ``initial_rate_sigma_deg_s`` and
-   ``Q = process_noise E_6`` per step (default the seed's 1e-9).  Its
-   measurement is the seed's unit-vector form (eqs. 18, 30): a
-   :class:`~formulations.attitude_measurement.VectorMeasurement` per epoch of
-   the accepted ``S_dr`` (eq. 12) against ``S_o`` (eq. 17, far field), with
-   ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2`` from MUSIC's
-   covariance ``Sigma`` (:func:`unit_vector_observations`; why not the angle
-   form: :mod:`solvers.doa.ekf`).
-3. ``wahba``: the single-epoch SVD solution of Wahba's problem
+1. MUSIC (:class:`~solvers.doa.music.MusicEstimator`, eq. 11) on every
+   visible ``(epoch, station)`` pair, from a sample covariance drawn from
+   ``numpy.random.default_rng(seed)`` with the exact distribution of eqs.
+   8-10's ``X X^H / L`` (:func:`estimate_doas`).  MUSIC is given the input SNR
+   for its covariance (the link budget's value; it also makes ``L = 1``
+   usable).  Rejected estimates (ambiguous peak, source at the horizon) give
+   no measurement: that epoch has one station fewer, and with none the
+   filters propagate.  Unit vectors ``S_dr`` (eq. 12) against ``S_o`` (eq.
+   17, far field) with ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2``
+   from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
+2. ``ekf_seed003_q<Q>``: the EKF of seed 003 (:mod:`solvers.doa.ekf`, rigid-body
+   dynamics, no gyro) over all epochs from the paper's initial condition (50
+   deg Euler angles, 0.5 deg/s rates; :mod:`experiments.scenarios.doa_ground`
+   explains that reading) with prior sigmas ``initial_sigma_deg`` and
+   ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
+   the seed's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
+   our EKF reproduces the seed's attitude RMSEs (docs/doa.md).
+3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
+   model, same data; :mod:`solvers.doa.eks`).  The EKF and RTS rows carry
+   ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
+   (filter and smoother) linearised along the truth, with the DOA CRB at the
+   true DOAs of every visible station; it is the same for every trial of a
+   setting and computed once per worker.
+4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (:data:`solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
-   exist, on the same unit vectors with weights ``1 / sigma^2``.
+   exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
+5. ``filters`` (default ``mekf`` and ``fg_batch``), in the first
+   ``filter_trials`` trials of each setting only (they cost about 50x the
+   rest; :func:`experiments.sweep.seeding.trial_index`): the gyro-aided MEKF
+   and the GTSAM whole-pass smoother on the same unit vectors plus a
+   MEMS-class gyro sampled at the epochs (``GYRO``; seed 003 has none), from
+   the EKF's initial estimate and sigma (the same prior information as the
+   EKF).  The smoother starts its iterations from the lowest-``Q`` RTS pass
+   (its result does not depend on the start once it converges; its time
+   includes that pass).  Their rows carry the posterior bound of the pass
+   with the gyro (:func:`experiments.filtering.posterior_bound`).
 
-Rows.  Attitude rows every ``row_step_s`` (not every epoch: a 5000 s pass has
-20 000 epochs) per method with :func:`experiments.metrics.error_columns`, the
-``phase`` (``converging`` before ``settle_s``, then ``settled``: seed 003's
-RMSEs of about 0.1 deg can only be post-convergence values, its Fig. 6 shows
-convergence within 1500 s), the rate error of the EKF (``rate_err_{x,y,z}_deg_s``)
-and, for the single-epoch rows, the single-epoch Cramer-Rao bound
-``bound_{x,y,z}_deg`` from the DOA CRBs of the visible stations (NaN with
-fewer than two).  One ``music`` row per trial carries the DOA statistics over
-all estimates: counts, acceptance and mean squared errors of ``theta`` and
+Rows.  Attitude rows every ``row_step_s`` (a 5000 s pass has 20 000 epochs)
+per method with :func:`experiments.metrics.error_columns`, the ``phase``
+(``converging`` before ``settle_s``, then ``settled``: seed 003's RMSEs of
+about 0.1 deg can only be post-convergence values, its Fig. 6 shows
+convergence within 1500 s), rate errors (``rate_err_{x,y,z}_deg_s``) of the
+EKF and RTS rows, and ``runtime_s`` (wall time of the pass).  One ``music``
+row per trial carries the DOA statistics over all estimates: counts,
+acceptance, rejections by reason, and mean squared errors of ``theta`` and
 ``phi`` and of their CRBs at the true DOAs (``doa_*`` columns, deg^2).
-
-4. ``filters`` (default ``mekf`` and ``fg_batch``): the gyro-aided MEKF and
-   the GTSAM whole-pass smoother (:func:`experiments.filtering.run_filters`)
-   on the same unit vectors plus a MEMS-class gyro sampled at the epochs
-   (``GYRO``; seed 003 has none: its EKF propagates the dynamics), started
-   from a prior drawn with ``gyro_initial_sigma_deg`` per axis around the
-   truth (child stream :data:`experiments.filtering.GYRO_STREAM` of the
-   trial's seed; not the EKF's 98 deg start, which the vector measurements'
-   linearisation does not survive in a gyro-driven filter).  Their rows
-   carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of the pass
-   (:func:`experiments.filtering.posterior_bound`), and ``runtime_s``.
-
-Not implemented: the attitude bound of the seed's EKF itself, and DOA
-factors in angle form (the smoother uses the unit vectors, like the EKF).
 """
 
 from __future__ import annotations
 
+import functools
+import time
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from experiments.doa_report import report
+from experiments.doa_report import GYRO_FILTERS, ekf_method, report, rts_method
 from experiments.experiment import Experiment, Setting
 from experiments.filtering import (
     GYRO_STREAM,
-    INITIAL_ATTITUDE_SIGMA_DEG,
-    VECTOR_FILTERS,
     GyroTruth,
     bound_columns,
     child_rng,
     in_orbit_frame,
-    run_filters,
+    run_filter,
+    run_smoother,
     simulate_filter_inputs,
 )
 from experiments.metrics import error_columns
@@ -85,30 +88,39 @@ from experiments.scenarios.doa_ground import (
     DoaGroundGeometry,
     build_geometry,
 )
+from experiments.sweep.seeding import trial_index
 from formulations.attitude_measurement import VectorMeasurement
 from formulations.conventions import attitude_from_euler321
 from formulations.doa_array import (
-    SEED003_UCA,
     doa_unit_vector,
-    simulate_snapshots,
+    simulate_sample_covariance,
     unit_vector_covariance,
 )
 from formulations.doa_crb import stochastic_crb
 from formulations.doa_measurement import DoaMeasurement
 from formulations.gyro import MEMS_GYRO
-from solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf
+from solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_vectors
+from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from solvers.doa.music import DoaEstimates, MusicEstimator
+from solvers.filters.common import FilterPrior
 from solvers.result import BatchSolution
+from solvers.smoother.batch import SmootherOptions, single_frame_initial
 from solvers.wahba import WAHBA_SOLVERS
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)
 WAHBA_SOLVER = "svd"
-CHUNK_ELEMENTS = 1 << 22
-"""Complex snapshot samples simulated and estimated at once (64 MB)."""
 RAD2_TO_DEG2 = np.degrees(1.0) ** 2
 DOA_ROW_REASON = "DOA statistics row (no attitude)"
 """``reason`` of the per-trial ``music`` row, which the attitude summaries count as invalid."""
+
+REJECTIONS = {"ambiguous": "ambiguous peak", "horizon": "source at the array horizon"}
+"""Counted MUSIC rejections (``doa_rejected_<name>``) by the start of their reason."""
+LOW_PROCESS_NOISE = 1.0e-12
+"""The ``Q`` per step with which our EKF reproduces seed 003's attitude RMSEs (docs/doa.md)."""
+FILTER_TRIALS = 4
+"""Trials per setting that also run the gyro-aided rows (about 50x the cost of the rest)."""
+ALLOWED_FILTERS = ("mekf", "usque", "rts", "fg_online", "fg_batch")
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": DURATION_S,
@@ -121,10 +133,12 @@ PARAMETERS: dict[str, Any] = {
     "row_step_s": 10.0,
     "initial_sigma_deg": 60.0,
     "initial_rate_sigma_deg_s": 0.5,
-    "process_noise": PROCESS_NOISE,
-    "filters": ["mekf", "fg_batch"],
-    "gyro_initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
+    "process_noise": [PROCESS_NOISE, LOW_PROCESS_NOISE],
+    "filters": list(GYRO_FILTERS),
+    "filter_trials": FILTER_TRIALS,
 }
+MUSIC = MusicEstimator()
+"""One estimator per process: its grid is built once."""
 GYRO = MEMS_GYRO
 """The gyro of the gyro-aided rows, sampled at the epochs (``rate_hz = 1 / step_s``)."""
 
@@ -133,9 +147,11 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
     """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2."""
     pairs = [(float(s), int(parameters["table1_snapshots"])) for s in parameters["table1_snr_db"]]
     pairs += [(float(parameters["table2_snr_db"]), int(n)) for n in parameters["table2_snapshots"]]
-    unknown = sorted(set(parameters["filters"]) - set(VECTOR_FILTERS))
+    unknown = sorted(set(parameters["filters"]) - set(ALLOWED_FILTERS))
     if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
+        raise ValueError(f"unknown filters {unknown}; known: {list(ALLOWED_FILTERS)}")
+    if not parameters["process_noise"] or min(parameters["process_noise"]) <= 0.0:
+        raise ValueError("process_noise must be a non-empty list of positive numbers")
     if any(n < 1 for _, n in pairs):
         raise ValueError("numbers of snapshots must be >= 1")
     if parameters["row_step_s"] < parameters["step_s"]:
@@ -147,35 +163,21 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
 def estimate_doas(
     geometry: DoaGroundGeometry, snr_db: float, snapshots: int, rng: np.random.Generator
 ) -> tuple[tuple[np.ndarray, np.ndarray], DoaEstimates]:
-    """MUSIC estimates of every visible ``(epoch, station)`` pair, in epoch-major order."""
+    """MUSIC estimates of every visible ``(epoch, station)`` pair, in epoch-major order.
+
+    Each pair's sample covariance is drawn directly
+    (:func:`~formulations.doa_array.simulate_sample_covariance`: the exact
+    distribution of ``X X^H / L`` of eqs. 8-10, at a cost independent of ``L``).
+    """
     epochs, stations = np.nonzero(geometry.visible)
     truth = geometry.doa[epochs, stations]
-    per_chunk = max(1, CHUNK_ELEMENTS // (SEED003_UCA.n_elements * snapshots))
-    estimator = MusicEstimator()
-    parts = []
-    for start in range(0, epochs.size, per_chunk):
-        chunk = truth[start : start + per_chunk]
-        x = simulate_snapshots(chunk[:, 0], chunk[:, 1], snr_db, snapshots, rng)
-        parts.append(estimator.estimate(x, snr_db=snr_db))
-    return (epochs, stations), _concatenate(parts)
-
-
-def _concatenate(parts: list[DoaEstimates]) -> DoaEstimates:
-    return DoaEstimates(
-        theta=np.concatenate([p.theta for p in parts]),
-        phi=np.concatenate([p.phi for p in parts]),
-        covariance=np.concatenate([p.covariance for p in parts]),
-        valid=np.concatenate([p.valid for p in parts]),
-        reason=np.concatenate([p.reason for p in parts]),
-        error=np.concatenate([p.error for p in parts]),
-        diagnostics={
-            k: np.concatenate([p.diagnostics[k] for p in parts]) for k in parts[0].diagnostics
-        },
-    )
+    covariance = simulate_sample_covariance(truth[:, 0], truth[:, 1], snr_db, snapshots, rng)
+    estimates = MUSIC.estimate_covariance(covariance, snapshots, snr_db=snr_db)
+    return (epochs, stations), estimates
 
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
-    """One pass at ``setting``'s SNR and ``L``: MUSIC, the EKF and Wahba (module docstring)."""
+    """One pass at the setting's SNR and ``L``: every estimator on the same DOAs (docstring)."""
     geometry = build_geometry(setting["duration_s"], setting["step_s"])
     (epochs, stations), doas = estimate_doas(
         geometry, setting["snr_db"], setting["snapshots"], np.random.default_rng(seed)
@@ -186,21 +188,132 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         "t": geometry.t[row_epochs],
         "phase": np.where(geometry.t[row_epochs] < setting["settle_s"], "converging", "settled"),
     }
-    ekf = run_ekf(
+    passes = {q: _dynamics_passes(setting, geometry, vectors, q) for q in setting["process_noise"]}
+    frames = [
+        _dynamics_rows(method, run, geometry, row_epochs, common)
+        for q, runs in passes.items()
+        for method, run in zip((ekf_method(q), rts_method(q)), runs, strict=True)
+    ]
+    frames.append(_wahba_rows(geometry, vectors, row_epochs, common, setting))
+    if trial_index(seed) < setting["filter_trials"]:
+        lowest = passes[min(passes)][1]
+        frames += _gyro_rows(setting, seed, geometry, vectors, row_epochs, common, lowest)
+    frames.append(pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _dynamics_passes(
+    setting: Setting,
+    geometry: DoaGroundGeometry,
+    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
+    process_noise: float,
+) -> tuple[DynamicsPass, DynamicsPass]:
+    """The seed's EKF and its RTS pass with ``Q = process_noise E_6``: each result, its
+    wall time (the RTS's includes the EKF's), the model's bound and the ``Q = 0`` bound."""
+    start = time.perf_counter()
+    ekf = run_ekf_vectors(
         _prior(setting),
-        [VectorMeasurement(*(v[k] for v in vectors)) for k in range(geometry.t.size)],
+        *vectors,
         geometry.orbit_turns(),
         WHEEL_MOMENTUM,
         setting["step_s"],
-        process_noise=setting["process_noise"],
+        process_noise=process_noise,
     )
-    frames = [
-        _ekf_rows(ekf, geometry, row_epochs, common),
-        _wahba_rows(geometry, vectors, row_epochs, common, setting),
-        *_gyro_rows(setting, seed, geometry, vectors, row_epochs, common),
-        pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]),
-    ]
-    return pd.concat(frames, ignore_index=True)
+    ekf_seconds = time.perf_counter() - start
+    smoothed = rts_smooth_ekf(ekf)
+    rts_seconds = time.perf_counter() - start
+    keys = [setting[k] for k in ("duration_s", "step_s", "snr_db", "snapshots")]
+    prior_sigmas = setting["initial_sigma_deg"], setting["initial_rate_sigma_deg_s"]
+    filter_bound, smoother_bound = _model_bound(*keys, process_noise, *prior_sigmas)
+    filter_crb, smoother_crb = _model_bound(*keys, 0.0, *prior_sigmas)
+    return (
+        DynamicsPass(ekf, ekf_seconds, filter_bound, filter_crb),
+        DynamicsPass(smoothed, rts_seconds, smoother_bound, smoother_crb),
+    )
+
+
+@dataclass(frozen=True)
+class DynamicsPass:
+    """An EKF or RTS pass: result, wall time (s), the posterior bound of its model and the
+    bound with ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)`` each."""
+
+    result: EkfResult
+    seconds: float
+    bound: np.ndarray
+    crb: np.ndarray
+
+
+@functools.lru_cache(maxsize=16)
+def _model_bound(
+    duration_s: float,
+    step_s: float,
+    snr_db: float,
+    snapshots: int,
+    process_noise: float,
+    initial_sigma_deg: float,
+    initial_rate_sigma_deg_s: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Attitude standard deviations (deg, ``(N, 3)``) of the posterior Cramer-Rao bound of
+    the EKF's model (filter, smoother), :func:`solvers.doa.eks.posterior_bound_ekf` with
+    the DOA CRB of every visible station at the truth: the same for every trial of a
+    setting, so cached.  With ``process_noise = 0`` it is the Cramer-Rao bound of the
+    seed's problem itself (known, torque-free dynamics)."""
+    geometry = build_geometry(duration_s, step_s)
+    truth_doa = geometry.doa[geometry.visible]
+    crb = stochastic_crb(truth_doa[:, 0], truth_doa[:, 1], 10.0 ** (snr_db / 10.0), snapshots)
+    sigma = np.ones(geometry.visible.shape)
+    sigma[geometry.visible] = _isotropic_sigma(truth_doa[:, 0], truth_doa[:, 1], crb)
+    covariance = np.diag(np.radians([initial_rate_sigma_deg_s] * 3 + [initial_sigma_deg] * 3) ** 2)
+    bounds = posterior_bound_ekf(
+        geometry.truth,
+        geometry.rate,
+        _unit(geometry.line_of_sight_km),
+        sigma,
+        geometry.visible,
+        geometry.orbit_turns(),
+        WHEEL_MOMENTUM,
+        step_s,
+        covariance,
+        process_noise=process_noise,
+    )
+    return tuple(np.degrees(np.sqrt(np.diagonal(b, axis1=1, axis2=2)[:, 3:])) for b in bounds)
+
+
+def _dynamics_rows(
+    method: str,
+    run: DynamicsPass,
+    geometry: DoaGroundGeometry,
+    rows: np.ndarray,
+    common: Mapping[str, Any],
+) -> pd.DataFrame:
+    """Rows of an EKF or RTS pass: errors, rate errors, both bounds, wall time."""
+    result = run.result
+    solution = _solution(method, result.attitude[rows], result.covariance[rows, 3:, 3:])
+    rate_error = np.degrees(result.rate[rows] - geometry.rate[rows])
+    return pd.DataFrame(
+        {
+            "method": method,
+            **common,
+            **error_columns(solution, geometry.truth[rows]),
+            **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
+            **{f"pbound_{a}_deg": run.bound[rows, i] for i, a in enumerate("xyz")},
+            **{f"crb_{a}_deg": run.crb[rows, i] for i, a in enumerate("xyz")},
+            "valid": True,
+            "reason": "",
+            "runtime_s": run.seconds,
+        }
+    )
+
+
+def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float) -> FilterPrior:
+    """The EKF's initial attitude estimate and sigma (seed 003 sec. 6) for the gyro-aided
+    rows, in the inertial frame, with the gyro's initial bias sigma."""
+    ekf = _prior(setting)
+    return FilterPrior(
+        attitude=ekf.attitude * geometry.eci_to_orbit[0],
+        bias=np.zeros(3),
+        covariance=np.diag([ekf.covariance[3, 3]] * 3 + [bias_sigma**2] * 3),
+    )
 
 
 def _gyro_rows(
@@ -210,8 +323,9 @@ def _gyro_rows(
     vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
     rows: np.ndarray,
     common: Mapping[str, Any],
+    start: DynamicsPass,
 ) -> list[pd.DataFrame]:
-    """Rows of the gyro-aided filters and smoothers (module docstring, 4)."""
+    """Rows of the gyro-aided filters and smoothers (module docstring, 5)."""
     if not setting["filters"]:
         return []
     model = replace(GYRO, rate_hz=1.0 / setting["step_s"])
@@ -221,15 +335,31 @@ def _gyro_rows(
         epoch_frames=geometry.eci_to_orbit,
         epoch_samples=np.arange(geometry.t.size),
     )
-    inputs = simulate_filter_inputs(
-        truth, model, child_rng(seed, GYRO_STREAM), setting["gyro_initial_sigma_deg"]
+    inputs = replace(
+        simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM)),
+        prior=_gyro_prior(setting, geometry, model.initial_bias_sigma),
     )
     accepted = np.isfinite(vectors[0]).all(axis=-1).any(axis=-1)
     measurements = [
         VectorMeasurement(*(v[k] for v in vectors)) if accepted[k] else None
         for k in range(geometry.t.size)
     ]
-    runs = run_filters(setting["filters"], inputs, truth, measurements)
+    runs = {}
+    for kind in setting["filters"]:
+        if kind == "fg_batch":
+            smoothed, seconds = start.result, start.seconds
+            initial = single_frame_initial(
+                _solution(
+                    kind, smoothed.attitude * geometry.eci_to_orbit, smoothed.covariance[:, 3:, 3:]
+                ),
+                inputs.prior,
+            )
+            result, own = run_smoother(
+                inputs, truth, measurements, kind, SmootherOptions(), initial
+            )
+            runs[kind] = (result, seconds + own)
+        else:
+            runs[kind] = run_filter(kind, inputs, truth, measurements, kind)
     bound = {k: v[rows] for k, v in bound_columns(runs, inputs, truth, measurements).items()}
     frames = []
     for method, (result, seconds) in runs.items():
@@ -256,22 +386,29 @@ def unit_vector_observations(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body vectors ``S_dr`` (eq. 12), reference vectors ``S_o`` (eq. 17), sigmas; ``(N, S, .)``.
 
-    ``sigma^2 = tr(R_W) / 2`` with ``R_W`` the unit-vector covariance of
-    MUSIC's ``(theta, phi)`` covariance (isotropic form of eq. 22).  Body
-    vectors are NaN (and sigmas 1) where a station is not visible or MUSIC
+    Sigmas by :func:`_isotropic_sigma` of MUSIC's ``(theta, phi)`` covariance.
+    Body vectors are NaN (and sigmas 1) where a station is not visible or MUSIC
     rejected it; measurements leave those out.
     """
     n, count = geometry.visible.shape
     body = np.full((n, count, 3), np.nan)
     sigma = np.ones((n, count))
     body[epochs, stations] = doa_unit_vector(doas.theta, doas.phi)
-    unit_covariance = unit_vector_covariance(doas.theta, doas.phi, doas.covariance)
-    variance = 0.5 * np.trace(unit_covariance, axis1=-2, axis2=-1)
-    sigma[epochs, stations] = np.sqrt(np.nan_to_num(variance, nan=1.0))
-    reference = geometry.line_of_sight_km / np.linalg.norm(
-        geometry.line_of_sight_km, axis=-1, keepdims=True
+    sigma[epochs, stations] = np.nan_to_num(
+        _isotropic_sigma(doas.theta, doas.phi, doas.covariance), nan=1.0
     )
-    return body, reference, sigma
+    return body, _unit(geometry.line_of_sight_km), sigma
+
+
+def _isotropic_sigma(theta: np.ndarray, phi: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """``sigma`` of ``R_W = sigma^2 E`` (isotropic form of eq. 22): ``sigma^2 = tr(R_W) / 2``
+    with ``R_W`` the unit-vector covariance of the ``(theta, phi)`` covariance (eq. 12)."""
+    unit_covariance = unit_vector_covariance(theta, phi, covariance)
+    return np.sqrt(0.5 * np.trace(unit_covariance, axis1=-2, axis2=-1))
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
 
 
 def _prior(setting: Setting) -> EkfPrior:
@@ -297,23 +434,6 @@ def _solution(method: str, attitude: Rotation, covariance: np.ndarray) -> BatchS
         reason=np.full(n, "", dtype=object),
         error=np.full(n, None, dtype=object),
         diagnostics={},
-    )
-
-
-def _ekf_rows(
-    ekf: EkfResult, geometry: DoaGroundGeometry, rows: np.ndarray, common: Mapping[str, Any]
-) -> pd.DataFrame:
-    solution = _solution("ekf_seed003", ekf.attitude[rows], ekf.covariance[rows, 3:, 3:])
-    rate_error = np.degrees(ekf.rate[rows] - geometry.rate[rows])
-    return pd.DataFrame(
-        {
-            "method": "ekf_seed003",
-            **common,
-            **error_columns(solution, geometry.truth[rows]),
-            **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
-            "valid": True,
-            "reason": "",
-        }
     )
 
 
@@ -380,6 +500,10 @@ def _doa_row(
         "reason": DOA_ROW_REASON,
         "doa_count": int(valid.size),
         "doa_accepted": int(valid.sum()),
+        **{
+            f"doa_rejected_{name}": int(np.char.startswith(doas.reason.astype(str), prefix).sum())
+            for name, prefix in REJECTIONS.items()
+        },
         "doa_theta_mse_deg2": float(np.mean(theta_error**2)) if valid.any() else np.nan,
         "doa_phi_mse_deg2": float(np.mean(phi_error**2)) if valid.any() else np.nan,
         "doa_crb_theta_deg2": float(np.mean(crb[:, 0, 0]) * RAD2_TO_DEG2),

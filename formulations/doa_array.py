@@ -20,7 +20,8 @@ changes no phase to first order.
 
 Snapshots ``X(t) = a s(t) + N(t)`` (eq. 8) have complex circular Gaussian
 signal and noise, unit noise power per element and signal power equal to the
-input SNR per element.
+input SNR per element.  Their sample covariance (eq. 10) can also be drawn
+directly, at a cost independent of the number of snapshots (complex Wishart).
 
 Functions take numpy arrays (vectorised over leading axes) and, where stated,
 CasADi values (one direction, for automatic differentiation).
@@ -124,24 +125,36 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
     Input ``i`` is ``N`` stacked values of the function's input shape
     (``(N, rows, columns)``, or ``(N, rows)`` for a column), or one value
     shared by every point.  The map is built for
-    :func:`~formulations.attitude_model.bucket` ``(N)`` points (the last repeated).
+    :func:`~formulations.attitude_model.bucket` ``(N)`` points (the last
+    repeated) and evaluated on numpy buffers (no CasADi matrices): each
+    point's nonzeros, column-major, follow the previous point's.
     """
     arrays = [np.asarray(x, dtype=float) for x in inputs]
     shapes = [function.size_in(i) for i in range(len(arrays))]
     n = max(a.size // (r * c) for a, (r, c) in zip(arrays, shapes, strict=True))
     size = bucket(n)
     pad = np.minimum(np.arange(size), n - 1)
-    stacked = []
-    for a, (rows, cols) in zip(arrays, shapes, strict=True):
+    buffer, evaluate = _mapped(function, size).buffer()
+    stacked = []  # referenced by the buffer until the evaluation
+    for i, (a, (rows, cols)) in enumerate(zip(arrays, shapes, strict=True)):
         block = np.broadcast_to(a.reshape(-1, rows, cols), (n, rows, cols))[pad]
-        stacked.append(block.transpose(1, 0, 2).reshape(rows, size * cols))
-    outputs = _mapped(function, size)(*stacked)
-    outputs = outputs if isinstance(outputs, tuple | list) else [outputs]
+        stacked.append(np.ascontiguousarray(block[:, *_nonzero_entries(function.sparsity_in(i))]))
+        buffer.set_arg(i, memoryview(stacked[-1]))
+    outputs = [np.empty((size, function.nnz_out(i))) for i in range(function.n_out())]
+    for i, out in enumerate(outputs):
+        buffer.set_res(i, memoryview(out))
+    evaluate()
     result = []
     for i, out in enumerate(outputs):
-        rows, cols = function.size_out(i)
-        result.append(out.full().reshape(rows, size, cols).transpose(1, 0, 2)[:n])
+        dense = np.zeros((n, *function.size_out(i)))
+        dense[:, *_nonzero_entries(function.sparsity_out(i))] = out[:n]
+        result.append(dense)
     return result
+
+
+def _nonzero_entries(sparsity: ca.Sparsity) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Rows and columns of the nonzeros of ``sparsity`` in CasADi's (column-major) order."""
+    return np.array(sparsity.row(), dtype=np.intp), np.array(sparsity.get_col(), dtype=np.intp)
 
 
 @lru_cache(maxsize=64)
@@ -205,11 +218,54 @@ def simulate_snapshots(
     shape = a.shape[:-1]
     power = 10.0 ** (snr_db / 10.0)
     signal = _circular_gaussian(rng, (*shape, 1, n_snapshots)) * np.sqrt(power)
-    noise = _circular_gaussian(rng, (*shape, array.n_elements, n_snapshots))
-    return a[..., :, None] * signal + noise
+    snapshots = _circular_gaussian(rng, (*shape, array.n_elements, n_snapshots))
+    snapshots += a[..., :, None] * signal
+    return snapshots
+
+
+def simulate_sample_covariance(
+    theta: ArrayLike,
+    phi: ArrayLike,
+    snr_db: float,
+    n_snapshots: int,
+    rng: np.random.Generator,
+    array: UniformCircularArray = SEED003_UCA,
+) -> ComplexArray:
+    """Sample covariance ``R_hat = X X^H / L`` ``(..., M, M)`` (eq. 10) of the snapshots
+    of :func:`simulate_snapshots`, drawn directly at a cost independent of ``L``.
+
+    The columns of ``X`` (eq. 8) are independent ``CN(0, R)`` with
+    ``R = P a a^H + I`` (eq. 9, ``P = 10^(snr_db / 10)``), so ``X = R^(1/2) Z``
+    with ``Z`` ``M x L`` standard circular Gaussian and ``L R_hat`` is complex
+    Wishart.  Bartlett: ``Z Z^H = T T^H`` with ``T`` ``M x K``,
+    ``K = min(M, L)``, lower triangular (trapezoidal for ``L < M``, where
+    ``R_hat`` has rank ``L``), ``|T_kk|^2 ~ Gamma(L - k)`` (chi-square with
+    ``2 (L - k)`` degrees of freedom over 2, ``k = 0..K-1``) and ``CN(0, 1)``
+    below the diagonal, all independent.  With ``|a|^2 = M`` (``R`` has the
+    eigenvalue ``1 + P M`` along ``a`` and 1 across it),
+    ``R^(1/2) = I + c a a^H``, ``c = (sqrt(1 + P M) - 1) / M``.  The
+    distribution is that of the snapshots' ``R_hat``; the draws are not
+    (``rng`` is consumed differently).
+    """
+    if int(n_snapshots) != n_snapshots or n_snapshots < 1:
+        raise InvalidObservationError(f"number of snapshots must be >= 1, got {n_snapshots}")
+    a = steering_vector(theta, phi, array)
+    shape, m = a.shape[:-1], array.n_elements
+    k = min(m, int(n_snapshots))
+    rows, columns = np.tril_indices(m, -1, k)
+    factor = np.zeros((*shape, m, k), dtype=complex)
+    factor[..., rows, columns] = _circular_gaussian(rng, (*shape, rows.size))
+    diagonal = np.arange(k)
+    factor[..., diagonal, diagonal] = np.sqrt(
+        rng.standard_gamma(n_snapshots - diagonal, (*shape, k))
+    )
+    c = (np.sqrt(1.0 + 10.0 ** (snr_db / 10.0) * m) - 1.0) / m
+    factor += (c * a)[..., :, None] * (np.conj(a)[..., None, :] @ factor)
+    return factor @ np.conj(np.swapaxes(factor, -1, -2)) / n_snapshots
 
 
 def _circular_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> ComplexArray:
-    """Unit-power circular complex Gaussian samples."""
-    draws = rng.standard_normal((*shape, 2)) * np.sqrt(0.5)
-    return draws[..., 0] + 1j * draws[..., 1]
+    """Unit-power circular complex Gaussian samples (real and imaginary parts interleaved)."""
+    draws = rng.standard_normal((*shape, 2))
+    draws *= np.sqrt(0.5)
+    return draws.view(complex)[..., 0]

@@ -13,6 +13,7 @@ from experiments.scenarios.doa_ground import (
     build_geometry,
     coverage,
 )
+from experiments.sweep.seeding import trial_seed
 from formulations.doa_measurement import DoaMeasurement
 from solvers.doa.ekf import INERTIA_SEED003
 
@@ -71,7 +72,16 @@ def test_quick_trial_is_reproducible() -> None:
     other = EXPERIMENT.trial(setting, np.random.SeedSequence(8))
     # runtime_s is the only column that is not reproducible
     pd.testing.assert_frame_equal(first.drop(columns="runtime_s"), again.drop(columns="runtime_s"))
-    assert set(first["method"]) == {"ekf_seed003", "wahba", "music", "mekf", "fg_batch"}
+    assert set(first["method"]) == {
+        "ekf_seed003_q1e-09",
+        "ekf_seed003_q1e-12",
+        "rts_seed003_q1e-09",
+        "rts_seed003_q1e-12",
+        "wahba",
+        "music",
+        "mekf",
+        "fg_batch",
+    }
     music = first[first["method"] == "music"].iloc[0]
     assert music["doa_accepted"] == music["doa_count"] > 0
     other_music = other[other["method"] == "music"].iloc[0]
@@ -80,8 +90,9 @@ def test_quick_trial_is_reproducible() -> None:
 
 def test_gyro_aided_rows_reach_the_posterior_bound() -> None:
     """The MEKF and the smoother on the unit vectors plus a MEMS gyro (5 min at
-    0 dB, L = 100): valid, the smoother at most the MEKF's RMS and within a
-    factor of 2 of the posterior bound the rows carry (one short trial)."""
+    0 dB, L = 100, from the EKF's 98 deg initial error): valid, the smoother at
+    most the MEKF's RMS and within a factor of 2 of the posterior bound the rows
+    carry (one short trial); each RTS pass below its EKF, with the bounds ordered."""
     parameters = {
         **EXPERIMENT.parameters,
         "duration_s": 300.0,
@@ -100,3 +111,26 @@ def test_gyro_aided_rows_reach_the_posterior_bound() -> None:
 
     assert rms("fg_batch") <= 1.05 * rms("mekf")
     assert 0.5 < rms("fg_batch") / rms("fg_batch", "pbound_{}_deg") < 2.0
+    for q in ("1e-09", "1e-12"):  # the RTS pass improves on its EKF, and the bound on both
+        ekf, rts = f"ekf_seed003_q{q}", f"rts_seed003_q{q}"
+        assert rms(rts) < rms(ekf)
+        assert rms(rts, "pbound_{}_deg") < rms(ekf, "pbound_{}_deg")
+        assert rms(rts, "crb_{}_deg") < rms(ekf, "crb_{}_deg") < rms(ekf, "pbound_{}_deg")
+
+
+def test_gyro_rows_run_in_the_first_filter_trials_only() -> None:
+    """``filter_trials`` bounds the costly rows by trial index, whatever the engine."""
+    parameters = {
+        **EXPERIMENT.parameters,
+        "duration_s": 30.0,
+        "settle_s": 10.0,
+        "table1_snr_db": [0.0],
+        "table2_snapshots": [],
+        "filter_trials": 1,
+    }
+    (setting,) = grid(parameters)
+    first = EXPERIMENT.trial(setting, trial_seed(0, 0, 0))
+    second = EXPERIMENT.trial(setting, trial_seed(0, 0, 1))
+    assert {"mekf", "fg_batch"} <= set(first["method"])
+    assert not {"mekf", "fg_batch"} & set(second["method"])
+    assert {"ekf_seed003_q1e-09", "rts_seed003_q1e-12", "wahba"} <= set(second["method"])

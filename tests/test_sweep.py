@@ -14,6 +14,7 @@ from pandas.testing import assert_frame_equal
 
 from experiments.sweep import EngineSetupError, ManifestMismatchError, run_sweep
 from experiments.sweep.engines import DaskEngine
+from experiments.sweep.seeding import trial_index, trial_seed
 from experiments.sweep.tasks import ChunkSpec
 from experiments.sweep.toys import NOOP
 from tests.sweep_toys import PROBE, TOY, TOY_WITH_REPORT
@@ -250,3 +251,9 @@ def test_pool_workers_have_one_blas_thread_and_leave_ctrl_c_to_the_parent(tmp_pa
     assert len(rows) == 4 and os.getpid() not in set(rows["pid"])
     assert set(rows["omp_threads"]) == {"1"} and rows["ignores_sigint"].all()
     assert os.environ["OMP_NUM_THREADS"] == "8" and signal.getsignal(signal.SIGINT) is handler
+
+
+def test_trial_index_recovers_the_trial_of_its_seed() -> None:
+    """``trial_index`` inverts ``trial_seed``'s trial number; a bare seed is trial 0."""
+    assert [trial_index(trial_seed(5, 3, j)) for j in (0, 1, 17)] == [0, 1, 17]
+    assert trial_index(np.random.SeedSequence(7)) == 0

@@ -16,6 +16,15 @@ def trial_seed(root: int, setting_index: int, trial_index: int) -> np.random.See
     return np.random.SeedSequence(root, spawn_key=(setting_index, trial_index))
 
 
+def trial_index(seed: np.random.SeedSequence) -> int:
+    """Return ``j`` of a seed made by :func:`trial_seed` (0 for a seed without spawn key).
+
+    For experiments that do costly extra work in the first trials of a setting
+    only: the choice then depends on the trial, never on the engine.
+    """
+    return int(seed.spawn_key[-1]) if seed.spawn_key else 0
+
+
 def describe_seed(root: int, setting_index: int, trial_index: int) -> str:
     """Return Python source that rebuilds the trial's seed sequence (for failure records)."""
     return f"SeedSequence({root}, spawn_key=({setting_index}, {trial_index}))"

@@ -9,10 +9,13 @@ For each snapshot set ``X`` (``M x L``):
    ``s(p) = |e^H a(p)|^2 / M`` in ``[0, 1]``.  ``a`` depends on the direction
    only through ``p = (sin theta cos phi, sin theta sin phi)``, the direction
    cosines in the array plane, so the search runs over ``p`` (no singularity
-   at the array axis).
+   at the array axis).  :meth:`MusicEstimator.estimate_covariance` starts
+   here from given ``R`` and ``L`` (e.g. drawn by
+   :func:`formulations.doa_array.simulate_sample_covariance`).
 2. Coarse grid: a square lattice of ``p`` over the visible cone
    ``theta <= cone_half_angle``; the grid maximum and the highest other local
-   maximum outside the main lobe (first-null radius) are both refined.
+   maximum (at least its 8 lattice neighbours) outside the main lobe
+   (first-null radius) are both refined.
 3. Refinement: damped Newton ascent on ``s(p)`` with gradient and Hessian by
    CasADi AD, vectorised over all sets, to a step below ``1e-8``, so no grid
    quantisation remains.  The seed's own DOA errors level off at 0.287 and
@@ -26,7 +29,7 @@ For each snapshot set ``X`` (``M x L``):
 Outcomes (``reason`` of an invalid set; ``theta``, ``phi`` and the covariance
 are NaN there):
 
-* non-finite snapshots (``InvalidObservationError``);
+* non-finite snapshots or covariance (``InvalidObservationError``);
 * no signal eigenvalue above the noise floor (``UnobservableError``);
 * ``L = 1`` without a given SNR: the noise power is not estimable from one
   snapshot, so neither is the covariance (``UnobservableError``);
@@ -67,6 +70,9 @@ from formulations.errors import (
     InvalidObservationError,
     UnobservableError,
 )
+
+SPECTRUM_BLOCK = 1024
+"""Sets per block of the grid spectrum: about 30 MB of ``e^H a``, in few large BLAS calls."""
 
 SECOND_PEAK_TOLERANCE = 1e-4
 """Refinement tolerance of the second peak, needed only for its value (error ~ 1e-8)."""
@@ -117,6 +123,24 @@ def spectrum_function(array: UniformCircularArray) -> ca.Function:
 
 
 @dataclass(frozen=True)
+class _Lattice:
+    """The coarse grid: a square lattice of direction cosines in the visible cone.
+
+    Attributes:
+        grid: ``(G, 2)`` direction cosines of the lattice points in the cone.
+        neighbours: ``(G, 8)`` grid indices of each point's 8 lattice
+            neighbours; the point's own index where a neighbour is outside
+            the cone (a point compared with itself is not lower).
+        outside: ``(G, G)`` whether two grid points are farther apart than the
+            main lobe's first-null radius.
+    """
+
+    grid: Array
+    neighbours: NDArray[np.intp]
+    outside: NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
 class MusicEstimator:
     """MUSIC on ``array`` (module docstring); call :meth:`estimate`.
 
@@ -145,11 +169,11 @@ class MusicEstimator:
     @cached_property
     def grid(self) -> Array:
         """``(G, 2)`` direction cosines of the coarse grid (square lattice in the cone)."""
-        return self._lattice[0]
+        return self._lattice.grid
 
     @cached_property
-    def _lattice(self) -> tuple[Array, NDArray[np.intp], NDArray[np.bool_]]:
-        """Grid points, their 8 neighbours (``-1`` outside) and the outside-main-lobe table."""
+    def _lattice(self) -> _Lattice:
+        """The grid, its lattice neighbours and the outside-main-lobe table."""
         radius = np.sin(self.cone_half_angle)
         n = int(np.ceil(radius / self.grid_step))
         i, j = np.meshgrid(np.arange(-n, n + 1), np.arange(-n, n + 1), indexing="ij")
@@ -161,9 +185,14 @@ class MusicEstimator:
         offsets = [(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if (a, b) != (0, 0)]
         ii, jj = i.ravel()[inside] + n + 1, j.ravel()[inside] + n + 1
         neighbours = np.column_stack([index[ii + a, jj + b] for a, b in offsets])
+        own = np.arange(len(ii))[:, None]
         grid = points[inside]
         distance = np.linalg.norm(grid[:, None, :] - grid[None, :, :], axis=-1)
-        return grid, neighbours, distance > self.array.first_null_radius
+        return _Lattice(
+            grid,
+            np.where(neighbours >= 0, neighbours, own),
+            distance > self.array.first_null_radius,
+        )
 
     @cached_property
     def _grid_steering(self) -> ComplexArray:
@@ -179,17 +208,45 @@ class MusicEstimator:
         Raises :class:`InvalidObservationError` for a wrong number of
         elements, no snapshots (``L = 0``) or non-complex-convertible input.
         """
-        x = _snapshot_sets(snapshots, self.array.n_elements)
-        n, m, n_snapshots = x.shape
-        finite = np.isfinite(x).all(axis=(1, 2))
-        x = np.where(finite[:, None, None], x, 0.0)
+        x = _complex_sets(snapshots, "snapshots", self.array.n_elements, None)
+        n_snapshots = x.shape[-1]
+        x, finite = _zero_non_finite(x)
         covariance = x @ np.conj(np.swapaxes(x, 1, 2)) / n_snapshots
+        return self._estimate(covariance, n_snapshots, snr_db, ~finite, "non-finite snapshots")
+
+    def estimate_covariance(
+        self, covariance: ArrayLike, n_snapshots: int, snr_db: ArrayLike | None = None
+    ) -> DoaEstimates:
+        """DOAs from sample covariances ``R = X X^H / L`` (eq. 10) ``(..., M, M)`` of ``L``
+        snapshots each, as :meth:`estimate` of the snapshots would give them.
+
+        Only the lower triangle of ``R`` is read.  ``n_snapshots`` (``L >= 1``)
+        sets the noise degrees of freedom, the ``L < M`` flag and the CRB.
+        Raises :class:`InvalidObservationError` for a wrong shape or ``L``.
+        """
+        if int(n_snapshots) != n_snapshots or n_snapshots < 1:
+            raise InvalidObservationError(f"number of snapshots must be >= 1, got {n_snapshots}")
+        m = self.array.n_elements
+        r = _complex_sets(covariance, "covariance", m, m)
+        r, finite = _zero_non_finite(r)
+        return self._estimate(r, int(n_snapshots), snr_db, ~finite, "non-finite covariance")
+
+    def _estimate(
+        self,
+        covariance: ComplexArray,
+        n_snapshots: int,
+        snr_db: ArrayLike | None,
+        non_finite: NDArray[np.bool_],
+        non_finite_reason: str,
+    ) -> DoaEstimates:
+        """The shared part of :meth:`estimate`: sample covariances ``(N, M, M)``
+        onwards (sets in ``non_finite`` zeroed and reported with the reason)."""
+        n, m, _ = covariance.shape
         eigenvalues, eigenvectors = np.linalg.eigh(covariance)
         principal = eigenvectors[:, :, -1]
         snr = _signal_to_noise(eigenvalues, n_snapshots, snr_db, n)
 
-        spectrum = np.abs(np.conj(principal) @ self._grid_steering) ** 2 / m
-        main, second = self._candidates(spectrum)
+        main, second = self._grid_peaks(principal)
         starts = np.concatenate([self.grid[main], self.grid[second]])
         weights = np.concatenate([principal, principal])
         tolerance = np.repeat([self.step_tolerance, SECOND_PEAK_TOLERANCE], n)
@@ -218,7 +275,7 @@ class MusicEstimator:
         phi = np.mod(phi, 2.0 * np.pi)
         phi[phi == 2.0 * np.pi] = 0.0  # mod of a tiny negative angle rounds up
         checks = [
-            (~finite, "non-finite snapshots", InvalidObservationError),
+            (non_finite, non_finite_reason, InvalidObservationError),
             (
                 np.isnan(snr),
                 "one snapshot: the noise power (so the covariance) is not estimable; give snr_db",
@@ -257,18 +314,52 @@ class MusicEstimator:
             },
         )
 
+    def _grid_peaks(self, principal: ComplexArray) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+        """:meth:`_candidates` of the spectrum ``s = |e^H a|^2 / M`` (eq. 11) on the grid,
+        in blocks of ``SPECTRUM_BLOCK`` sets."""
+        n, m = principal.shape
+        main = np.empty(n, dtype=np.intp)
+        second = np.empty(n, dtype=np.intp)
+        for start in range(0, n, SPECTRUM_BLOCK):
+            block = slice(start, start + SPECTRUM_BLOCK)
+            spectrum = np.abs(np.conj(principal[block]) @ self._grid_steering)
+            np.square(spectrum, out=spectrum)
+            spectrum /= m
+            main[block], second[block] = self._candidates(spectrum)
+        return main, second
+
     def _candidates(self, spectrum: Array) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         """Grid index of the maximum and of the highest local maximum outside its main lobe
-        (the maximum itself where there is none)."""
-        _, neighbours, outside = self._lattice
-        padded = np.concatenate([spectrum, np.full((spectrum.shape[0], 1), -np.inf)], axis=1)
-        highest_neighbour = np.max(padded[:, neighbours], axis=-1)
+        (the maximum itself where there is none); ties go to the lowest index.
+
+        A local maximum is at least its highest lattice neighbour.  The highest
+        point outside the main lobe almost always is one (its higher
+        neighbours would have to lie in the main lobe); only the rare sets
+        where it is not get all their local maxima searched.
+        """
         main = np.argmax(spectrum, axis=1)
-        eligible = (spectrum >= highest_neighbour) & outside[main]
-        masked = np.where(eligible, spectrum, -np.inf)
-        second = np.argmax(masked, axis=1)
-        found = np.isfinite(masked[np.arange(len(main)), second])
+        outside = self._lattice.outside[main]
+        second = np.argmax(np.where(outside, spectrum, -np.inf), axis=1)
+        slope = np.flatnonzero(~self._local_maxima(spectrum, second[:, None])[:, 0])
+        if slope.size:
+            every = np.broadcast_to(np.arange(spectrum.shape[1]), (slope.size, spectrum.shape[1]))
+            eligible = outside[slope] & self._local_maxima(spectrum[slope], every)
+            second[slope] = np.argmax(np.where(eligible, spectrum[slope], -np.inf), axis=1)
+        rows = np.arange(len(main))
+        found = (
+            outside[rows, second]
+            & self._local_maxima(spectrum, second[:, None])[:, 0]
+            & np.isfinite(spectrum[rows, second])
+        )
         return main, np.where(found, second, main)
+
+    def _local_maxima(self, spectrum: Array, points: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """Whether grid ``points`` ``(K, P)`` of ``spectrum`` ``(K, G)`` are at least their
+        highest lattice neighbour (False where NaN is involved)."""
+        k, p = points.shape
+        neighbours = self._lattice.neighbours[points].reshape(k, 8 * p)
+        around = np.take_along_axis(spectrum, neighbours, axis=1).reshape(k, p, 8)
+        return np.take_along_axis(spectrum, points, axis=1) >= around.max(axis=-1)
 
     def _refine(
         self, start: Array, weights: ComplexArray, tolerance: Array
@@ -346,19 +437,31 @@ def _inside_unit_disc(p: Array) -> Array:
     return np.where(norm > 1.0, p / np.maximum(norm, 1.0), p)
 
 
-def _snapshot_sets(snapshots: ArrayLike, n_elements: int) -> ComplexArray:
-    """Snapshots as ``(N, M, L)`` complex; shape errors raise ``InvalidObservationError``."""
+def _complex_sets(
+    values: ArrayLike, name: str, n_elements: int, n_columns: int | None
+) -> ComplexArray:
+    """``values`` ``(..., M, K)`` as ``(N, M, K)`` complex, ``K = n_columns`` or, if None,
+    any ``K >= 1`` (``L``); errors raise ``InvalidObservationError``."""
     try:
-        x = np.asarray(snapshots, dtype=complex)
+        x = np.asarray(values, dtype=complex)
     except (TypeError, ValueError) as exc:
-        raise InvalidObservationError(f"snapshots must be complex numbers: {exc}") from None
-    if x.ndim < 2 or x.shape[-2] != n_elements:
+        raise InvalidObservationError(f"{name} must be complex numbers: {exc}") from None
+    columns = "L" if n_columns is None else n_columns
+    if x.ndim < 2 or x.shape[-2] != n_elements or n_columns not in (None, x.shape[-1]):
         raise InvalidObservationError(
-            f"snapshots must be (..., {n_elements}, L), got shape {x.shape}"
+            f"{name} must be (..., {n_elements}, {columns}), got shape {x.shape}"
         )
     if x.shape[-1] == 0:
-        raise InvalidObservationError("no snapshots (L = 0)")
+        raise InvalidObservationError(f"no {name} (L = 0)")
     return x.reshape(-1, n_elements, x.shape[-1])
+
+
+def _zero_non_finite(sets: ComplexArray) -> tuple[ComplexArray, NDArray[np.bool_]]:
+    """``sets`` with the sets holding NaN or inf zeroed, and which sets are finite."""
+    finite = np.isfinite(sets).all(axis=(1, 2))
+    if finite.all():
+        return sets, finite
+    return np.where(finite[:, None, None], sets, 0.0), finite
 
 
 def _signal_to_noise(

@@ -1,0 +1,203 @@
+"""Smoother and posterior bound of the seed-003 EKF (``solvers/doa/eks.py``): the generic
+backward pass against the gyro MEKF's RTS, covariance order, errors, Monte Carlo NEES,
+and the bound against the EKF run at the truth."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from experiments.scenarios.doa_ground import WHEEL_MOMENTUM
+from formulations.conventions import attitude_error
+from solvers.doa.ekf import EkfPrior, EkfResult
+from solvers.doa.eks import composed_error, posterior_bound_ekf, rts_backward, rts_smooth_ekf
+from solvers.filters import mekf, rts_smooth
+from solvers.filters.common import apply_error, error_vector
+from tests.filter_passes import GYRO, prior_covariance, simulate_pass
+from tests.filter_passes import drawn_prior as drawn_gyro_prior
+from tests.test_doa_ekf import (
+    DT,
+    VectorPass,
+    drawn_prior,
+    relative_covariance_difference,
+    run_fast,
+    simulate_vectors,
+)
+
+PROCESS_NOISE = 1e-7
+"""``Q = q E_6`` per step, large enough that smoothing gains: ``sqrt(q)`` = 3e-4 rad
+of attitude noise per step against 5e-3 rad vectors."""
+PRIOR = np.diag([1e-6] * 3 + [1e-4] * 3)
+RUNS = 20
+EPOCHS = 400
+
+
+def state_errors(result: EkfResult, run: VectorPass) -> np.ndarray:
+    """``(N, 6)`` errors ``[omega_true - omega, delta]``, ``A_true = C(delta) A``."""
+    return np.concatenate(
+        [run.rate - result.rate, error_vector(run.truth, result.attitude)], axis=1
+    )
+
+
+def nees(errors: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    return np.einsum("...i,...ij,...j->...", errors, np.linalg.inv(covariance), errors)
+
+
+def test_rts_backward_is_the_gyro_mekf_smoother() -> None:
+    """``rts_backward`` with the attitude block first reproduces
+    ``solvers.filters.rts.rts_smooth`` on an MEKF pass (state ``[delta, delta_beta]``):
+    one backward recursion serves both filters."""
+    rng = np.random.default_rng(5)
+    run = simulate_pass(rng, duration=60.0)
+    prior = drawn_gyro_prior(rng, run, prior_covariance(np.radians(1.0)))
+    filtered = mekf(run.gyro, run.t, run.measurements, prior, GYRO)
+    expected = rts_smooth(filtered)
+    history = filtered.history
+    after = Rotation.from_quat(history.filtered_quaternion)
+    before = Rotation.from_quat(history.predicted_quaternion)
+    correction = np.concatenate(
+        [error_vector(after, before), history.filtered_bias - history.predicted_bias], axis=1
+    )
+    offset, covariance = rts_backward(
+        history.filtered_covariance,
+        history.predicted_covariance,
+        history.transition[1:],
+        correction,
+        attitude_start=0,
+    )
+    error = attitude_error(apply_error(offset[:, :3], after), expected.solution.attitude())
+    assert np.radians(np.abs(error).max()) < 1e-12
+    np.testing.assert_allclose(history.filtered_bias + offset[:, 3:], expected.bias, atol=1e-15)
+    assert relative_covariance_difference(covariance, expected.covariance) < 1e-10
+    assert np.abs(offset[:-1, :3]).max() > 1e-4
+
+
+def test_composed_error_matches_scipy() -> None:
+    """``composed_error(x, c)`` is ``error_vector(apply_error(x, apply_error(c, A)), A)``,
+    also past 180 deg (the shadow MRPs)."""
+    outer, inner = ca.SX.sym("outer", 3), ca.SX.sym("inner", 3)
+    function = ca.Function("f", [outer, inner], [composed_error(outer, inner)])
+    rng = np.random.default_rng(3)
+    attitude = Rotation.random(random_state=rng)
+    for scale in (1e-6, 1e-2, 1.0, 4.0, 10.0):
+        x, c = rng.normal(size=(2, 50, 3)) * scale
+        got = function.map(50)(x.T, c.T).full().T
+        expected = error_vector(apply_error(x, apply_error(c, attitude)), attitude)
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=4e-15)
+
+
+@pytest.fixture(scope="module")
+def monte_carlo() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """20 seeded passes of 400 epochs (100 s) with process noise ``Q``, filtered and
+    smoothed; errors ``(runs, epochs, 6)`` and covariances ``(runs, epochs, 6, 6)``."""
+    out: dict[str, tuple[list, list]] = {"filter": ([], []), "smoother": ([], [])}
+    for seed in range(RUNS):
+        rng = np.random.default_rng(100 + seed)
+        run = simulate_vectors(rng, EPOCHS, process_noise=PROCESS_NOISE)
+        filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
+        for name, result in (("filter", filtered), ("smoother", rts_smooth_ekf(filtered))):
+            out[name][0].append(state_errors(result, run))
+            out[name][1].append(result.covariance)
+    return {name: (np.array(e), np.array(p)) for name, (e, p) in out.items()}
+
+
+@pytest.mark.parametrize("name", ["filter", "smoother"])
+def test_nees_is_consistent(monte_carlo, name: str) -> None:
+    """At each epoch the NEES averaged over the M = 20 runs, ``chi2(6 M) / M`` for a
+    consistent estimator: its time average must lie inside the two-sided 99%
+    interval (a conservative test: the epochs are correlated, so the average
+    spreads less than one epoch's), and so must at least 90% of the epochs
+    (99% expected).  Returning the filter's covariance with the smoothed
+    estimates, or the reverse, fails it."""
+    errors, covariance = monte_carlo[name]
+    averaged = nees(errors, covariance).mean(axis=0)
+    low, high = chi2.ppf([0.005, 0.995], 6 * RUNS) / RUNS
+    assert low < averaged.mean() < high, (averaged.mean(), low, high)
+    inside = np.mean((averaged > low) & (averaged < high))
+    assert inside > 0.9, inside
+
+
+def test_smoothed_covariance_never_exceeds_the_filtered(monte_carlo) -> None:
+    """``P^s_k <= P_k`` at every epoch (eigenvalues of the difference, scaled by the
+    filter's standard deviations, >= -1e-12), well below it inside the pass, and
+    equal at the last epoch."""
+    _, filtered = monte_carlo["filter"]
+    _, smoothed = monte_carlo["smoother"]
+    scale = np.sqrt(np.diagonal(filtered, axis1=-2, axis2=-1))
+    difference = (filtered - smoothed) / (scale[..., :, None] * scale[..., None, :])
+    assert np.linalg.eigvalsh(difference).min() > -1e-12
+    np.testing.assert_array_equal(filtered[:, -1], smoothed[:, -1])
+    trace = np.trace(smoothed[:, 50:-50, 3:, 3:], axis1=-2, axis2=-1)
+    assert np.all(trace < 0.8 * np.trace(filtered[:, 50:-50, 3:, 3:], axis1=-2, axis2=-1))
+
+
+def test_smoothed_error_is_below_the_filters(monte_carlo) -> None:
+    """RMS attitude and rate errors over runs and the epochs inside the pass."""
+    rms = {
+        name: np.sqrt(np.mean(errors[:, 50:-50] ** 2, axis=(0, 1)))
+        for name, (errors, _) in monte_carlo.items()
+    }
+    assert np.all(rms["smoother"][3:] < 0.85 * rms["filter"][3:]), rms
+    assert np.all(rms["smoother"][:3] < rms["filter"][:3]), rms
+
+
+def test_smoother_keeps_the_last_epoch_and_moves_the_others() -> None:
+    """The last smoothed estimate is the filter's; earlier ones differ."""
+    rng = np.random.default_rng(8)
+    run = simulate_vectors(rng, 200, process_noise=PROCESS_NOISE)
+    filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
+    smoothed = rts_smooth_ekf(filtered)
+    np.testing.assert_array_equal(smoothed.attitude[-1].as_quat(), filtered.attitude[-1].as_quat())
+    np.testing.assert_array_equal(smoothed.rate[-1], filtered.rate[-1])
+    moved = np.linalg.norm(attitude_error(smoothed.attitude[:-1], filtered.attitude[:-1]), axis=1)
+    assert np.all(moved > 0) and np.radians(moved.max()) > 1e-4
+
+
+def bound(
+    run: VectorPass, covariance: np.ndarray, process_noise: float
+) -> tuple[np.ndarray, np.ndarray]:
+    return posterior_bound_ekf(
+        run.truth,
+        run.rate,
+        run.reference,
+        run.sigma,
+        np.isfinite(run.body).all(axis=-1),
+        run.turns,
+        WHEEL_MOMENTUM,
+        DT,
+        covariance,
+        process_noise=process_noise,
+    )
+
+
+def test_filter_bound_is_the_ekf_covariance_at_the_truth() -> None:
+    """Noise-free vectors of a truth that follows the step map, prior at the truth:
+    the EKF stays on the truth, so its covariances are the recursion the bound
+    runs (Phi and H at the truth), filter and smoother alike."""
+    rng = np.random.default_rng(6)
+    run = simulate_vectors(rng, 500, noisy=False)
+    result = run_fast(run, EkfPrior(run.truth[0], run.rate[0], PRIOR), PROCESS_NOISE)
+    assert np.radians(np.abs(attitude_error(result.attitude, run.truth)).max()) < 1e-12
+    filter_bound, smoother_bound = bound(run, PRIOR, PROCESS_NOISE)
+    assert relative_covariance_difference(filter_bound, result.covariance) < 1e-9
+    assert relative_covariance_difference(smoother_bound, rts_smooth_ekf(result).covariance) < 1e-9
+
+
+def test_smoother_bound_is_below_the_filter_bound() -> None:
+    """On a noisy pass's geometry: smoother bound <= filter bound at every epoch,
+    clearly below inside the pass, equal at the end."""
+    rng = np.random.default_rng(9)
+    run = simulate_vectors(rng, 400, process_noise=PROCESS_NOISE)
+    filter_bound, smoother_bound = bound(run, PRIOR, PROCESS_NOISE)
+    scale = np.sqrt(np.diagonal(filter_bound, axis1=-2, axis2=-1))
+    difference = (filter_bound - smoother_bound) / (scale[..., :, None] * scale[..., None, :])
+    assert np.linalg.eigvalsh(difference).min() > -1e-12
+    np.testing.assert_array_equal(filter_bound[-1], smoother_bound[-1])
+    inside = slice(50, -50)
+    ratio = np.trace(smoother_bound[inside, 3:, 3:], axis1=-2, axis2=-1) / np.trace(
+        filter_bound[inside, 3:, 3:], axis1=-2, axis2=-1
+    )
+    assert ratio.max() < 0.8

@@ -1,0 +1,226 @@
+"""The ``doa-ground`` report on synthetic rows with hand-computable errors (no sweep needed).
+
+Two settings (0 dB at ``L = 100`` and ``L = 10``), three trials, the gyro-aided
+methods in the first two.  Settled errors per trial (deg, body x axis; the
+Euler errors are ``(e, 2 e, 3 e)``; signs alternate over the rows):
+
+* ``ekf_seed003_q1e-09``: 0.3, 0.3, 1.2; ``ekf_seed003_q1e-12`` half of that;
+* each RTS 0.4 times its EKF's on the first two trials (same as the EKF's on the
+  third), ``fg_batch`` 0.18 and ``mekf`` 0.5;
+* ``wahba``: 2.0 on every other settled row, invalid (NaN) on the rest;
+* converging rows (t < 100 s) 10 deg, valid, which no RMSE may include.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments.doa_report import (
+    attitude_methods,
+    attitude_table,
+    doa_table,
+    report,
+    runtime_table,
+    shared_trials,
+)
+from experiments.experiment import ReportContext
+
+SETTLE_S = 100.0
+ROW_STEP_S = 10.0
+N_ROWS = 30
+TRIALS = 3
+FILTER_TRIALS = 2
+SETTINGS = ((0.0, 100), (0.0, 10))
+EKF_ERROR = (0.3, 0.3, 1.2)
+PARAMETERS: dict[str, Any] = {
+    "table1_snr_db": [0.0],
+    "table1_snapshots": 100,
+    "table2_snapshots": [10, 100],
+    "table2_snr_db": 0.0,
+    "settle_s": SETTLE_S,
+    "row_step_s": ROW_STEP_S,
+    "process_noise": [1e-9, 1e-12],
+    "filters": ["mekf", "fg_batch"],
+    "filter_trials": FILTER_TRIALS,
+}
+
+
+def _frame(method: str, error: float, **extra: Any) -> pd.DataFrame:
+    """Rows of one pass: 10 deg while converging, then ``error`` with alternating signs."""
+    t = ROW_STEP_S * np.arange(N_ROWS)
+    settled = t >= SETTLE_S
+    signed = np.where(settled, error, 10.0) * (-1.0) ** np.arange(N_ROWS)
+    columns = {
+        "method": method,
+        "t": t,
+        "phase": np.where(settled, "settled", "converging"),
+        "err_x_deg": signed,
+        "err_y_deg": 0.0,
+        "err_z_deg": 0.0,
+        **{f"euler_{n}_err_deg": k * signed for k, n in enumerate(("yaw", "roll", "pitch"), 1)},
+        "valid": True,
+        "reason": "",
+    }
+    return pd.DataFrame(columns | extra)
+
+
+def _filter_extra(rate_error: np.ndarray | float, bound: float, runtime: float) -> dict:
+    return {
+        **{f"rate_err_{a}_deg_s": rate_error for a in "xyz"},
+        **{f"pbound_{a}_deg": bound for a in "xyz"},
+        "runtime_s": runtime,
+    }
+
+
+def _wahba() -> pd.DataFrame:
+    frame = _frame("wahba", 2.0, **{f"bound_{a}_deg": 1.0 for a in "xyz"})
+    invalid = (np.arange(N_ROWS) % 2 == 1) & (frame["phase"] == "settled")
+    frame.loc[invalid, [c for c in frame if c.endswith("err_deg")]] = np.nan
+    frame.loc[invalid, "valid"] = False
+    frame.loc[invalid, "reason"] = "fewer than two stations"
+    return frame
+
+
+def _trial(trial: int, q_scales: Mapping[str, float], filters: bool) -> list[pd.DataFrame]:
+    """Every method of one trial (``filters``: with ``mekf`` and ``fg_batch``)."""
+    rate = np.where(ROW_STEP_S * np.arange(N_ROWS) < 50.0, 1.0, 0.01)
+    ekf = EKF_ERROR[trial]
+    rts_scale = 0.4 if trial < FILTER_TRIALS else 1.0
+    frames = [_wahba()]
+    for q, scale in q_scales.items():
+        extra = _filter_extra(rate, 0.2, runtime=trial + 1.0)
+        frames.append(_frame(f"ekf_seed003_q{q}", scale * ekf, **extra))
+        frames.append(_frame(f"rts_seed003_q{q}", rts_scale * scale * ekf, **extra))
+    if filters:
+        frames.append(_frame("mekf", 0.5, **_filter_extra(np.nan, 0.1, runtime=5.0)))
+        frames.append(_frame("fg_batch", 0.18, **_filter_extra(np.nan, 0.1, 10.0 * (trial + 1))))
+    music = {"doa_count": 100, "doa_crb_theta_deg2": 0.01, "doa_crb_phi_deg2": 0.04}
+    accepted = 50 if trial == 0 else 75
+    music |= {"doa_accepted": accepted, "doa_theta_mse_deg2": 1.0 + trial}
+    music |= {"doa_phi_mse_deg2": 4.0, "method": "music", "phase": "all", "valid": False}
+    return [*frames, pd.DataFrame([music])]
+
+
+def _rows(q_scales: Mapping[str, float] | None = None, filters: bool = True) -> pd.DataFrame:
+    q_scales = {"1e-09": 1.0, "1e-12": 0.5} if q_scales is None else q_scales
+    frames = []
+    for index, (snr, snapshots) in enumerate(SETTINGS):
+        for trial in range(TRIALS):
+            for frame in _trial(trial, q_scales, filters and trial < FILTER_TRIALS):
+                frames.append(
+                    frame.assign(
+                        setting_index=index, trial_index=trial, snr_db=snr, snapshots=snapshots
+                    )
+                )
+    return pd.concat(frames, ignore_index=True)
+
+
+def _report(rows: pd.DataFrame, out_dir: Path, parameters: Mapping[str, Any] = PARAMETERS) -> str:
+    return report(
+        ReportContext(parameters=parameters, rows=rows, summary=pd.DataFrame(), out_dir=out_dir)
+    )
+
+
+def test_attitude_rmses_pool_the_settled_valid_rows_of_all_trials() -> None:
+    rows = _rows()
+    methods = attitude_methods(rows, PARAMETERS)
+    assert methods == [
+        "ekf_seed003_q1e-09",
+        "ekf_seed003_q1e-12",
+        "rts_seed003_q1e-09",
+        "rts_seed003_q1e-12",
+        "wahba",
+        "mekf",
+        "fg_batch",
+    ]
+    table = attitude_table(rows, methods)
+    ekf = table.loc[(0.0, 100, "ekf_seed003_q1e-09")]
+    pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))  # eq. 34: equal rows per trial
+    np.testing.assert_allclose(
+        ekf[["yaw_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg"]], [pooled, 2 * pooled, 3 * pooled]
+    )
+    assert ekf["total_rmse_deg"] == pytest.approx(pooled)
+    assert ekf["bound_total_deg"] == pytest.approx(0.2 * np.sqrt(3.0))
+    assert (ekf["valid"], ekf["trials"]) == (1.0, 3)
+    assert table.loc[(0.0, 10, "ekf_seed003_q1e-12"), "total_rmse_deg"] == pytest.approx(
+        0.5 * pooled
+    )
+    wahba = table.loc[(0.0, 100, "wahba")]
+    assert wahba["total_rmse_deg"] == pytest.approx(2.0)  # the invalid rows do not count
+    assert wahba["ratio"] == pytest.approx(2.0 / np.sqrt(3.0))  # bound_* for wahba
+    assert wahba["valid"] == pytest.approx(0.5)
+    fg = table.loc[(0.0, 100, "fg_batch")]
+    assert (fg["total_rmse_deg"], fg["trials"]) == (pytest.approx(0.18), 2)
+
+
+def test_doa_rmse_weights_each_trial_by_its_accepted_estimates() -> None:
+    doa = doa_table(_rows()).loc[(0.0, 100)]
+    # accepted 50, 75, 75 with theta MSE 1, 2, 3
+    assert doa["theta_rmse_deg"] == pytest.approx(np.sqrt((50 + 150 + 225) / 200.0))
+    assert doa["phi_rmse_deg"] == pytest.approx(2.0)
+    assert (doa["crb_theta_deg"], doa["accepted"]) == (pytest.approx(0.1), pytest.approx(2 / 3))
+
+
+def test_smoother_ratios_use_only_the_trials_fg_batch_ran_in(tmp_path: Path) -> None:
+    rows = _rows()
+    assert set(shared_trials(rows)["trial_index"]) == set(range(FILTER_TRIALS))
+    text = _report(rows, tmp_path)
+    # over all three trials RTS / EKF would be 0.56 (1e-09), not 0.40
+    assert "| 0 | 100 | 2 | 1e-09 | 0.300 | 0.120 | 0.40 (met) | 0.180 | 0.60 (missed) |" in text
+    assert "| 0 | 10 | 2 | 1e-12 | 0.150 | 0.060 | 0.40 (met) | 0.180 | 1.20 (missed) |" in text
+
+
+def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
+    rows = _rows()
+    missing = (rows["snapshots"] == 10) & rows["method"].isin(["mekf", "music"])
+    text = _report(rows[~missing], tmp_path)
+    assert "| 0 | 10 | mekf | - | - | - |  | - | - | - | - | - |" in text
+    assert "| 0 | 10 | - (0.781) | - (0.684) | - / - | - |" in text
+    ekf = "| 0 | 100 | ekf_seed003_q1e-09 | 0.735 | 1.470 | 2.205 "
+    assert ekf + "| 0.083 / 0.061 / 0.094 |" in text  # the seed's values beside the EKF
+
+
+def test_report_writes_the_convergence_figure_and_times(tmp_path: Path) -> None:
+    text = _report(_rows(), tmp_path)
+    figure = tmp_path / "doa_convergence.png"
+    assert figure.stat().st_size > 0
+    assert "![convergence](doa_convergence.png)" in text
+    # pitch errors 3 e: 0.9 deg at Q = 1e-09, 0.45 deg at Q = 1e-12 once settled
+    assert (
+        "* EKF Q = 1e-09: Euler-angle errors within 0.5 deg not at the end of the pass, "
+        "rate errors within 0.1 deg/s from t = 50 s." in text
+    )
+    assert (
+        "* EKF Q = 1e-12: Euler-angle errors within 0.5 deg from t = 100 s, "
+        "rate errors within 0.1 deg/s from t = 50 s." in text
+    )
+    assert "## Seed 003 Table 1" in text and "## Seed 003 Table 2" in text
+
+
+def test_runtime_is_the_mean_over_passes() -> None:
+    rows = _rows()
+    table = runtime_table(rows, attitude_methods(rows, PARAMETERS))
+    assert table.loc["ekf_seed003_q1e-09"].tolist() == [6, 2.0]  # 2 settings x 3 trials
+    assert table.loc["fg_batch"].tolist() == [4, 15.0]
+    assert "wahba" not in table.index  # no runtime_s
+
+
+def test_quick_run_subset_without_fg_batch_and_parameters(tmp_path: Path) -> None:
+    """One Q, no gyro-aided filters, and none of the list parameters given."""
+    rows = _rows(q_scales={"1e-09": 1.0}, filters=False)
+    parameters = {"settle_s": SETTLE_S, "row_step_s": ROW_STEP_S}
+    text = _report(rows, tmp_path, parameters)
+    assert "| SNR dB | L | trials | Q | EKF | RTS | RTS / EKF |" in text
+    pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))
+    rts = np.sqrt(np.mean(np.square([0.12, 0.12, 1.2])))
+    assert (
+        f"| 0 | 100 | 3 | 1e-09 | {pooled:.3f} | {rts:.3f} | {rts / pooled:.2f} (missed) |" in text
+    )
+    assert "| mekf |" not in text and "| fg_batch |" not in text
+    assert (tmp_path / "doa_convergence.png").exists()
