@@ -1,6 +1,7 @@
 """Smoother and posterior bound of the seed-003 EKF (``solvers/doa/eks.py``): the generic
-backward pass against the gyro MEKF's RTS, covariance order, errors, Monte Carlo NEES,
-and the bound against the EKF run at the truth."""
+backward pass (``solvers/filters/rts.py``) against the textbook recursion for the EKF and
+the gyro MEKF, covariance order, errors, Monte Carlo NEES, and the bound against the EKF
+run at the truth."""
 
 from __future__ import annotations
 
@@ -13,9 +14,10 @@ from scipy.stats import chi2
 from experiments.scenarios.doa_ground import WHEEL_MOMENTUM
 from formulations.conventions import attitude_error
 from solvers.doa.ekf import EkfPrior, EkfResult
-from solvers.doa.eks import composed_error, posterior_bound_ekf, rts_backward, rts_smooth_ekf
+from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from solvers.filters import mekf, rts_smooth
 from solvers.filters.common import apply_error, error_vector
+from solvers.filters.rts import composed_error
 from tests.filter_passes import GYRO, prior_covariance, simulate_pass
 from tests.filter_passes import drawn_prior as drawn_gyro_prior
 from tests.test_doa_ekf import (
@@ -46,33 +48,90 @@ def nees(errors: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     return np.einsum("...i,...ij,...j->...", errors, np.linalg.inv(covariance), errors)
 
 
-def test_rts_backward_is_the_gyro_mekf_smoother() -> None:
-    """``rts_backward`` with the attitude block first reproduces
-    ``solvers.filters.rts.rts_smooth`` on an MEKF pass (state ``[delta, delta_beta]``):
-    one backward recursion serves both filters."""
+def textbook_rts(
+    after: Rotation,
+    before: Rotation,
+    rest: np.ndarray,
+    rest_before: np.ndarray,
+    covariance: np.ndarray,
+    predicted_covariance: np.ndarray,
+    transition: np.ndarray,
+    attitude: slice,
+) -> tuple[Rotation, np.ndarray, np.ndarray]:
+    """The RTS equations one epoch at a time with scipy rotations: ``C_k = P_k Phi_k^T
+    (P^-_{k+1})^-1``, ``x_k = C_k [x^s_{k+1} (-) x^-_{k+1}]``, ``P^s_k = P_k + C_k
+    (P^s_{k+1} - P^-_{k+1}) C_k^T``, ``(-)`` the attitude error vector in the
+    ``attitude`` block and the difference of the other components (``rest``)."""
+    others = np.delete(np.arange(covariance.shape[1]), attitude)
+    quaternion, rest, smoothed = after.as_quat(), rest.copy(), covariance.copy()
+    for k in range(len(after) - 2, -1, -1):
+        gain = covariance[k] @ transition[k].T @ np.linalg.inv(predicted_covariance[k + 1])
+        difference = np.empty(covariance.shape[1])
+        difference[attitude] = error_vector(Rotation.from_quat(quaternion[k + 1]), before[k + 1])
+        difference[others] = rest[k + 1] - rest_before[k + 1]
+        offset = gain @ difference
+        quaternion[k] = apply_error(offset[attitude], after[k]).as_quat()
+        rest[k] = rest[k] + offset[others]
+        smoothed[k] = (
+            covariance[k] + gain @ (smoothed[k + 1] - predicted_covariance[k + 1]) @ gain.T
+        )
+    return Rotation.from_quat(quaternion), rest, smoothed
+
+
+def mekf_smoother() -> tuple[tuple, tuple, Rotation]:
+    """``rts_smooth`` on a gyro MEKF pass (attitude block first) and the textbook
+    recursion on the filter's history; also the filtered attitudes."""
     rng = np.random.default_rng(5)
     run = simulate_pass(rng, duration=60.0)
     prior = drawn_gyro_prior(rng, run, prior_covariance(np.radians(1.0)))
     filtered = mekf(run.gyro, run.t, run.measurements, prior, GYRO)
-    expected = rts_smooth(filtered)
+    smoothed = rts_smooth(filtered)
     history = filtered.history
     after = Rotation.from_quat(history.filtered_quaternion)
-    before = Rotation.from_quat(history.predicted_quaternion)
-    correction = np.concatenate(
-        [error_vector(after, before), history.filtered_bias - history.predicted_bias], axis=1
-    )
-    offset, covariance = rts_backward(
+    expected = textbook_rts(
+        after,
+        Rotation.from_quat(history.predicted_quaternion),
+        history.filtered_bias,
+        history.predicted_bias,
         history.filtered_covariance,
         history.predicted_covariance,
         history.transition[1:],
-        correction,
-        attitude_start=0,
+        slice(0, 3),
     )
-    error = attitude_error(apply_error(offset[:, :3], after), expected.solution.attitude())
-    assert np.radians(np.abs(error).max()) < 1e-12
-    np.testing.assert_allclose(history.filtered_bias + offset[:, 3:], expected.bias, atol=1e-15)
-    assert relative_covariance_difference(covariance, expected.covariance) < 1e-10
-    assert np.abs(offset[:-1, :3]).max() > 1e-4
+    return (smoothed.solution.attitude(), smoothed.bias, smoothed.covariance), expected, after
+
+
+def ekf_smoother() -> tuple[tuple, tuple, Rotation]:
+    """``rts_smooth_ekf`` on an EKF pass (attitude block last) and the textbook
+    recursion on it; also the filtered attitudes."""
+    rng = np.random.default_rng(8)
+    run = simulate_vectors(rng, 200, process_noise=PROCESS_NOISE)
+    filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
+    smoothed = rts_smooth_ekf(filtered)
+    expected = textbook_rts(
+        filtered.attitude,
+        filtered.predicted_attitude,
+        filtered.rate,
+        filtered.predicted_rate,
+        filtered.covariance,
+        filtered.predicted_covariance,
+        filtered.transition,
+        slice(3, 6),
+    )
+    return (smoothed.attitude, smoothed.rate, smoothed.covariance), expected, filtered.attitude
+
+
+@pytest.mark.parametrize("smoother", [mekf_smoother, ekf_smoother], ids=["mekf", "ekf"])
+def test_rts_backward_is_the_textbook_recursion(smoother) -> None:
+    """The smoothers built on ``solvers.filters.rts.rts_backward``, the gyro MEKF's
+    ``rts_smooth`` (state ``[delta, delta_beta]``) and the EKF's ``rts_smooth_ekf``
+    (``[delta_omega, delta]``), equal the textbook recursion: one backward pass
+    serves both filters."""
+    (attitude, rest, covariance), expected, filtered = smoother()
+    assert np.abs(attitude_error(attitude, expected[0])).max() < 1e-12
+    np.testing.assert_allclose(rest, expected[1], rtol=0, atol=1e-15)
+    assert relative_covariance_difference(covariance, expected[2]) < 1e-10
+    assert np.abs(attitude_error(attitude[:-1], filtered[:-1])).max() > 1e-5
 
 
 def test_composed_error_matches_scipy() -> None:

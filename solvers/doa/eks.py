@@ -19,16 +19,12 @@ difference and the attitude error vector
 :func:`~solvers.filters.common.apply_error` is its update's retraction
 ``C(delta) A`` (:func:`~formulations.attitude_model.increment_matrix`) and
 ``Phi`` maps first-order body-frame rotation vectors, which the error vector
-is to first order.  Since ``A^s_{k+1} = C(x_{k+1}) A_{k+1}`` and ``A_{k+1} =
-C(c_{k+1}) A^-_{k+1}`` (``c`` the filter's correction), the attitude part is the
-error vector of the composition ``C(x) C(c)``, computed from quaternions in
-CasADi (:func:`composed_error`), so the whole backward pass runs in CasADi's
-virtual machine (:func:`rts_backward`).  ``P^s_{k+1} <= P^-_{k+1}`` makes
-``P^s_k <= P_k``: the smoothed covariance never exceeds the filtered one.
-
-:func:`rts_backward` knows only where the attitude block sits; the gyro
-MEKF's smoother (:func:`solvers.filters.rts.rts_smooth`, state ``[delta,
-delta_beta]``) is the same recursion with ``attitude_start = 0``.
+is to first order.  The pass is the generic one of :mod:`solvers.filters.rts`
+(:func:`~solvers.filters.rts.rts_backward`, run in CasADi's virtual machine)
+with the attitude block last, ``attitude_start = 3``; the gyro MEKF's smoother
+(:func:`~solvers.filters.rts.rts_smooth`, state ``[delta, delta_beta]``) runs
+it with ``attitude_start = 0``.  ``P^s_{k+1} <= P^-_{k+1}`` makes ``P^s_k <=
+P_k``: the smoothed covariance never exceeds the filtered one.
 
 Bound.  The posterior Cramer-Rao bound of Tichavsky, Muravchik and Nehorai
 (IEEE Trans. SP 46(5), 1998) for this model, linearised at the truth: with
@@ -45,7 +41,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 from functools import lru_cache
-from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -57,119 +52,17 @@ from solvers.doa.ekf import (
     INERTIA_SEED003,
     PROCESS_NOISE,
     EkfResult,
-    accumulate,
-    lower_symmetric,
     propagated_covariance,
     step_function,
     update_function,
     vector_arrays,
     vector_information_function,
 )
+from solvers.filters.casadi_pass import accumulate
 from solvers.filters.common import apply_error, error_vector
+from solvers.filters.rts import rts_backward
 
 Array = NDArray[np.float64]
-
-
-def _quaternion(error: Any) -> tuple[Any, Any]:
-    """Vector part and scalar of the (scalar-last) quaternion of ``C(error)``: MRPs
-    ``p = error / 4``, ``q = [2 p, 1 - |p|^2] / (1 + |p|^2)``."""
-    p = error / 4.0
-    norm2 = ca.dot(p, p)
-    return 2.0 * p / (1.0 + norm2), (1.0 - norm2) / (1.0 + norm2)
-
-
-def composed_error(outer: Any, inner: Any) -> Any:
-    """``error_vector(apply_error(outer, apply_error(inner, A)), A)`` in CasADi (``3 x 1``).
-
-    Four times the MRPs of ``C(outer) C(inner)``: the Hamilton product of the
-    two quaternions, the shadow set taken when its scalar is negative (as
-    scipy's ``as_mrp``).
-    """
-    v1, w1 = _quaternion(outer)
-    v2, w2 = _quaternion(inner)
-    vector = w1 * v2 + w2 * v1 + ca.cross(v1, v2)
-    scalar = w1 * w2 - ca.dot(v1, v2)
-    sign = ca.if_else(scalar < 0, -1.0, 1.0)
-    return 4.0 * sign * vector / (1.0 + sign * scalar)
-
-
-@lru_cache(maxsize=8)
-def _backward_function(size: int, attitude_start: int) -> ca.Function:
-    """``(x_next, P^s_next, C, P, P^-_next, c_next) -> (x, P^s)``: one RTS step back."""
-    offset = ca.SX.sym("offset", size)
-    smoothed = ca.SX.sym("smoothed", size, size)
-    gain = ca.SX.sym("gain", size, size)
-    filtered = ca.SX.sym("filtered", size, size)
-    predicted = ca.SX.sym("predicted", size, size)
-    correction = ca.SX.sym("correction", size)
-    block = slice(attitude_start, attitude_start + 3)
-    difference = offset + correction
-    difference[block] = composed_error(offset[block], correction[block])
-    covariance = filtered + gain @ (smoothed - predicted) @ gain.T
-    return ca.Function(
-        "rts_backward_step",
-        [offset, smoothed, gain, filtered, predicted, correction],
-        [ca.densify(gain @ difference), ca.densify(lower_symmetric(covariance))],
-        {"cse": True},
-    )
-
-
-def rts_backward(
-    filtered_covariance: ArrayLike,
-    predicted_covariance: ArrayLike,
-    transition: ArrayLike,
-    correction: ArrayLike,
-    attitude_start: int,
-) -> tuple[Array, Array]:
-    """The multiplicative RTS backward pass (module docstring) on arrays.
-
-    Args:
-        filtered_covariance: ``(N, n, n)`` ``P_k`` after epoch ``k``'s update.
-        predicted_covariance: ``(N, n, n)`` ``P^-_k`` before it (row 0 unused).
-        transition: ``(N - 1, n, n)``, ``transition[k]`` from epoch ``k`` to ``k + 1``.
-        correction: ``(N, n)`` filtered minus predicted state at each epoch:
-            the attitude error vector (:func:`~solvers.filters.common.error_vector`
-            of the filtered attitude relative to the predicted one) in the
-            attitude block, plain differences elsewhere (row 0 unused).
-        attitude_start: index of the three attitude-error components.
-
-    Returns:
-        ``(N, n)`` offsets of the smoothed state from the filtered one (zero at
-        the last epoch; apply the attitude block with
-        :func:`~solvers.filters.common.apply_error`) and the ``(N, n, n)``
-        smoothed covariances.
-    """
-    filtered_covariance = np.asarray(filtered_covariance, dtype=float)
-    predicted_covariance = np.asarray(predicted_covariance, dtype=float)
-    transition = np.asarray(transition, dtype=float)
-    correction = np.asarray(correction, dtype=float)
-    n, size = correction.shape
-    if (
-        filtered_covariance.shape != (n, size, size)
-        or predicted_covariance.shape != (n, size, size)
-        or transition.shape != (n - 1, size, size)
-    ):
-        raise InvalidObservationError("inconsistent shapes for the RTS pass")
-    # C_k^T = (P^-_{k+1})^-1 Phi_k P_k, all epochs at once
-    gain = np.linalg.solve(predicted_covariance[1:], transition @ filtered_covariance[:-1])
-    gain = np.swapaxes(gain, 1, 2)
-    backward = np.s_[::-1]
-    offsets, covariances = accumulate(
-        _backward_function(size, attitude_start),
-        2,
-        [np.zeros(size), filtered_covariance[-1]],
-        [
-            gain[backward],
-            filtered_covariance[:-1][backward],
-            predicted_covariance[1:][backward],
-            correction[1:][backward],
-        ],
-        n - 1,
-    )
-    return (
-        np.concatenate([offsets[backward, :, 0], np.zeros((1, size))]),
-        np.concatenate([covariances[backward], filtered_covariance[-1:]]),
-    )
 
 
 def rts_smooth_ekf(result: EkfResult) -> EkfResult:
@@ -246,7 +139,7 @@ def posterior_bound_ekf(
 
     The EKF's covariance recursion (:func:`~solvers.doa.ekf.update_function`,
     :func:`~solvers.doa.ekf.step_function`, ``Q = q E_6``) with ``Phi`` and
-    ``H`` at the truth, then :func:`rts_backward` on it.
+    ``H`` at the truth, then :func:`~solvers.filters.rts.rts_backward` on it.
 
     Args:
         truth_attitude: ``N`` true ``C_bo``.

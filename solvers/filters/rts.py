@@ -1,24 +1,47 @@
-"""Multiplicative Rauch-Tung-Striebel smoother over the MEKF (the filter-based smoothing baseline).
+"""Multiplicative Rauch-Tung-Striebel smoothing: the backward pass and the MEKF's smoother.
 
-Backward pass on the output epochs of :func:`solvers.filters.mekf.mekf`, in
-error-state form: with ``Phi_{k+1}`` the transition from epoch ``k`` to
-``k + 1`` and ``P^-_{k+1}`` the predicted covariance there,
+:func:`rts_backward` is the fixed-interval backward pass of a multiplicative
+error-state filter, on arrays.  With ``P_k`` the filtered covariance,
+``P^-_{k+1}`` the predicted one and ``Phi_k`` the transition from epoch ``k``
+to ``k + 1``,
 
-    C_k = P_k Phi_{k+1}^T (P^-_{k+1})^-1,
-    x_k = C_k [delta(A^s_{k+1}, A^-_{k+1}); beta^s_{k+1} - beta^-_{k+1}],
-    A^s_k = exp(x_k[:3]) A_k,  beta^s_k = beta_k + x_k[3:],
+    C_k = P_k Phi_k^T (P^-_{k+1})^-1,
+    x_k = C_k [x^s_{k+1} (-) x^-_{k+1}],
     P^s_k = P_k + C_k (P^s_{k+1} - P^-_{k+1}) C_k^T,
 
-``delta`` the error vector of :mod:`solvers.filters.common` (body frame of
-epoch ``k + 1``, where ``Phi`` maps the error to).  Since ``P^s_{k+1} <=
-P^-_{k+1}``, the smoothed covariance never exceeds the filtered one.
+where ``x_k`` is the smoothed state's offset from the filtered one (``A^s_k =
+C(x_k[a]) A_k`` in the attitude block ``a``, sums elsewhere, ``C(delta) A`` the
+attitude :func:`~solvers.filters.common.apply_error` gives) and ``(-)`` the
+error state of the smoothed estimate relative to the predicted one: the
+attitude error vector (:func:`~solvers.filters.common.error_vector`, four times
+the MRPs of ``A^s (A^-)^T``, body frame of epoch ``k + 1``, where ``Phi`` maps
+the error to) and differences elsewhere.  Since ``A^s_{k+1} = C(x_{k+1})
+A_{k+1}`` and ``A_{k+1} = C(c_{k+1}) A^-_{k+1}`` (``c`` the filter's
+correction), the attitude part is the error vector of the composition ``C(x)
+C(c)``, computed from quaternions in CasADi (:func:`composed_error`), so the
+whole pass runs in CasADi's virtual machine
+(:func:`~solvers.filters.casadi_pass.accumulate`).  ``P^s_{k+1} <= P^-_{k+1}``
+makes ``P^s_k <= P_k``: the smoothed covariance never exceeds the filtered one.
+
+The pass knows only where the attitude block sits.  :func:`rts_smooth` runs it
+on the output epochs of :func:`solvers.filters.mekf.mekf` (the filter-based
+smoothing baseline; state ``[delta, delta_beta]``, ``a = 0:3``); the seed-003
+EKF's smoother (:func:`solvers.doa.eks.rts_smooth_ekf`, state ``[delta_omega,
+delta]``) with ``a = 3:6``.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
+from typing import Any
+
+import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from formulations.errors import InvalidObservationError
+from solvers.filters.casadi_pass import accumulate, lower_symmetric
 from solvers.filters.common import (
     EpochRecord,
     FilterOptions,
@@ -28,38 +51,145 @@ from solvers.filters.common import (
     filter_result,
 )
 
+Array = NDArray[np.float64]
+
+
+def _quaternion(error: Any) -> tuple[Any, Any]:
+    """Vector part and scalar of the (scalar-last) quaternion of ``C(error)``: MRPs
+    ``p = error / 4``, ``q = [2 p, 1 - |p|^2] / (1 + |p|^2)``."""
+    p = error / 4.0
+    norm2 = ca.dot(p, p)
+    return 2.0 * p / (1.0 + norm2), (1.0 - norm2) / (1.0 + norm2)
+
+
+def composed_error(outer: Any, inner: Any) -> Any:
+    """``error_vector(apply_error(outer, apply_error(inner, A)), A)`` in CasADi (``3 x 1``).
+
+    Four times the MRPs of ``C(outer) C(inner)``: the Hamilton product of the
+    two quaternions, the shadow set taken when its scalar is negative (as
+    scipy's ``as_mrp``).
+    """
+    v1, w1 = _quaternion(outer)
+    v2, w2 = _quaternion(inner)
+    vector = w1 * v2 + w2 * v1 + ca.cross(v1, v2)
+    scalar = w1 * w2 - ca.dot(v1, v2)
+    sign = ca.if_else(scalar < 0, -1.0, 1.0)
+    return 4.0 * sign * vector / (1.0 + sign * scalar)
+
+
+@lru_cache(maxsize=8)
+def _backward_function(size: int, attitude_start: int) -> ca.Function:
+    """``(x_next, P^s_next, C, P, P^-_next, c_next) -> (x, P^s)``: one RTS step back."""
+    offset = ca.SX.sym("offset", size)
+    smoothed = ca.SX.sym("smoothed", size, size)
+    gain = ca.SX.sym("gain", size, size)
+    filtered = ca.SX.sym("filtered", size, size)
+    predicted = ca.SX.sym("predicted", size, size)
+    correction = ca.SX.sym("correction", size)
+    block = slice(attitude_start, attitude_start + 3)
+    difference = offset + correction
+    difference[block] = composed_error(offset[block], correction[block])
+    covariance = filtered + gain @ (smoothed - predicted) @ gain.T
+    return ca.Function(
+        "rts_backward_step",
+        [offset, smoothed, gain, filtered, predicted, correction],
+        [ca.densify(gain @ difference), ca.densify(lower_symmetric(covariance))],
+        {"cse": True},
+    )
+
+
+def rts_backward(
+    filtered_covariance: ArrayLike,
+    predicted_covariance: ArrayLike,
+    transition: ArrayLike,
+    correction: ArrayLike,
+    attitude_start: int,
+) -> tuple[Array, Array]:
+    """The multiplicative RTS backward pass (module docstring) on arrays.
+
+    Args:
+        filtered_covariance: ``(N, n, n)`` ``P_k`` after epoch ``k``'s update.
+        predicted_covariance: ``(N, n, n)`` ``P^-_k`` before it (row 0 unused).
+        transition: ``(N - 1, n, n)``, ``transition[k]`` from epoch ``k`` to ``k + 1``.
+        correction: ``(N, n)`` filtered minus predicted state at each epoch:
+            the attitude error vector (:func:`~solvers.filters.common.error_vector`
+            of the filtered attitude relative to the predicted one) in the
+            attitude block, plain differences elsewhere (row 0 unused).
+        attitude_start: index of the three attitude-error components.
+
+    Returns:
+        ``(N, n)`` offsets of the smoothed state from the filtered one (zero at
+        the last epoch; apply the attitude block with
+        :func:`~solvers.filters.common.apply_error`) and the ``(N, n, n)``
+        smoothed covariances.
+    """
+    filtered_covariance = np.asarray(filtered_covariance, dtype=float)
+    predicted_covariance = np.asarray(predicted_covariance, dtype=float)
+    transition = np.asarray(transition, dtype=float)
+    correction = np.asarray(correction, dtype=float)
+    n, size = correction.shape
+    if (
+        filtered_covariance.shape != (n, size, size)
+        or predicted_covariance.shape != (n, size, size)
+        or transition.shape != (n - 1, size, size)
+    ):
+        raise InvalidObservationError("inconsistent shapes for the RTS pass")
+    # C_k^T = (P^-_{k+1})^-1 Phi_k P_k, all epochs at once
+    gain = np.linalg.solve(predicted_covariance[1:], transition @ filtered_covariance[:-1])
+    gain = np.swapaxes(gain, 1, 2)
+    backward = np.s_[::-1]
+    offsets, covariances = accumulate(
+        _backward_function(size, attitude_start),
+        2,
+        [np.zeros(size), filtered_covariance[-1]],
+        [
+            gain[backward],
+            filtered_covariance[:-1][backward],
+            predicted_covariance[1:][backward],
+            correction[1:][backward],
+        ],
+        n - 1,
+    )
+    return (
+        np.concatenate([offsets[backward, :, 0], np.zeros((1, size))]),
+        np.concatenate([covariances[backward], filtered_covariance[-1:]]),
+    )
+
 
 def rts_smooth(
     filtered: FilterResult, options: FilterOptions | None = None, method: str = "rts"
 ) -> FilterResult:
-    """Smoothed estimates at the filter's epochs (epochs after a divergence stay invalid)."""
+    """Smoothed estimates at the filter's epochs: :func:`rts_backward` up to the last
+    finite epoch (epochs after a divergence stay invalid)."""
     history = filtered.history
     if history is None:
         raise ValueError("the RTS pass needs a filter result with its history (an MEKF's)")
-    n = history.filtered_quaternion.shape[0]
-    record = EpochRecord(n)
+    record = EpochRecord(history.filtered_quaternion.shape[0])
     record.diagnostics = dict(filtered.solution.diagnostics)
     record.reason = np.where(filtered.solution.valid, "", filtered.solution.reason)
     finite = np.flatnonzero(np.isfinite(history.filtered_quaternion).all(axis=1))
     if finite.size == 0:
         return filter_result(method, record, options or FilterOptions())
-    last = finite[-1]
-    quaternion = history.filtered_quaternion.copy()
-    bias = history.filtered_bias.copy()
-    covariance = history.filtered_covariance.copy()
-    smoothed = Rotation.from_quat(quaternion[last])
-    for k in range(last - 1, -1, -1):
-        predicted = Rotation.from_quat(history.predicted_quaternion[k + 1])
-        p_pred = history.predicted_covariance[k + 1]
-        gain = np.linalg.solve(p_pred, history.transition[k + 1] @ covariance[k]).T
-        delta = np.concatenate(
-            [error_vector(smoothed, predicted), bias[k + 1] - history.predicted_bias[k + 1]]
-        )
-        correction = gain @ delta
-        smoothed = apply_error(correction[:3], Rotation.from_quat(quaternion[k]))
-        quaternion[k] = smoothed.as_quat()
-        bias[k] = bias[k] + correction[3:]
-        p = covariance[k] + gain @ (covariance[k + 1] - p_pred) @ gain.T
-        covariance[k] = 0.5 * (p + p.T)
-    record.quaternion, record.bias, record.covariance = quaternion, bias, covariance
+    end = finite[-1] + 1
+    after = Rotation.from_quat(history.filtered_quaternion[:end])
+    correction = np.concatenate(
+        [
+            error_vector(after, Rotation.from_quat(history.predicted_quaternion[:end])),
+            history.filtered_bias[:end] - history.predicted_bias[:end],
+        ],
+        axis=1,
+    )
+    offset, covariance = rts_backward(
+        history.filtered_covariance[:end],
+        history.predicted_covariance[:end],
+        history.transition[1:end],
+        correction,
+        attitude_start=0,
+    )
+    record.quaternion = history.filtered_quaternion.copy()
+    record.quaternion[: end - 1] = apply_error(offset[:-1, :3], after[:-1]).as_quat()
+    record.bias = history.filtered_bias.copy()
+    record.bias[:end] += offset[:, 3:]
+    record.covariance = history.filtered_covariance.copy()
+    record.covariance[:end] = covariance
     return filter_result(method, record, options or FilterOptions())
