@@ -21,8 +21,8 @@ run:
   (:func:`formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
   8-10) and :meth:`MusicEstimator.estimate_covariance`, against simulating the
   snapshots and :meth:`MusicEstimator.estimate` in chunks of
-  ``CHUNK_ELEMENTS`` samples (as ``experiments/doa_ground.py`` does); both
-  measured in the same run, with their ratio.
+  ``CHUNK_ELEMENTS`` samples (``experiments/doa_ground.py`` uses the direct
+  draw); both measured in the same run, with their ratio.
 """
 
 from __future__ import annotations

@@ -27,8 +27,11 @@ noise is drawn), and every estimator sees the same DOAs:
    model, same data; :mod:`solvers.doa.eks`).  The EKF and RTS rows carry
    ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
    (filter and smoother) linearised along the truth, with the DOA CRB at the
-   true DOAs of every visible station; it is the same for every trial of a
-   setting and computed once per worker.
+   true DOAs of every visible station, and ``crb_{x,y,z}_deg``, the same with
+   ``Q = 0``: the bound of the seed's problem itself, whose torque-free
+   dynamics the filter knows exactly (the truth has no process noise, so
+   errors below ``pbound`` are possible).  Both are the same for every trial
+   of a setting and computed once per worker.
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (:data:`solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
