@@ -304,6 +304,22 @@ def vector_information_function(slots: int) -> ca.Function:
     )
 
 
+def epoch_symbols(slots: int) -> tuple[ca.SX, ...]:
+    """CasADi symbols of one epoch with ``slots`` vectors: ``(omega, A, P, body, reference,
+    weight, h, orbit_turn, q)``, shaped as :func:`epoch_function` takes them."""
+    return (
+        ca.SX.sym("omega", 3),
+        ca.SX.sym("attitude", 3, 3),
+        ca.SX.sym("covariance", 6, 6),
+        ca.SX.sym("body", slots, 3),
+        ca.SX.sym("reference", slots, 3),
+        ca.SX.sym("weight", slots),
+        ca.SX.sym("h", 3),
+        ca.SX.sym("orbit_turn", 3, 3),
+        ca.SX.sym("q"),
+    )
+
+
 @lru_cache(maxsize=8)
 def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
     """One whole filter epoch on unit vectors: update, then predict (seed 003 eqs. 27-33).
@@ -313,15 +329,17 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     composed of :func:`vector_information_function`, :func:`update_function`
     and :func:`propagate_function`; ``step_angle = |omega+| dt``.
     """
-    rate = ca.SX.sym("omega", 3)
-    attitude = ca.SX.sym("attitude", 3, 3)
-    covariance = ca.SX.sym("covariance", 6, 6)
-    body = ca.SX.sym("body", slots, 3)
-    reference = ca.SX.sym("reference", slots, 3)
-    weight = ca.SX.sym("weight", slots)
-    momentum = ca.SX.sym("h", 3)
-    orbit_turn = ca.SX.sym("orbit_turn", 3, 3)
-    process_noise = ca.SX.sym("q")
+    (
+        rate,
+        attitude,
+        covariance,
+        body,
+        reference,
+        weight,
+        momentum,
+        orbit_turn,
+        process_noise,
+    ) = epoch_symbols(slots)
     information, residual, rows = vector_information_function(slots)(
         attitude, body, reference, weight
     )

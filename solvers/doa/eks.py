@@ -52,6 +52,7 @@ from solvers.doa.ekf import (
     INERTIA_SEED003,
     PROCESS_NOISE,
     EkfResult,
+    epoch_symbols,
     propagated_covariance,
     step_function,
     update_function,
@@ -95,15 +96,17 @@ def rts_smooth_ekf(result: EkfResult) -> EkfResult:
 def _bound_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
     """``(P^-, omega, A, body, reference, weight, h, orbit_turn, q) -> (P^-_next, P+, Phi)``:
     the EKF epoch's covariance recursion at a given state (no state update)."""
-    covariance = ca.SX.sym("covariance", 6, 6)
-    rate = ca.SX.sym("omega", 3)
-    attitude = ca.SX.sym("attitude", 3, 3)
-    body = ca.SX.sym("body", slots, 3)
-    reference = ca.SX.sym("reference", slots, 3)
-    weight = ca.SX.sym("weight", slots)
-    momentum = ca.SX.sym("h", 3)
-    orbit_turn = ca.SX.sym("orbit_turn", 3, 3)
-    process_noise = ca.SX.sym("q")
+    (
+        rate,
+        attitude,
+        covariance,
+        body,
+        reference,
+        weight,
+        momentum,
+        orbit_turn,
+        process_noise,
+    ) = epoch_symbols(slots)
     information = vector_information_function(slots)(attitude, body, reference, weight)[0]
     posterior = update_function()(rate, attitude, covariance, information, ca.SX.zeros(3))[2]
     transition = step_function(dt, inertia)(rate, attitude, momentum, orbit_turn)[2]
