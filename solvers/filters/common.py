@@ -28,9 +28,12 @@ Faults (issue 5, sec. 5), all counted in the result's diagnostics:
   flagged invalid (never a NaN attitude reported as valid);
 * a lost track: after ``max_rejected_epochs`` consecutive measurement epochs
   with at least as many gated observation blocks as used ones, epochs are
-  flagged until one is accepted and
-  the attitude covariance is inflated by ``recover_sigma^2 I`` to re-acquire
-  (counted as ``recoveries``).
+  flagged until one is accepted, the attitude covariance is inflated by
+  ``recover_sigma^2 I`` and the bias covariance by the prior's bias
+  covariance to re-acquire (counted as ``recoveries``): the updates that led
+  the attitude astray have corrupted the bias estimate too, and with its
+  covariance left small the filter would re-acquire the attitude at the next
+  accepted measurement and then drift off again with the wrong bias.
 """
 
 from __future__ import annotations
@@ -126,7 +129,8 @@ class FilterOptions:
             track until an observation is accepted again, and the attitude
             covariance is inflated by ``recover_sigma^2 I`` (repeatedly, every
             ``max_rejected_epochs`` such epochs) so that the filter can
-            re-acquire (:class:`TrackMonitor`).
+            re-acquire (:class:`TrackMonitor`; the bias covariance is inflated by
+            the prior's).
         recover_sigma: that inflation (rad).
     """
 
@@ -394,11 +398,13 @@ class TrackMonitor:
 
     Counts consecutive measurement epochs that were :func:`rejected_epoch`;
     at ``options.max_rejected_epochs`` the attitude covariance grows by
-    ``options.recover_sigma^2 I``, ``recoveries`` is set in the epoch's counts
-    and the count restarts.
+    ``options.recover_sigma^2 I`` and the bias covariance by
+    ``bias_covariance`` (the prior's), ``recoveries`` is set in the epoch's
+    counts and the count restarts.
     """
 
     options: FilterOptions
+    bias_covariance: Array
     run: int = 0
 
     def check(self, counts: dict[str, float] | None, covariance: Array) -> Array:
@@ -415,6 +421,7 @@ class TrackMonitor:
         counts["recoveries"] = 1.0
         inflated = covariance.copy()
         inflated[:3, :3] += self.options.recover_sigma**2 * np.eye(3)
+        inflated[3:, 3:] += self.bias_covariance
         return inflated
 
 

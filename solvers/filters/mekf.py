@@ -208,7 +208,7 @@ def mekf(
     transition = np.full((n, STATE_SIZE, STATE_SIZE), np.nan)
     attitude, bias = prior.attitude, np.asarray(prior.bias, dtype=float)
     covariance = np.asarray(prior.covariance, dtype=float)
-    monitor = TrackMonitor(options)
+    monitor = TrackMonitor(options, covariance[3:, 3:].copy())
     start = 0
     for k, (stop, measurement) in enumerate(zip(index, measurements, strict=True)):
         attitude, covariance, transition[k] = propagate(

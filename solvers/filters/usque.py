@@ -362,7 +362,7 @@ def usque(
     record = EpochRecord(index.size)
     attitude, bias = prior.attitude, np.asarray(prior.bias, dtype=float)
     covariance = np.asarray(prior.covariance, dtype=float)
-    monitor = TrackMonitor(options)
+    monitor = TrackMonitor(options, covariance[3:, 3:].copy())
     start = 0
     for k, (stop, measurement) in enumerate(zip(index, measurements, strict=True)):
         attitude, bias, covariance, repaired = propagate(
