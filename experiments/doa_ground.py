@@ -35,9 +35,16 @@ noise is drawn), and every estimator sees the same DOAs:
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (:data:`solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``filters`` (default ``mekf`` and ``fg_batch``), in the first
-   ``filter_trials`` trials of each setting only (they cost about 50x the
-   rest; :func:`experiments.sweep.seeding.trial_index`): the gyro-aided MEKF
+5. ``bls_seed003`` (:data:`~experiments.doa_report.BATCH_LS`), in the first
+   ``filter_trials`` trials of each setting
+   (:func:`experiments.sweep.seeding.trial_index`): the whole-pass batch
+   least squares over the seed's deterministic dynamics
+   (:mod:`solvers.doa.batch_ls`, ``Q = 0``), started from the lowest-``Q``
+   RTS pass at epoch 0; its ``pbound_*`` and ``crb_*`` are both the ``Q = 0``
+   smoother bound, its time includes the EKF and RTS passes it starts from.
+6. ``filters`` (default ``mekf`` and ``fg_batch``), in the first
+   ``filter_trials`` trials of each setting only (they cost about 25x the
+   rest): the gyro-aided MEKF
    and the GTSAM whole-pass smoother on the same unit vectors plus a
    MEMS-class gyro sampled at the epochs (``GYRO``; seed 003 has none), from
    the EKF's initial estimate and sigma (the same prior information as the
@@ -69,7 +76,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from experiments.doa_report import GYRO_FILTERS, ekf_method, report, rts_method
+from experiments.doa_report import BATCH_LS, GYRO_FILTERS, ekf_method, report, rts_method
 from experiments.experiment import Experiment, Setting
 from experiments.filtering import (
     GYRO_STREAM,
@@ -101,7 +108,9 @@ from formulations.doa_array import (
 )
 from formulations.doa_crb import stochastic_crb
 from formulations.doa_measurement import DoaMeasurement
+from formulations.errors import ConvergenceError, UnobservableError
 from formulations.gyro import MEMS_GYRO
+from solvers.doa.batch_ls import BatchLsResult, batch_least_squares
 from solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_vectors
 from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from solvers.doa.music import DoaEstimates, MusicEstimator
@@ -122,7 +131,8 @@ REJECTIONS = {"ambiguous": "ambiguous peak", "horizon": "source at the array hor
 LOW_PROCESS_NOISE = 1.0e-12
 """The ``Q`` per step with which our EKF reproduces seed 003's attitude RMSEs (docs/doa.md)."""
 FILTER_TRIALS = 4
-"""Trials per setting that also run the gyro-aided rows (about 50x the cost of the rest)."""
+"""Trials per setting that also run the batch least squares and the gyro-aided rows (about
+25x the cost of the rest)."""
 ALLOWED_FILTERS = ("mekf", "usque", "rts", "fg_online", "fg_batch")
 
 PARAMETERS: dict[str, Any] = {
@@ -200,6 +210,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     frames.append(_wahba_rows(geometry, vectors, row_epochs, common, setting))
     if trial_index(seed) < setting["filter_trials"]:
         lowest = passes[min(passes)][1]
+        frames.append(_batch_ls_rows(setting, geometry, vectors, row_epochs, common, lowest))
         frames += _gyro_rows(setting, seed, geometry, vectors, row_epochs, common, lowest)
     frames.append(pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]))
     return pd.concat(frames, ignore_index=True)
@@ -237,10 +248,11 @@ def _dynamics_passes(
 
 @dataclass(frozen=True)
 class DynamicsPass:
-    """An EKF or RTS pass: result, wall time (s), the posterior bound of its model and the
-    bound with ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)`` each."""
+    """An EKF, RTS or batch pass: result, wall time (s), the posterior bound of its model
+    and the bound with ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)``
+    each."""
 
-    result: EkfResult
+    result: EkfResult | BatchLsResult
     seconds: float
     bound: np.ndarray
     crb: np.ndarray
@@ -282,14 +294,51 @@ def _model_bound(
     return tuple(np.degrees(np.sqrt(np.diagonal(b, axis1=1, axis2=2)[:, 3:])) for b in bounds)
 
 
+def _batch_ls_rows(
+    setting: Setting,
+    geometry: DoaGroundGeometry,
+    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
+    rows: np.ndarray,
+    common: Mapping[str, Any],
+    start: DynamicsPass,
+) -> pd.DataFrame:
+    """Rows of the whole-pass batch least squares (module docstring, 4), started from the
+    lowest-``Q`` RTS pass at epoch 0; its bound is the ``Q = 0`` CRB, its time includes the
+    start's.  A pass that raises or does not converge gives invalid rows with the reason."""
+    began = time.perf_counter()
+    try:
+        result = batch_least_squares(
+            start.result.attitude[0],
+            start.result.rate[0],
+            *vectors,
+            geometry.orbit_turns(),
+            WHEEL_MOMENTUM,
+            setting["step_s"],
+        )
+    except (UnobservableError, ConvergenceError) as error:
+        return pd.DataFrame(
+            {
+                "method": BATCH_LS,
+                **common,
+                "valid": False,
+                "reason": f"{type(error).__name__}: {error}",
+                "runtime_s": start.seconds + time.perf_counter() - began,
+            }
+        )
+    run = DynamicsPass(result, start.seconds + time.perf_counter() - began, start.crb, start.crb)
+    return _dynamics_rows(BATCH_LS, run, geometry, rows, common, result.reason)
+
+
 def _dynamics_rows(
     method: str,
     run: DynamicsPass,
     geometry: DoaGroundGeometry,
     rows: np.ndarray,
     common: Mapping[str, Any],
+    reason: str = "",
 ) -> pd.DataFrame:
-    """Rows of an EKF or RTS pass: errors, rate errors, both bounds, wall time."""
+    """Rows of an EKF, RTS or batch pass: errors, rate errors, both bounds, wall time;
+    invalid with ``reason`` if one is given."""
     result = run.result
     solution = _solution(method, result.attitude[rows], result.covariance[rows, 3:, 3:])
     rate_error = np.degrees(result.rate[rows] - geometry.rate[rows])
@@ -301,8 +350,8 @@ def _dynamics_rows(
             **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
             **{f"pbound_{a}_deg": run.bound[rows, i] for i, a in enumerate("xyz")},
             **{f"crb_{a}_deg": run.crb[rows, i] for i, a in enumerate("xyz")},
-            "valid": True,
-            "reason": "",
+            "valid": not reason,
+            "reason": reason,
             "runtime_s": run.seconds,
         }
     )

@@ -14,8 +14,8 @@ Pooling:
   ``pbound_*`` (posterior bound of a pass) or ``bound_*`` (single-epoch CRB),
   and ``crb_*`` (the EKF's and RTS's bound with ``Q = 0``) likewise.
 * The smoother-versus-EKF table pools, per setting, only the trials in which
-  ``fg_batch`` ran (all trials if it did not run in that setting), the same
-  trials for every method of the table.
+  the :data:`SUBSET_METHODS` ran (all trials if none ran in that setting),
+  the same trials for every method of the table.
 * Runtimes: mean over passes (one ``runtime_s`` per trial and method).
 
 The convergence figure (seed 003 Figs. 6-7) draws the first trial of the
@@ -59,6 +59,10 @@ SEED003_TABLE2_SNR_DB = 0.0
 GYRO_FILTERS = ("mekf", "fg_batch")
 """Default ``filters``: the gyro-aided MEKF and the factor-graph smoother."""
 SMOOTHER = "fg_batch"
+BATCH_LS = "bls_seed003"
+"""Whole-pass batch least squares over the seed's dynamics (``Q = 0``)."""
+SUBSET_METHODS = (BATCH_LS, *GYRO_FILTERS)
+"""Methods that run only in the first ``filter_trials`` trials of a setting."""
 SMOOTHER_TARGET = 0.5
 """Issue target: a smoother's settled RMS at most half the seed's EKF's on the same data."""
 ATTITUDE_THRESHOLD_DEG = 0.5
@@ -88,11 +92,12 @@ def process_noises(parameters: Mapping[str, Any]) -> list[float]:
 
 def attitude_methods(rows: pd.DataFrame, parameters: Mapping[str, Any]) -> list[str]:
     """Attitude methods present in ``rows``: EKFs and RTSs in ``process_noise`` order,
-    ``wahba``, then the gyro-aided ``filters``."""
+    the batch least squares, ``wahba``, then the gyro-aided ``filters``."""
     qs = process_noises(parameters)
     candidates = [
         *map(ekf_method, qs),
         *map(rts_method, qs),
+        BATCH_LS,
         "wahba",
         *parameters.get("filters", GYRO_FILTERS),
     ]
@@ -153,11 +158,11 @@ def attitude_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
 
 
 def shared_trials(rows: pd.DataFrame) -> pd.DataFrame:
-    """The rows of the trials in which ``fg_batch`` ran, per setting (every trial of a
-    setting in which it never ran)."""
-    is_smoother = rows["method"] == SMOOTHER
-    in_trial = is_smoother.groupby([rows[k] for k in [*SETTING, "trial_index"]]).transform("any")
-    in_setting = is_smoother.groupby([rows[k] for k in SETTING]).transform("any")
+    """The rows of the trials in which the :data:`SUBSET_METHODS` ran, per setting (every
+    trial of a setting in which none ran)."""
+    in_subset = rows["method"].isin(SUBSET_METHODS)
+    in_trial = in_subset.groupby([rows[k] for k in [*SETTING, "trial_index"]]).transform("any")
+    in_setting = in_subset.groupby([rows[k] for k in SETTING]).transform("any")
     return rows[in_trial | ~in_setting]
 
 
@@ -204,7 +209,8 @@ def _figure(
     curves: Mapping[str, pd.DataFrame], qs: Sequence[float], title: str, path: Path
 ) -> None:
     """Top: Euler errors of the seed's-Q EKF and (dashed) the lowest-Q EKF, total errors of
-    the lowest-Q RTS and ``fg_batch``; bottom: the EKFs' rate errors."""
+    the lowest-Q RTS, ``fg_batch`` and the batch least squares; bottom: the EKFs' rate
+    errors."""
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
     drawn = dict.fromkeys([qs[0], min(qs)])  # the seed's Q, then the lowest if another
     for q, style in zip(drawn, ("-", "--"), strict=False):
@@ -227,7 +233,7 @@ def _figure(
                 color=color,
                 label=f"omega_{axis}, EKF Q={q:.0e}",
             )
-    for method, color in ((rts_method(min(qs)), "C3"), (SMOOTHER, "C4")):
+    for method, color in ((rts_method(min(qs)), "C3"), (SMOOTHER, "C4"), (BATCH_LS, "C5")):
         if method in curves:
             curve = curves[method]
             total = np.sqrt(_squared_norm(curve, "err"))
@@ -322,36 +328,39 @@ def _seed_table(
 
 
 def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[float]) -> list[str]:
-    """Total settled RMS of the smoothers against each EKF on the trials ``fg_batch`` ran in."""
+    """Total settled RMS of the smoothers against each EKF on the trials the
+    :data:`SUBSET_METHODS` ran in, with the ``Q = 0`` CRB."""
     shared = shared_trials(rows)
     table = attitude_table(shared, methods)
-    fg = [SMOOTHER] if SMOOTHER in methods else []
+    others = [m for m in (BATCH_LS, SMOOTHER) if m in methods]
     trials = shared.groupby(SETTING)["trial_index"].nunique()
     lines = [
         "",
         "## Smoother versus the seed's EKF on the same data",
         "",
         f"Issue target: a smoother's total settled RMS at most {SMOOTHER_TARGET:g} times the "
-        f"EKF's. Per setting only the trials in which `{SMOOTHER}` ran (all trials where it "
-        "did not), the same trials for every column; RTS is the smoother over the EKF of the "
-        "same Q. RMS in deg.",
+        f"EKF's. Per setting only the trials in which `{'`, `'.join(SUBSET_METHODS)}` ran (all "
+        "trials where none did), the same trials for every column; RTS is the smoother over "
+        f"the EKF of the same Q, `{BATCH_LS}` the whole-pass batch least squares over the "
+        "seed's dynamics (Q = 0), whose Cramer-Rao bound is the CRB column. RMS in deg.",
         "",
         "| SNR dB | L | trials | Q | EKF | "
-        + " | ".join(f"{label} | {label} / EKF" for label in ["RTS", *fg])
-        + " |",
-        "|---|---|---|---|---|" + "---|---|" * (1 + len(fg)),
+        + " | ".join(f"{label} | {label} / EKF" for label in ["RTS", *others])
+        + " | CRB (Q = 0) |",
+        "|---|---|---|---|---|" + "---|---|" * (1 + len(others)) + "---|",
     ]
     for (snr, snapshots), count in trials.items():
         for q in qs:
             ekf = _entry(table, (snr, snapshots, ekf_method(q)))["total_rmse_deg"]
+            crb = _entry(table, (snr, snapshots, ekf_method(q)))["crb_total_deg"]
             cells = []
-            for name in [rts_method(q), *fg]:
+            for name in [rts_method(q), *others]:
                 rms = _entry(table, (snr, snapshots, name))["total_rmse_deg"]
                 cells += [_f(rms), _verdict(rms / ekf)]
             lines.append(
                 f"| {snr:g} | {snapshots} | {count} | {q:.0e} | {_f(ekf)} | "
                 + " | ".join(cells)
-                + " |"
+                + f" | {_f(crb, '.4f')} |"
             )
     return lines
 
@@ -426,7 +435,8 @@ def report(ctx: ReportContext) -> str:
         "Cramer-Rao bound of the seed's problem itself (known deterministic dynamics, all "
         "DOAs up to the epoch for the EKF, of the pass for the RTS). Valid: share of settled "
         "rows with a solution; trials: trials with at least one.",
-        f"`mekf` and `{SMOOTHER}` (gyro-aided) run only in the first "
+        f"`{BATCH_LS}` (batch least squares over the seed's dynamics, Q = 0; its bound is "
+        "the CRB), `mekf` and `fg_batch` (gyro-aided) run only in the first "
         f"{_f(parameters.get('filter_trials'), '.0f')} trials of a setting.",
     ]
     lines += _seed_table(

@@ -6,7 +6,8 @@ Euler errors are ``(e, 2 e, 3 e)``; signs alternate over the rows):
 
 * ``ekf_seed003_q1e-09``: 0.3, 0.3, 1.2; ``ekf_seed003_q1e-12`` half of that;
 * each RTS 0.4 times its EKF's on the first two trials (same as the EKF's on the
-  third), ``fg_batch`` 0.18 and ``mekf`` 0.5;
+  third), ``fg_batch`` 0.18, ``mekf`` 0.5 and ``bls_seed003`` 0.03 (the last three
+  in the first two trials); the EKFs' ``crb_*`` 0.02 per axis;
 * ``wahba``: 2.0 on every other settled row, invalid (NaN) on the rest;
 * converging rows (t < 100 s) 10 deg, valid, which no RMSE may include.
 """
@@ -93,11 +94,13 @@ def _trial(trial: int, q_scales: Mapping[str, float], filters: bool) -> list[pd.
     ekf = EKF_ERROR[trial]
     rts_scale = 0.4 if trial < FILTER_TRIALS else 1.0
     frames = [_wahba()]
+    crb = {f"crb_{a}_deg": 0.02 for a in "xyz"}
     for q, scale in q_scales.items():
         extra = _filter_extra(rate, 0.2, runtime=trial + 1.0)
-        frames.append(_frame(f"ekf_seed003_q{q}", scale * ekf, **extra))
+        frames.append(_frame(f"ekf_seed003_q{q}", scale * ekf, **extra, **crb))
         frames.append(_frame(f"rts_seed003_q{q}", rts_scale * scale * ekf, **extra))
     if filters:
+        frames.append(_frame("bls_seed003", 0.03, **_filter_extra(rate, 0.02, runtime=3.0)))
         frames.append(_frame("mekf", 0.5, **_filter_extra(np.nan, 0.1, runtime=5.0)))
         frames.append(_frame("fg_batch", 0.18, **_filter_extra(np.nan, 0.1, 10.0 * (trial + 1))))
     music = {"doa_count": 100, "doa_crb_theta_deg2": 0.01, "doa_crb_phi_deg2": 0.04}
@@ -135,6 +138,7 @@ def test_attitude_rmses_pool_the_settled_valid_rows_of_all_trials() -> None:
         "ekf_seed003_q1e-12",
         "rts_seed003_q1e-09",
         "rts_seed003_q1e-12",
+        "bls_seed003",
         "wahba",
         "mekf",
         "fg_batch",
@@ -172,8 +176,15 @@ def test_smoother_ratios_use_only_the_trials_fg_batch_ran_in(tmp_path: Path) -> 
     assert set(shared_trials(rows)["trial_index"]) == set(range(FILTER_TRIALS))
     text = _report(rows, tmp_path)
     # over all three trials RTS / EKF would be 0.56 (1e-09), not 0.40
-    assert "| 0 | 100 | 2 | 1e-09 | 0.300 | 0.120 | 0.40 (met) | 0.180 | 0.60 (missed) |" in text
-    assert "| 0 | 10 | 2 | 1e-12 | 0.150 | 0.060 | 0.40 (met) | 0.180 | 1.20 (missed) |" in text
+    crb = f"{0.02 * np.sqrt(3.0):.4f}"
+    assert (
+        "| 0 | 100 | 2 | 1e-09 | 0.300 | 0.120 | 0.40 (met) | 0.030 | 0.10 (met) | 0.180 "
+        f"| 0.60 (missed) | {crb} |" in text
+    )
+    assert (
+        "| 0 | 10 | 2 | 1e-12 | 0.150 | 0.060 | 0.40 (met) | 0.030 | 0.20 (met) | 0.180 "
+        f"| 1.20 (missed) | {crb} |" in text
+    )
 
 
 def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
@@ -216,11 +227,12 @@ def test_quick_run_subset_without_fg_batch_and_parameters(tmp_path: Path) -> Non
     rows = _rows(q_scales={"1e-09": 1.0}, filters=False)
     parameters = {"settle_s": SETTLE_S, "row_step_s": ROW_STEP_S}
     text = _report(rows, tmp_path, parameters)
-    assert "| SNR dB | L | trials | Q | EKF | RTS | RTS / EKF |" in text
+    assert "| SNR dB | L | trials | Q | EKF | RTS | RTS / EKF | CRB (Q = 0) |" in text
     pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))
     rts = np.sqrt(np.mean(np.square([0.12, 0.12, 1.2])))
     assert (
-        f"| 0 | 100 | 3 | 1e-09 | {pooled:.3f} | {rts:.3f} | {rts / pooled:.2f} (missed) |" in text
+        f"| 0 | 100 | 3 | 1e-09 | {pooled:.3f} | {rts:.3f} | {rts / pooled:.2f} (missed) | "
+        f"{0.02 * np.sqrt(3.0):.4f} |" in text
     )
     assert "| mekf |" not in text and "| fg_batch |" not in text
     assert (tmp_path / "doa_convergence.png").exists()

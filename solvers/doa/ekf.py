@@ -257,7 +257,7 @@ def update_function() -> ca.Function:
     )
 
 
-def _geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
+def geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
     """The geodesic innovation of one vector (``VectorMeasurement.innovation``,
     :mod:`formulations.attitude_measurement`) in CasADi, and whether it is defined
     (not exactly antipodal)."""
@@ -271,7 +271,7 @@ def _geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
 
 @lru_cache(maxsize=8)
 def vector_information_function(slots: int) -> ca.Function:
-    """``(A, body, reference, weight) -> (M, z, rows)`` of up to ``slots`` unit vectors.
+    """``(A, body, reference, weight) -> (M, z, rows, cost)`` of up to ``slots`` unit vectors.
 
     ``body`` and ``reference`` are ``slots x 3`` (seed 003 eqs. 12, 17),
     ``weight`` the ``slots`` inverse variances ``1 / sigma^2`` of ``R_W =
@@ -280,7 +280,8 @@ def vector_information_function(slots: int) -> ca.Function:
     (:func:`~formulations.attitude_measurement.body_vectors_model`, eqs. 30-33),
     the innovation its geodesic one; a vector with weight zero or an exactly
     antipodal innovation adds nothing.  ``rows`` counts three per vector used,
-    as the measurement's rows.
+    as the measurement's rows; ``cost = sum w |nu|^2`` is the weighted squared
+    innovation (twice the negative log-likelihood up to a constant).
     """
     attitude = ca.SX.sym("attitude", 3, 3)
     body = ca.SX.sym("body", slots, 3)
@@ -290,17 +291,19 @@ def vector_information_function(slots: int) -> ca.Function:
         attitude, reference
     )
     information, residual, rows = ca.SX.zeros(3, 3), ca.SX.zeros(3), ca.SX.zeros(1)
+    cost = ca.SX.zeros(1)
     for i in range(slots):
         h, j = predicted[3 * i : 3 * i + 3], jacobian[3 * i : 3 * i + 3, :]
-        innovation, defined = _geodesic_innovation(body[i, :].T, h)
+        innovation, defined = geodesic_innovation(body[i, :].T, h)
         used = ca.if_else(defined, weight[i], 0.0)
         information += used * (j.T @ j)
         residual += used * (j.T @ innovation)
         rows += 3.0 * (used > 0)
+        cost += used * ca.dot(innovation, innovation)
     return ca.Function(
         "doa_vector_information",
         [attitude, body, reference, weight],
-        [information, residual, rows],
+        [information, residual, rows, cost],
     )
 
 
@@ -340,7 +343,7 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
         orbit_turn,
         process_noise,
     ) = epoch_symbols(slots)
-    information, residual, rows = vector_information_function(slots)(
+    information, residual, rows, _ = vector_information_function(slots)(
         attitude, body, reference, weight
     )
     filtered = update_function()(rate, attitude, covariance, information, residual)
@@ -395,7 +398,7 @@ class EkfResult:
     transition: Array
 
 
-def _check_lengths(n: int, orbit_turns: Rotation, wheel_momentum: ArrayLike) -> Array:
+def check_lengths(n: int, orbit_turns: Rotation, wheel_momentum: ArrayLike) -> Array:
     """The ``(n, 3)`` wheel momentum after checking the orbit turns' count."""
     if n < 1:
         raise InvalidObservationError("need at least one epoch")
@@ -407,7 +410,7 @@ def _check_lengths(n: int, orbit_turns: Rotation, wheel_momentum: ArrayLike) -> 
         raise InvalidObservationError("wheel momentum must be (3,) or (N, 3)") from None
 
 
-def _check_steps(rate: Array, dt: float, first: int = 0) -> None:
+def check_steps(rate: Array, dt: float, first: int = 0) -> None:
     """Raise at the first of the ``(k, 3)`` rates (epochs ``first``, ``first + 1``, ...)
     that turns more than :data:`MAX_STEP_ANGLE` in a step (or is not finite)."""
     bad = np.flatnonzero(~(np.linalg.norm(rate, axis=-1) * dt <= MAX_STEP_ANGLE))
@@ -461,7 +464,7 @@ def run_ekf(
         ConvergenceError: an estimated rate turns more than :data:`MAX_STEP_ANGLE` per step.
     """
     n = len(measurements)
-    momentum = _check_lengths(n, orbit_turns, wheel_momentum)
+    momentum = check_lengths(n, orbit_turns, wheel_momentum)
     propagate = propagate_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()))
     update = update_function()
     turns = orbit_turns.as_matrix().reshape(-1, 3, 3)
@@ -475,7 +478,7 @@ def run_ekf(
         filtered.append(state)
         if k == n - 1:
             break
-        _check_steps(np.reshape(state[0], (1, 3)), dt, k)
+        check_steps(np.reshape(state[0], (1, 3)), dt, k)
         *state, transition = (
             x.full() for x in propagate(*state, momentum[k], turns[k], process_noise)
         )
@@ -603,14 +606,14 @@ def run_ekf_vectors(
     """
     body, reference, weight = vector_arrays(body, reference, sigma)
     n, slots = weight.shape
-    momentum = _check_lengths(n, orbit_turns, wheel_momentum)
+    momentum = check_lengths(n, orbit_turns, wheel_momentum)
     turns = np.concatenate([orbit_turns.as_matrix().reshape(-1, 3, 3), np.eye(3)[None]])
     epoch = epoch_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()), slots)
     initial = [prior.rate, prior.attitude.as_matrix(), prior.covariance]
     outputs = accumulate(
         epoch, 3, initial, [body, reference, weight, momentum, turns, process_noise], n
     )
-    _check_steps(outputs[3][:-1, :, 0], dt)
+    check_steps(outputs[3][:-1, :, 0], dt)
     return _result(
         prior,
         outputs[3:6],

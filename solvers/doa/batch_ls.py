@@ -1,0 +1,271 @@
+"""Whole-pass batch least squares over seed 003's deterministic dynamics (``Q = 0``).
+
+The truth of seed 003's problem is torque free with known inertia, wheel
+momentum and orbit (sec. 4.2, eqs. 23-25), so the whole pass is fixed by the
+state at epoch 0, ``x_0 = [omega_bi, C_bo]``.  Its maximum-likelihood
+estimate minimises the weighted squared innovations of every unit vector of
+the pass (eqs. 12, 17, 22, 30-33)::
+
+    J(x_0) = sum_k sum_i w_ki |nu_ki(x_k(x_0))|^2,   x_{k+1} = f(x_k),
+
+with ``f`` the EKF's step map (:func:`solvers.doa.ekf.step_function`, eq. 27)
+and ``nu`` the geodesic innovation of the filters.  The Cramer-Rao bound of
+this problem is the ``crb_*`` column of experiment ``doa-ground`` (the EKF's
+posterior bound with ``Q = 0``, :func:`solvers.doa.eks.posterior_bound_ekf`),
+so this estimator shows how much of the gap between the seed's EKF and the
+bound an estimator can close.
+
+Gauss-Newton with Levenberg-Marquardt damping on the error state ``delta_0 =
+[delta_omega, delta]`` of epoch 0 (``A_true = C(delta) A``, the EKF's
+convention).  One pass (:func:`pass_function`, run by
+:func:`~solvers.filters.casadi_pass.accumulate`) propagates the trajectory
+and the sensitivity ``S_k = d delta_k / d delta_0`` (``S_{k+1} = Phi_k S_k``,
+``Phi_k`` the step's AD transition matrix, eq. 28) and sums the normal
+equations ``N = sum S_k^T E M_k E^T S_k``, ``g = sum S_k^T E z_k`` and the
+cost ``J``, with ``M = J^T R^-1 J`` and ``z = J^T R^-1 nu`` of the epoch's
+vectors (:func:`~solvers.doa.ekf.vector_information_function`) and ``E``
+selecting the attitude block.  The step solves ``(N + lambda diag N) delta_0
+= g``; it is accepted if the next pass's cost is lower (then ``lambda``
+shrinks tenfold), else refused (``lambda`` grows tenfold).  Converged when the
+accepted step's Mahalanobis length ``sqrt(delta_0^T N delta_0)`` is below
+``tolerance`` (the step is a negligible fraction of the estimate's standard
+deviation); such a step is taken without the cost test, which rounding
+decides at the minimum.  A step whose trajectory turns faster than the EKF's
+step limit is refused like one that raises the cost.  The covariance of the
+estimate at epoch ``k`` is ``S_k N^-1 S_k^T`` at the solution: the
+Cramer-Rao bound evaluated at the estimate.
+
+No prior enters: the pass's information dwarfs any prior (the ``crb_*``
+column's 60 deg, 0.5 deg/s prior changes it by less than 1e-4 relative), and
+the start only has to lie in the basin of the minimum (from the RTS pass over
+the EKF in ``doa-ground``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from formulations.attitude_model import increment_matrix
+from formulations.errors import ConvergenceError, UnobservableError
+from solvers.doa.ekf import (
+    INERTIA_SEED003,
+    check_lengths,
+    check_steps,
+    epoch_symbols,
+    step_function,
+    vector_arrays,
+    vector_information_function,
+)
+from solvers.filters.casadi_pass import accumulate
+
+Array = NDArray[np.float64]
+
+MAX_CONDITION = 1e14
+"""Largest condition number of the normal matrix ``N`` (scaled to unit diagonal) for
+which the initial state counts as observable."""
+
+
+@dataclass(frozen=True)
+class BatchLsResult:
+    """The whole-pass estimate (module docstring).
+
+    Attributes:
+        attitude: ``N`` estimates of ``C_bo`` (the trajectory from the estimated ``x_0``).
+        rate: ``(N, 3)`` estimates of ``omega_bi`` (rad/s).
+        covariance: ``(N, 6, 6)`` of ``[delta_omega, delta]``, ``S_k N^-1 S_k^T``.
+        cost: the final ``J`` (weighted squared innovations).
+        rows: number of vector components (3 per vector) in ``J``.
+        iterations: passes run (each one propagation of the whole trajectory).
+        converged: whether the last accepted step met the tolerance.
+        reason: empty if converged, else why not.
+    """
+
+    attitude: Rotation
+    rate: Array
+    covariance: Array
+    cost: float
+    rows: int
+    iterations: int
+    converged: bool
+    reason: str
+
+
+@lru_cache(maxsize=8)
+def pass_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
+    """One epoch of a Gauss-Newton pass (module docstring).
+
+    ``(omega, A, S, N, g, J, body, reference, weight, h, orbit_turn) ->
+    (omega_next, A_next, S_next, N, g, J, rows)``: the epoch's vectors are
+    added to the normal equations and the cost at ``(omega, A)``, then the
+    state and the sensitivity ``S`` are stepped to the next epoch.
+    """
+    rate, attitude, _, body, reference, weight, momentum, orbit_turn, _ = epoch_symbols(slots)
+    sensitivity = ca.SX.sym("sensitivity", 6, 6)
+    normal = ca.SX.sym("normal", 6, 6)
+    gradient = ca.SX.sym("gradient", 6)
+    cost = ca.SX.sym("cost")
+    information, residual, rows, epoch_cost = vector_information_function(slots)(
+        attitude, body, reference, weight
+    )
+    attitude_rows = sensitivity[3:, :]
+    rate_next, attitude_next, transition = step_function(dt, inertia)(
+        rate, attitude, momentum, orbit_turn
+    )
+    return ca.Function(
+        "doa_batch_ls_epoch",
+        [
+            rate,
+            attitude,
+            sensitivity,
+            normal,
+            gradient,
+            cost,
+            body,
+            reference,
+            weight,
+            momentum,
+            orbit_turn,
+        ],
+        [
+            ca.densify(x)
+            for x in (
+                rate_next,
+                attitude_next,
+                transition @ sensitivity,
+                normal + attitude_rows.T @ information @ attitude_rows,
+                gradient + attitude_rows.T @ residual,
+                cost + epoch_cost,
+                rows,
+            )
+        ],
+        {"cse": True},
+    )
+
+
+@dataclass(frozen=True)
+class _Pass:
+    """A Gauss-Newton pass from one initial state: trajectory, sensitivities, sums."""
+
+    rate: Array
+    attitude: Array
+    sensitivity: Array
+    normal: Array
+    gradient: Array
+    cost: float
+    rows: int
+
+
+def batch_least_squares(
+    initial_attitude: Rotation,
+    initial_rate: ArrayLike,
+    body: ArrayLike,
+    reference: ArrayLike,
+    sigma: ArrayLike,
+    orbit_turns: Rotation,
+    wheel_momentum: ArrayLike,
+    dt: float,
+    inertia: ArrayLike = INERTIA_SEED003,
+    tolerance: float = 1e-6,
+    max_iterations: int = 20,
+) -> BatchLsResult:
+    """Whole-pass least-squares estimate of the seed-003 dynamics' initial state.
+
+    Args:
+        initial_attitude, initial_rate: the start at epoch 0 (``C_bo``,
+            ``omega_bi`` in rad/s), in the basin of the minimum.
+        body, reference, sigma: unit vectors as for
+            :func:`~solvers.doa.ekf.run_ekf_vectors` (``(N, S, 3)``, ``(N, S, 3)``,
+            ``(N, S)``; NaN body rows absent).
+        orbit_turns: ``N - 1`` rotations ``O_{k+1} O_k^T`` of the orbit frame.
+        wheel_momentum: ``(3,)`` or ``(N, 3)`` (N m s, body).
+        dt: step (s).
+        inertia: ``3 x 3`` (kg m^2, eq. 25).
+        tolerance: Mahalanobis length of the last step at convergence.
+        max_iterations: passes before giving up (the result is then flagged).
+
+    Raises:
+        InvalidObservationError: inconsistent shapes or bad sigmas.
+        UnobservableError: the vectors do not determine the initial state
+            (normal matrix singular to :data:`MAX_CONDITION`).
+        ConvergenceError: the start's trajectory turns more than
+            :data:`~solvers.doa.ekf.MAX_STEP_ANGLE` per step.
+    """
+    body, reference, weight = vector_arrays(body, reference, sigma)
+    n, slots = weight.shape
+    momentum = check_lengths(n, orbit_turns, wheel_momentum)
+    turns = np.concatenate([orbit_turns.as_matrix().reshape(-1, 3, 3), np.eye(3)[None]])
+    epoch = pass_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()), slots)
+
+    def run(rate: Array, attitude: Array) -> _Pass:
+        outputs = accumulate(
+            epoch,
+            6,
+            [rate, attitude, np.eye(6), np.zeros((6, 6)), np.zeros(6), 0.0],
+            [body, reference, weight, momentum, turns],
+            n,
+        )
+        rates = np.concatenate([[rate], outputs[0][:-1, :, 0]])
+        check_steps(rates, dt)
+        return _Pass(
+            rate=rates,
+            attitude=np.concatenate([[attitude], outputs[1][:-1]]),
+            sensitivity=np.concatenate([[np.eye(6)], outputs[2][:-1]]),
+            normal=outputs[3][-1],
+            gradient=outputs[4][-1, :, 0],
+            cost=float(outputs[5][-1, 0, 0]),
+            rows=int(np.rint(outputs[6][:, 0, 0].sum())),
+        )
+
+    current = run(np.asarray(initial_rate, dtype=float).reshape(3), initial_attitude.as_matrix())
+    _check_observable(current.normal)
+    damping, iterations, converged = 1e-3, 1, False
+    while iterations < max_iterations:
+        normal = current.normal
+        step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), current.gradient)
+        final = bool(np.sqrt(step @ normal @ step) < tolerance)
+        try:
+            candidate = run(
+                current.rate[0] + step[:3],
+                np.asarray(increment_matrix(step[3:])) @ current.attitude[0],
+            )
+        except ConvergenceError:  # the step spins the body up beyond the step limit
+            candidate = None
+        iterations += 1
+        if candidate is not None and (final or candidate.cost <= current.cost):
+            # a negligible step is taken without the cost test (rounding decides it)
+            current, damping, converged = candidate, damping / 10.0, final
+            if final:
+                break
+        else:
+            damping *= 10.0
+    _check_observable(current.normal)
+    spread = np.linalg.inv(current.normal)
+    covariance = current.sensitivity @ spread @ np.swapaxes(current.sensitivity, 1, 2)
+    return BatchLsResult(
+        attitude=Rotation.from_matrix(current.attitude),
+        rate=current.rate,
+        covariance=0.5 * (covariance + np.swapaxes(covariance, 1, 2)),
+        cost=current.cost,
+        rows=current.rows,
+        iterations=iterations,
+        converged=converged,
+        reason="" if converged else f"not converged in {max_iterations} passes",
+    )
+
+
+def _check_observable(normal: Array) -> None:
+    """Raise :class:`UnobservableError` unless ``normal`` is well conditioned."""
+    scale = np.sqrt(np.diag(normal))
+    if not np.all(scale > 0.0):
+        raise UnobservableError("the vectors do not determine the initial state")
+    condition = np.linalg.cond(normal / np.outer(scale, scale))
+    if not condition < MAX_CONDITION:
+        raise UnobservableError(
+            f"the vectors do not determine the initial state (condition {condition:.3g})"
+        )
