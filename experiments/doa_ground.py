@@ -80,12 +80,12 @@ from experiments.doa_report import BATCH_LS, GYRO_FILTERS, ekf_method, report, r
 from experiments.experiment import Experiment, Setting
 from experiments.filtering import (
     GYRO_STREAM,
+    VECTOR_FILTERS,
     GyroTruth,
     bound_columns,
     child_rng,
     in_orbit_frame,
-    run_filter,
-    run_smoother,
+    run_filters,
     simulate_filter_inputs,
 )
 from experiments.metrics import error_columns
@@ -116,7 +116,7 @@ from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from solvers.doa.music import DoaEstimates, MusicEstimator
 from solvers.filters.common import FilterPrior
 from solvers.result import BatchSolution
-from solvers.smoother.batch import SmootherOptions, single_frame_initial
+from solvers.smoother.batch import single_frame_initial
 from solvers.wahba import WAHBA_SOLVERS
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
@@ -133,7 +133,6 @@ LOW_PROCESS_NOISE = 1.0e-12
 FILTER_TRIALS = 4
 """Trials per setting that also run the batch least squares and the gyro-aided rows (about
 25x the cost of the rest)."""
-ALLOWED_FILTERS = ("mekf", "usque", "rts", "fg_online", "fg_batch")
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": DURATION_S,
@@ -160,9 +159,9 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
     """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2."""
     pairs = [(float(s), int(parameters["table1_snapshots"])) for s in parameters["table1_snr_db"]]
     pairs += [(float(parameters["table2_snr_db"]), int(n)) for n in parameters["table2_snapshots"]]
-    unknown = sorted(set(parameters["filters"]) - set(ALLOWED_FILTERS))
+    unknown = sorted(set(parameters["filters"]) - set(VECTOR_FILTERS))
     if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {list(ALLOWED_FILTERS)}")
+        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
     if not parameters["process_noise"] or min(parameters["process_noise"]) <= 0.0:
         raise ValueError("process_noise must be a non-empty list of positive numbers")
     if any(n < 1 for _, n in pairs):
@@ -396,22 +395,14 @@ def _gyro_rows(
         VectorMeasurement(*(v[k] for v in vectors)) if accepted[k] else None
         for k in range(geometry.t.size)
     ]
-    runs = {}
-    for kind in setting["filters"]:
-        if kind == "fg_batch":
-            smoothed, seconds = start.result, start.seconds
-            initial = single_frame_initial(
-                _solution(
-                    kind, smoothed.attitude * geometry.eci_to_orbit, smoothed.covariance[:, 3:, 3:]
-                ),
-                inputs.prior,
-            )
-            result, own = run_smoother(
-                inputs, truth, measurements, kind, SmootherOptions(), initial
-            )
-            runs[kind] = (result, seconds + own)
-        else:
-            runs[kind] = run_filter(kind, inputs, truth, measurements, kind)
+    smoothed = start.result
+    first = single_frame_initial(
+        _solution("rts", smoothed.attitude * geometry.eci_to_orbit, smoothed.covariance[:, 3:, 3:]),
+        inputs.prior,
+    )
+    runs = run_filters(
+        setting["filters"], inputs, truth, measurements, initial=(first, start.seconds)
+    )
     bound = {k: v[rows] for k, v in bound_columns(runs, inputs, truth, measurements).items()}
     frames = []
     for method, (result, seconds) in runs.items():

@@ -177,26 +177,29 @@ def run_filters(
     measurements: Sequence[AttitudeMeasurement | None],
     suffix: str = "",
     offset_sigma: float = OFFSET_PRIOR_SIGMA_DB,
+    initial: tuple[FilterResult, float] | None = None,
 ) -> dict[str, tuple[FilterResult, float]]:
     """Each filter kind's result and wall time (s), methods named ``kind + suffix``
     (smoother kinds keep their names).
 
     The RTS pass smooths the MEKF run (run once even when both are asked for);
-    its time includes the MEKF's.  The batch smoothers start from the online
-    smoother's causal estimates when ``fg_online`` is asked for (issue 6: an
-    online pass followed by a batch solve), else from the MEKF and RTS passes;
-    their times include that initialisation's.  ``fg_batch_offsets`` estimates
-    one offset per transmitter with prior ``N(0, offset_sigma^2)``.
+    its time includes the MEKF's.  The batch smoothers start from ``initial`` (a
+    result and the seconds it took) if given, else from the online smoother's
+    causal estimates when ``fg_online`` is asked for (issue 6: an online pass
+    followed by a batch solve), else from the MEKF and RTS passes; their times
+    include that initialisation's.  ``fg_batch_offsets`` estimates one offset
+    per transmitter with prior ``N(0, offset_sigma^2)``.
     """
     unknown = sorted(set(kinds) - set(FILTERS))
     if unknown:
         raise ValueError(f"unknown filter kinds {unknown}; known: {FILTERS}")
     wanted = set(kinds)
     batch = {"fg_batch", "fg_batch_offsets"} & wanted
+    from_rts = bool(batch) and initial is None and "fg_online" not in wanted
     out: dict[str, tuple[FilterResult, float]] = {}
-    if {"mekf", "rts"} & wanted or (batch and "fg_online" not in wanted):
+    if {"mekf", "rts"} & wanted or from_rts:
         out["mekf"] = run_filter("mekf", inputs, truth, measurements, method_name("mekf", suffix))
-    if "rts" in wanted or (batch and "fg_online" not in wanted):
+    if "rts" in wanted or from_rts:
         filtered, seconds = out["mekf"]
         start = time.perf_counter()
         smoothed = rts_smooth(filtered, method=method_name("rts", suffix))
@@ -208,7 +211,7 @@ def run_filters(
     if "fg_online" in wanted:
         out["fg_online"] = run_filter("fg_online", inputs, truth, measurements, "fg_online")
     for kind in sorted(batch):
-        start_from = out["fg_online" if "fg_online" in wanted else "rts"]
+        start_from = initial or out["fg_online" if "fg_online" in wanted else "rts"]
         options = SmootherOptions(offset_sigma=offset_sigma if kind == "fg_batch_offsets" else None)
         result, seconds = run_smoother(inputs, truth, measurements, kind, options, start_from[0])
         out[kind] = (result, start_from[1] + seconds)
