@@ -1,5 +1,5 @@
-"""Report of ``doa-ground``: seed 003 Tables 1 and 2 beside ours, the smoother target,
-runtimes and convergence.
+"""Report of ``doa-ground``: seed 003 Tables 1 and 2 beside ours, a one-line-per-setting
+summary, the smoother target, runtimes and convergence.
 
 Pooling:
 
@@ -327,6 +327,58 @@ def _seed_table(
     return lines
 
 
+def _summary_lines(
+    settings: Sequence[tuple[float, int]],
+    doa: pd.DataFrame,
+    attitude: pd.DataFrame,
+    qs: Sequence[float],
+) -> list[str]:
+    """One line per setting: the DOA RMSEs against the CRB, the EKFs' Euler RMSEs at the
+    seed's and the lowest ``Q`` (the seed's values beside the lowest), the lowest-``Q``
+    RTS, the batch least squares and the ``Q = 0`` CRB (totals)."""
+    seed_q, low = qs[0], min(qs)
+    lines = [
+        "",
+        "## Summary",
+        "",
+        "DOA RMSE / RMS CRB (deg) and the share of estimates accepted; settled attitude RMSEs "
+        "(deg): the EKFs' yaw, roll, pitch (seed 003 in brackets), the total RMS of the RTS "
+        f"pass and of `{BATCH_LS}` (in the trials it ran in), and the total of the CRB "
+        "(Q = 0) of the EKF rows.",
+        "",
+        "| SNR dB | L | theta / CRB (seed) | phi / CRB (seed) | accepted "
+        f"| EKF Q = {seed_q:.0e}: yaw, roll, pitch "
+        + (f"| EKF Q = {low:.0e}: yaw, roll, pitch (seed) " if low != seed_q else "")
+        + f"| RTS Q = {low:.0e} | {BATCH_LS} | CRB (Q = 0) |",
+        "|---|---|---|---|---|---|" + ("---|" if low != seed_q else "") + "---|---|---|",
+    ]
+    for snr, snapshots in settings:
+        seed = SEED003_TABLES.get((snr, snapshots), (np.nan,) * 5)
+        d = _entry(doa, (snr, snapshots))
+        euler = {
+            q: ", ".join(
+                _f(_entry(attitude, (snr, snapshots, ekf_method(q)))[f"{n}_rmse_deg"])
+                for n in EULER
+            )
+            for q in (seed_q, low)
+        }
+        cells = [
+            f"{_f(d['theta_rmse_deg'])} / {_f(d['crb_theta_deg'])} ({_f(seed[0])})",
+            f"{_f(d['phi_rmse_deg'])} / {_f(d['crb_phi_deg'])} ({_f(seed[1])})",
+            _f(d["accepted"]),
+            euler[seed_q],
+        ]
+        if low != seed_q:
+            cells.append(f"{euler[low]} ({', '.join(map(_f, seed[2:]))})")
+        cells += [
+            _f(_entry(attitude, (snr, snapshots, rts_method(low)))["total_rmse_deg"]),
+            _f(_entry(attitude, (snr, snapshots, BATCH_LS))["total_rmse_deg"], ".4f"),
+            _f(_entry(attitude, (snr, snapshots, ekf_method(seed_q)))["crb_total_deg"], ".4f"),
+        ]
+        lines.append(f"| {snr:g} | {snapshots} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[float]) -> list[str]:
     """Total settled RMS of the smoothers against each EKF on the trials the
     :data:`SUBSET_METHODS` ran in, with the ``Q = 0`` CRB."""
@@ -465,6 +517,8 @@ def report(ctx: ReportContext) -> str:
         attitude,
         methods,
     )
+    ordered = [(float(a), int(b)) for a, b in settings.sort_values(SETTING).to_numpy()]
+    lines += _summary_lines(ordered, doa, attitude, qs)
     lines += _smoother_lines(ctx.rows, methods, qs)
     lines += _runtime_lines(ctx.rows, methods)
     lines += _convergence_lines(ctx.rows, methods, qs, ctx.out_dir)

@@ -187,6 +187,23 @@ def test_smoother_ratios_use_only_the_trials_fg_batch_ran_in(tmp_path: Path) -> 
     )
 
 
+def test_summary_has_one_line_per_setting(tmp_path: Path) -> None:
+    """EKF Euler RMSEs at both Q (the seed's beside the lower), the RTS and batch
+    least-squares totals and the EKF's CRB total."""
+    text = _report(_rows(), tmp_path)
+    pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))
+    rts = 0.5 * np.sqrt(np.mean(np.square([0.12, 0.12, 1.2])))
+    euler = ", ".join(f"{k * pooled:.3f}" for k in (1, 2, 3))
+    low = ", ".join(f"{0.5 * k * pooled:.3f}" for k in (1, 2, 3))
+    doa = "| 1.458 / 0.100 (0.315) | 2.000 / 0.200 (0.308) | 0.667 "
+    assert (
+        f"| 0 | 100 {doa}| {euler} | {low} (0.083, 0.061, 0.094) | {rts:.3f} | 0.0300 "
+        f"| {0.02 * np.sqrt(3.0):.4f} |" in text
+    )
+    summary = text[text.index("## Summary") :]
+    assert summary.index("| 0 | 10 | 1.458 /") < summary.index("| 0 | 100 | 1.458 /")
+
+
 def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
     rows = _rows()
     missing = (rows["snapshots"] == 10) & rows["method"].isin(["mekf", "music"])
