@@ -1,5 +1,6 @@
 """Report of ``doa-ground``: seed 003 Tables 1 and 2 beside ours, a one-line-per-setting
-summary, the smoother target, runtimes and convergence.
+summary, the smoother target, the estimators' consistency (NEES), runtimes and
+convergence.
 
 Pooling:
 
@@ -34,6 +35,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2
 
 from experiments.experiment import ReportContext
 from solvers.doa.ekf import PROCESS_NOISE
@@ -417,6 +419,54 @@ def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[flo
     return lines
 
 
+NEES_PROBABILITY = 0.9999
+"""Quantile of ``chi2(3)`` above which a row's attitude NEES counts as inconsistent."""
+
+
+def consistency_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
+    """Per ``(snr_db, snapshots, method)`` and phase: mean and median attitude NEES of the
+    valid rows and their share above the ``chi2(3)`` :data:`NEES_PROBABILITY` quantile."""
+    if "nees" not in rows:
+        rows = rows.assign(nees=np.nan)
+    chosen = rows[rows["method"].isin(methods) & rows["valid"].astype(bool)]
+    chosen = chosen[chosen["nees"].notna()]
+    threshold = chi2.ppf(NEES_PROBABILITY, 3)
+    grouped = chosen.groupby([*KEYS, "phase"])["nees"]
+    return pd.DataFrame(
+        {
+            "mean": grouped.mean(),
+            "median": grouped.median(),
+            "above": grouped.apply(lambda x: float(np.mean(x > threshold))),
+        }
+    )
+
+
+def _consistency_lines(rows: pd.DataFrame, methods: Sequence[str]) -> list[str]:
+    table = consistency_table(rows, methods)
+    threshold = chi2.ppf(NEES_PROBABILITY, 3)
+    lines = [
+        "",
+        "## Consistency",
+        "",
+        "Attitude NEES `e^T P^-1 e` of the valid rows against each method's own covariance "
+        "(3 for a consistent estimator): mean, median and the share of rows above the "
+        f"chi-square(3) {NEES_PROBABILITY} quantile ({threshold:.1f}), converging / settled. "
+        "The EKF and RTS rows are never flagged invalid, so a diverged pass shows here.",
+        "",
+        "| SNR dB | L | method | mean | median | share above | converging share above |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (snr, snapshots, method), _ in table.groupby(level=KEYS, sort=True):
+        settled = _entry(table, (snr, snapshots, method, "settled"))
+        converging = _entry(table, (snr, snapshots, method, "converging"))
+        lines.append(
+            f"| {snr:g} | {snapshots} | {method} | {_f(settled['mean'], '.3g')} "
+            f"| {_f(settled['median'], '.3g')} | {_f(settled['above'])} "
+            f"| {_f(converging['above'])} |"
+        )
+    return lines
+
+
 def _runtime_lines(rows: pd.DataFrame, methods: Sequence[str]) -> list[str]:
     lines = [
         "",
@@ -520,6 +570,7 @@ def report(ctx: ReportContext) -> str:
     ordered = [(float(a), int(b)) for a, b in settings.sort_values(SETTING).to_numpy()]
     lines += _summary_lines(ordered, doa, attitude, qs)
     lines += _smoother_lines(ctx.rows, methods, qs)
+    lines += _consistency_lines(ctx.rows, methods)
     lines += _runtime_lines(ctx.rows, methods)
     lines += _convergence_lines(ctx.rows, methods, qs, ctx.out_dir)
     return "\n".join(lines) + "\n"

@@ -25,6 +25,7 @@ import pytest
 from experiments.doa_report import (
     attitude_methods,
     attitude_table,
+    consistency_table,
     doa_table,
     report,
     runtime_table,
@@ -39,6 +40,8 @@ TRIALS = 3
 FILTER_TRIALS = 2
 SETTINGS = ((0.0, 100), (0.0, 10))
 EKF_ERROR = (0.3, 0.3, 1.2)
+NEES_SIGMA = 0.1
+"""Every method's own sigma (deg, one axis): ``nees = (error / 0.1)^2``."""
 PARAMETERS: dict[str, Any] = {
     "table1_snr_db": [0.0],
     "table1_snapshots": 100,
@@ -65,6 +68,7 @@ def _frame(method: str, error: float, **extra: Any) -> pd.DataFrame:
         "err_y_deg": 0.0,
         "err_z_deg": 0.0,
         **{f"euler_{n}_err_deg": k * signed for k, n in enumerate(("yaw", "roll", "pitch"), 1)},
+        "nees": (signed / NEES_SIGMA) ** 2,
         "valid": True,
         "reason": "",
     }
@@ -202,6 +206,20 @@ def test_summary_has_one_line_per_setting(tmp_path: Path) -> None:
     )
     summary = text[text.index("## Summary") :]
     assert summary.index("| 0 | 10 | 1.458 /") < summary.index("| 0 | 100 | 1.458 /")
+
+
+def test_consistency_pools_the_valid_rows_per_phase(tmp_path: Path) -> None:
+    """EKF (1e-09) NEES 9, 9 and 144 in the three trials once settled (mean 54, median 9,
+    one third above the 99.99% quantile 21.1), 10^4 while converging; ``wahba``'s
+    invalid rows do not count."""
+    rows = _rows()
+    table = consistency_table(rows, attitude_methods(rows, PARAMETERS))
+    ekf = table.loc[(0.0, 100, "ekf_seed003_q1e-09", "settled")]
+    assert ekf.tolist() == pytest.approx([54.0, 9.0, 1.0 / 3.0])
+    assert table.loc[(0.0, 100, "ekf_seed003_q1e-09", "converging"), "above"] == 1.0
+    assert table.loc[(0.0, 100, "wahba", "settled"), "mean"] == pytest.approx(400.0)
+    text = _report(rows, tmp_path)
+    assert "| 0 | 100 | ekf_seed003_q1e-09 | 54 | 9 | 0.333 | 1.000 |" in text
 
 
 def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
