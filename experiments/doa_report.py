@@ -337,7 +337,7 @@ def _summary_lines(
 ) -> list[str]:
     """One line per setting: the DOA RMSEs against the CRB, the EKFs' Euler RMSEs at the
     seed's and the lowest ``Q`` (the seed's values beside the lowest), the lowest-``Q``
-    RTS, the batch least squares and the ``Q = 0`` CRB (totals)."""
+    RTS, the batch least squares and the whole pass's ``Q = 0`` CRB (totals)."""
     seed_q, low = qs[0], min(qs)
     lines = [
         "",
@@ -346,7 +346,8 @@ def _summary_lines(
         "DOA RMSE / RMS CRB (deg) and the share of estimates accepted; settled attitude RMSEs "
         "(deg): the EKFs' yaw, roll, pitch (seed 003 in brackets), the total RMS of the RTS "
         f"pass and of `{BATCH_LS}` (in the trials it ran in), and the total of the CRB "
-        "(Q = 0) of the EKF rows.",
+        "(Q = 0) of the whole pass (the RTS rows' `crb_*`, the bound of the smoothers and of "
+        "the batch least squares).",
         "",
         "| SNR dB | L | theta / CRB (seed) | phi / CRB (seed) | accepted "
         f"| EKF Q = {seed_q:.0e}: yaw, roll, pitch "
@@ -375,7 +376,7 @@ def _summary_lines(
         cells += [
             _f(_entry(attitude, (snr, snapshots, rts_method(low)))["total_rmse_deg"]),
             _f(_entry(attitude, (snr, snapshots, BATCH_LS))["total_rmse_deg"], ".4f"),
-            _f(_entry(attitude, (snr, snapshots, ekf_method(seed_q)))["crb_total_deg"], ".4f"),
+            _f(_entry(attitude, (snr, snapshots, rts_method(low)))["crb_total_deg"], ".4f"),
         ]
         lines.append(f"| {snr:g} | {snapshots} | " + " | ".join(cells) + " |")
     return lines
@@ -396,7 +397,8 @@ def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[flo
         f"EKF's. Per setting only the trials in which `{'`, `'.join(SUBSET_METHODS)}` ran (all "
         "trials where none did), the same trials for every column; RTS is the smoother over "
         f"the EKF of the same Q, `{BATCH_LS}` the whole-pass batch least squares over the "
-        "seed's dynamics (Q = 0), whose Cramer-Rao bound is the CRB column. RMS in deg.",
+        "seed's dynamics (Q = 0), whose Cramer-Rao bound is the CRB column (the whole "
+        "pass's, the RTS rows' `crb_*`). RMS in deg.",
         "",
         "| SNR dB | L | trials | Q | EKF | "
         + " | ".join(f"{label} | {label} / EKF" for label in ["RTS", *others])
@@ -406,7 +408,7 @@ def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[flo
     for (snr, snapshots), count in trials.items():
         for q in qs:
             ekf = _entry(table, (snr, snapshots, ekf_method(q)))["total_rmse_deg"]
-            crb = _entry(table, (snr, snapshots, ekf_method(q)))["crb_total_deg"]
+            crb = _entry(table, (snr, snapshots, rts_method(q)))["crb_total_deg"]
             cells = []
             for name in [rts_method(q), *others]:
                 rms = _entry(table, (snr, snapshots, name))["total_rmse_deg"]
