@@ -301,7 +301,7 @@ def _batch_ls_rows(
     common: Mapping[str, Any],
     start: DynamicsPass,
 ) -> pd.DataFrame:
-    """Rows of the whole-pass batch least squares (module docstring, 4), started from the
+    """Rows of the whole-pass batch least squares (module docstring, 5), started from the
     lowest-``Q`` RTS pass at epoch 0; its bound is the ``Q = 0`` CRB, its time includes the
     start's.  A pass that raises or does not converge gives invalid rows with the reason."""
     began = time.perf_counter()

@@ -15,9 +15,9 @@ from experiments.scenarios.doa_ground import WHEEL_MOMENTUM
 from formulations.conventions import attitude_error
 from formulations.errors import ConvergenceError, UnobservableError
 from solvers.doa.batch_ls import BatchLsResult, batch_least_squares
-from solvers.doa.eks import posterior_bound_ekf
 from solvers.filters.common import apply_error, error_vector
 from tests.test_doa_ekf import DT, VectorPass, relative_covariance_difference, simulate_vectors
+from tests.test_doa_eks import bound
 
 EPOCHS = 400
 RUNS = 20
@@ -74,18 +74,7 @@ def test_covariance_is_the_zero_process_noise_smoother_bound() -> None:
     result = solve(run, run.truth[0], run.rate[0])
 
     def smoother_bound(prior: np.ndarray) -> np.ndarray:
-        return posterior_bound_ekf(
-            run.truth,
-            run.rate,
-            run.reference,
-            run.sigma,
-            np.isfinite(run.body).all(axis=-1),
-            run.turns,
-            WHEEL_MOMENTUM,
-            DT,
-            prior,
-            process_noise=0.0,
-        )[1]
+        return bound(run, prior, 0.0)[1]
 
     wide = np.diag([1e-2] * 3 + [1.0] * 3)
     assert relative_covariance_difference(result.covariance, smoother_bound(wide)) < 1e-6
