@@ -188,6 +188,9 @@ def _print_result(result: SweepResult) -> None:
         f"{result.n_resumed} already done, {result.n_failed} failed, "
         f"{result.n_missing} missing ({result.elapsed_s:.1f} s)"
     )
+    if len(result.code_versions) > 1:
+        versions = ", ".join(f"{code} ({n})" for code, n in result.code_versions.items())
+        typer.echo(f"  trials computed by several code versions: {versions}")
     for line in failure_digest(result.failures):
         typer.echo(f"  failed: {line}")
     for error in result.errors[:MAX_ERRORS_SHOWN]:

@@ -15,6 +15,7 @@ from pandas.testing import assert_frame_equal
 from experiments.sweep import EngineSetupError, ManifestMismatchError, run_sweep
 from experiments.sweep.engines import DaskEngine
 from experiments.sweep.seeding import trial_index, trial_seed
+from experiments.sweep.store import UNRECORDED, code_version
 from experiments.sweep.tasks import ChunkSpec
 from experiments.sweep.toys import NOOP
 from tests.sweep_toys import PROBE, TOY, TOY_WITH_REPORT
@@ -180,6 +181,29 @@ def test_more_trials_extend_a_sweep_and_fewer_read_a_subset(tmp_path):
 
     subset = sweep(tmp_path / "grow", trials=3)
     assert subset.n_computed == 0 and set(subset.rows["trial_index"]) == {0, 1, 2}
+
+
+def test_chunks_record_the_code_version_and_a_mixed_sweep_says_so(tmp_path):
+    """Every chunk record and the manifest carry the code version (this checkout's git
+    commit, ``-dirty`` with uncommitted changes); a resumed sweep whose chunks come
+    from two versions reports both, with their trial counts, in the result and the
+    report."""
+    first = sweep(tmp_path, trials=2)
+    version = code_version()  # "unknown" outside a git checkout
+    assert first.code_versions == {version: 6}
+    records = [json.loads(p.read_text()) for p in (tmp_path / "trials").glob("*.json")]
+    assert {r["code"] for r in records} == {version}
+    assert json.loads((tmp_path / "manifest.json").read_text())["code"] == version
+    for path in (tmp_path / "trials").glob("*.json"):  # as if written by older code
+        record = json.loads(path.read_text())
+        del record["code"]
+        path.write_text(json.dumps(record))
+    grown = sweep(tmp_path, trials=3)
+    assert grown.code_versions == {UNRECORDED: 6, version: 3}
+    report = (tmp_path / "report.md").read_text()
+    assert f"computed by code versions: `{UNRECORDED}` (6 trials), `{version}` (3 trials)" in (
+        report
+    )
 
 
 def test_quick_uses_quick_parameters_and_trials(tmp_path):

@@ -26,6 +26,8 @@ class RunDescription:
     n_finished: int
     n_failed: int
     n_missing: int
+    code_versions: Mapping[str, int]
+    """Finished trials per version of the code that computed them."""
 
 
 def render_report(
@@ -81,6 +83,8 @@ def _trial_counts(run: RunDescription) -> str:
         lines.append(
             f"- **missing: {run.n_missing}** (not finished; rerun the command to complete them)"
         )
+    versions = ", ".join(f"`{code}` ({n} trials)" for code, n in run.code_versions.items())
+    lines.append(f"- computed by code version{'s' * (len(run.code_versions) > 1)}: {versions}")
     return "\n".join(lines) + "\n"
 
 

@@ -54,6 +54,9 @@ class SweepResult:
     n_missing: int
     errors: list[str]
     elapsed_s: float
+    code_versions: dict[str, int]
+    """Finished trials per version of the code that computed them
+    (:func:`~experiments.sweep.store.code_version`)."""
 
     @property
     def complete(self) -> bool:
@@ -145,6 +148,7 @@ def run_sweep(
     )
     n_total = len(settings) * trials
     n_missing = n_total - len(store.finished_tasks(trials))
+    code_versions = store.code_versions(trials)
     description = RunDescription(
         name=experiment.name,
         summary=experiment.summary,
@@ -156,6 +160,7 @@ def run_sweep(
         n_finished=n_total - n_missing,
         n_failed=len(failures),
         n_missing=n_missing,
+        code_versions=code_versions,
     )
     _write_outputs(store.out, experiment, description, rows, summary, failures)
     return SweepResult(
@@ -175,6 +180,7 @@ def run_sweep(
         n_missing=n_missing,
         errors=errors,
         elapsed_s=time.perf_counter() - started,
+        code_versions=code_versions,
     )
 
 

@@ -2,9 +2,13 @@
 
 Layout of ``out``::
 
-    manifest.json          experiment, parameters, settings, seed, trials, hash
+    manifest.json          experiment, parameters, settings, seed, trials, hash, code
     rows/<chunk>.parquet   rows of the chunk's trials (absent if it has none)
-    trials/<chunk>.json    the chunk's (setting, trial) pairs and failures
+    trials/<chunk>.json    the chunk's (setting, trial) pairs, failures and code
+
+``code`` is the version of the code that wrote the chunk (or last opened the
+directory, in the manifest), :func:`code_version`: a resumed sweep may mix
+chunks of several versions, and :meth:`SweepStore.code_versions` says which.
 
 A chunk counts as finished once its ``trials/<chunk>.json`` record exists.
 Both files are written to a temporary name and renamed, the rows first, so an
@@ -21,6 +25,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import subprocess
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -48,6 +54,27 @@ FAILURE_COLUMNS = (
     "seed_entropy",
     "seed",
 )
+
+
+UNRECORDED = "unrecorded"
+"""The code version of a chunk written before versions were recorded."""
+
+
+def code_version() -> str:
+    """``git describe --always --dirty`` of the checkout this package runs from (a commit
+    hash, ``-dirty`` with uncommitted changes), or ``unknown`` outside a git checkout."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        described = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return described.stdout.strip() or "unknown"
 
 
 class ManifestMismatchError(ValueError):
@@ -88,6 +115,7 @@ class SweepStore:
         self.identity = identity
         self.rows_dir = self.out / ROWS_DIR
         self.records_dir = self.out / RECORDS_DIR
+        self.code = code_version()
 
     @classmethod
     def open(
@@ -152,6 +180,7 @@ class SweepStore:
             "n_rows": len(result.rows),
             "failures": result.failures,
             "elapsed_s": result.elapsed_s,
+            "code": self.code,
         }
         path = self.records_dir / f"{result.chunk_id}.json"
         _temporary(path).write_text(json.dumps(record))
@@ -160,6 +189,16 @@ class SweepStore:
     def finished_tasks(self, trials: int) -> set[Task]:
         """Return the ``(setting, trial)`` pairs already finished (succeeded or failed)."""
         return {(s, t) for record in self._records() for s, t in record["tasks"] if t < trials}
+
+    def code_versions(self, trials: int) -> dict[str, int]:
+        """Finished trials among the first ``trials`` per code version that computed them."""
+        counts = Counter(
+            record.get("code", UNRECORDED)
+            for record in self._records()
+            for _, t in record["tasks"]
+            if t < trials
+        )
+        return dict(counts.most_common())
 
     def load_rows(self, trials: int) -> pd.DataFrame:
         """Return the stored rows of the first ``trials`` trials, in (setting, trial, row) order."""
@@ -203,6 +242,7 @@ class SweepStore:
             "hash": self.identity.digest(),
             "created": created or now,
             "updated": now,
+            "code": self.code,
         }
         path = self.out / MANIFEST
         _temporary(path).write_text(json.dumps(manifest, indent=2) + "\n")
