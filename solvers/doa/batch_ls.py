@@ -105,36 +105,24 @@ def pass_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Funct
     added to the normal equations and the cost at ``(omega, A)``, then the
     state and the sensitivity ``S`` are stepped to the next epoch.
     """
-    rate, attitude, _, body, reference, weight, momentum, orbit_turn, _ = epoch_symbols(slots)
+    x = epoch_symbols(slots)
     sensitivity = ca.SX.sym("sensitivity", 6, 6)
     normal = ca.SX.sym("normal", 6, 6)
     gradient = ca.SX.sym("gradient", 6)
     cost = ca.SX.sym("cost")
     information, residual, rows, epoch_cost = vector_information_function(slots)(
-        attitude, body, reference, weight
+        x.attitude, x.body, x.reference, x.weight
     )
     attitude_rows = sensitivity[3:, :]
     rate_next, attitude_next, transition = step_function(dt, inertia)(
-        rate, attitude, momentum, orbit_turn
+        x.rate, x.attitude, x.momentum, x.orbit_turn
     )
     return ca.Function(
         "doa_batch_ls_epoch",
+        [x.rate, x.attitude, sensitivity, normal, gradient, cost, *x[3:8]],
         [
-            rate,
-            attitude,
-            sensitivity,
-            normal,
-            gradient,
-            cost,
-            body,
-            reference,
-            weight,
-            momentum,
-            orbit_turn,
-        ],
-        [
-            ca.densify(x)
-            for x in (
+            ca.densify(y)
+            for y in (
                 rate_next,
                 attitude_next,
                 transition @ sensitivity,

@@ -75,7 +75,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -307,10 +307,24 @@ def vector_information_function(slots: int) -> ca.Function:
     )
 
 
-def epoch_symbols(slots: int) -> tuple[ca.SX, ...]:
+class EpochSymbols(NamedTuple):
+    """CasADi symbols of one epoch, in the order :func:`epoch_function` takes them."""
+
+    rate: ca.SX
+    attitude: ca.SX
+    covariance: ca.SX
+    body: ca.SX
+    reference: ca.SX
+    weight: ca.SX
+    momentum: ca.SX
+    orbit_turn: ca.SX
+    process_noise: ca.SX
+
+
+def epoch_symbols(slots: int) -> EpochSymbols:
     """CasADi symbols of one epoch with ``slots`` vectors: ``(omega, A, P, body, reference,
     weight, h, orbit_turn, q)``, shaped as :func:`epoch_function` takes them."""
-    return (
+    return EpochSymbols(
         ca.SX.sym("omega", 3),
         ca.SX.sym("attitude", 3, 3),
         ca.SX.sym("covariance", 6, 6),
@@ -332,25 +346,17 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     composed of :func:`vector_information_function`, :func:`update_function`
     and :func:`propagate_function`; ``step_angle = |omega+| dt``.
     """
-    (
-        rate,
-        attitude,
-        covariance,
-        body,
-        reference,
-        weight,
-        momentum,
-        orbit_turn,
-        process_noise,
-    ) = epoch_symbols(slots)
+    x = epoch_symbols(slots)
     information, residual, rows, _ = vector_information_function(slots)(
-        attitude, body, reference, weight
+        x.attitude, x.body, x.reference, x.weight
     )
-    filtered = update_function()(rate, attitude, covariance, information, residual)
-    predicted = propagate_function(dt, inertia)(*filtered, momentum, orbit_turn, process_noise)
+    filtered = update_function()(x.rate, x.attitude, x.covariance, information, residual)
+    predicted = propagate_function(dt, inertia)(
+        *filtered, x.momentum, x.orbit_turn, x.process_noise
+    )
     return ca.Function(
         "doa_ekf_epoch",
-        [rate, attitude, covariance, body, reference, weight, momentum, orbit_turn, process_noise],
+        list(x),
         [
             ca.densify(x)
             for x in (*predicted[:3], *filtered, predicted[3], rows, ca.norm_2(filtered[0]) * dt)

@@ -96,27 +96,18 @@ def rts_smooth_ekf(result: EkfResult) -> EkfResult:
 def _bound_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
     """``(P^-, omega, A, body, reference, weight, h, orbit_turn, q) -> (P^-_next, P+, Phi)``:
     the EKF epoch's covariance recursion at a given state (no state update)."""
-    (
-        rate,
-        attitude,
-        covariance,
-        body,
-        reference,
-        weight,
-        momentum,
-        orbit_turn,
-        process_noise,
-    ) = epoch_symbols(slots)
-    information = vector_information_function(slots)(attitude, body, reference, weight)[0]
-    posterior = update_function()(rate, attitude, covariance, information, ca.SX.zeros(3))[2]
-    transition = step_function(dt, inertia)(rate, attitude, momentum, orbit_turn)[2]
+    x = epoch_symbols(slots)
+    information = vector_information_function(slots)(x.attitude, x.body, x.reference, x.weight)[0]
+    update = update_function()(x.rate, x.attitude, x.covariance, information, ca.SX.zeros(3))
+    posterior = update[2]
+    transition = step_function(dt, inertia)(x.rate, x.attitude, x.momentum, x.orbit_turn)[2]
     return ca.Function(
         "doa_ekf_bound",
-        [covariance, rate, attitude, body, reference, weight, momentum, orbit_turn, process_noise],
+        [x.covariance, x.rate, x.attitude, *x[3:]],
         [
-            ca.densify(x)
-            for x in (
-                propagated_covariance(posterior, transition, process_noise),
+            ca.densify(y)
+            for y in (
+                propagated_covariance(posterior, transition, x.process_noise),
                 posterior,
                 transition,
             )
