@@ -1,15 +1,17 @@
-"""Report section of ``adsb-snr`` for the gyro-aided filters (:mod:`experiments.adsb_filters`).
+"""Report section of ``adsb-snr`` for the gyro-aided filters.
+
+The rows come from :mod:`attopt.experiments.adsb_filters`.
 
 Everything is computed from the stored rows (the filter rows carry ``gyro``
-!= ``"none"``; their columns are those of :mod:`experiments.metrics` and
-:func:`experiments.filtering.filter_columns`); the only numbers typed in are
+!= ``"none"``; their columns are those of :mod:`attopt.experiments.metrics` and
+:func:`attopt.experiments.filtering.filter_columns`); the only numbers typed in are
 seed 000's (Table 2's MEKF row, sec. 5.1's gyro statement, both through
-:mod:`experiments.adsb_report`) and issue 5's targets.  Accuracy and
+:mod:`attopt.experiments.adsb_report`) and issue 5's targets.  Accuracy and
 consistency are taken over the epochs after :func:`burn_in` (the filters
 start from a prior with ``initial_sigma_deg`` per axis); Table 2's
 comparison also shows the whole pass.
 
-:mod:`experiments.adsb_report` imports :func:`filter_report` at module
+:mod:`attopt.experiments.adsb_report` imports :func:`filter_report` at module
 level, so its helpers are imported here inside the functions that use them
 (:func:`_shared`), never at module level, which would be a circular import.
 """
@@ -25,12 +27,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from attopt.experiments.experiment import ReportContext
+from attopt.experiments.metrics import AXES
+from attopt.experiments.sweep.aggregate import valid_mask
+from attopt.formulations.gyro import GYRO_MODELS
 from scipy.stats import chi2, norm
-
-from experiments.experiment import ReportContext
-from experiments.metrics import AXES
-from experiments.sweep.aggregate import valid_mask
-from formulations.gyro import GYRO_MODELS
 
 BURN_IN_S = 300.0
 """Accuracy and NEES use the epochs at least this long after the first epoch of the pass."""
@@ -53,7 +54,7 @@ FILTER_RUNTIME_TARGET_S = 10.0
 """Issue 5 sec. 4: the hour-long pass through any filter in under 10 s."""
 NEES_PROBABILITY = 0.95
 """Issue 5 sec. 4: two-sided chi-square interval of the run-averaged NEES."""
-NEES_BENCHMARK = "python -m experiments.bench_filters"
+NEES_BENCHMARK = "python -m attopt.experiments.bench_filters"
 """The benchmark that runs the 100-trial NEES check."""
 SEED000_GYRO_STATEMENT = "sigma_v = 0.05 deg/s, sigma_u = 0.05 deg/s"
 """Seed 000 sec. 5.1's gyro noise, as printed (no time units)."""
@@ -64,8 +65,8 @@ COLOURS = {"mekf_paper": "0.55", "mekf_snr": "tab:blue", "usque_snr": "tab:green
 
 
 def _shared() -> ModuleType:
-    """:mod:`experiments.adsb_report` (imported late: it imports this module)."""
-    from experiments import adsb_report
+    """:mod:`attopt.experiments.adsb_report` (imported late: it imports this module)."""
+    from attopt.experiments import adsb_report
 
     return adsb_report
 
@@ -758,7 +759,7 @@ def _smoother_lines(ctx: ReportContext, rows: pd.DataFrame, gyros: Sequence[str]
         f"Epochs from t = {start:g} s; `bound` is the RMS over the same epochs of the "
         "posterior Cramer-Rao bound of the whole pass (the smoother's marginal covariance "
         "at the truth, every received SNR, offsets not modelled; "
-        "`experiments.filtering.posterior_bound`). Transmitter power offsets in the data: "
+        "`attopt.experiments.filtering.posterior_bound`). Transmitter power offsets in the data: "
         f"{offsets:g} dB (sigma). Runtime: mean per pass; `fg_batch` includes the online "
         "pass it starts from.",
         "",

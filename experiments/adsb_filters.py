@@ -1,7 +1,7 @@
 """Gyro-aided filter rows of the ``adsb-snr`` experiment (issue 5).
 
 On the same measured SNRs as the single-frame methods, with a simulated
-rate-integrating gyro (:mod:`formulations.gyro`, 10 Hz) per entry of the
+rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
 ``gyros`` parameter (``seed000``: seed 000 sec. 5.1 read literally;
 ``mems``: a MEMS-class unit):
 
@@ -14,14 +14,14 @@ rate-integrating gyro (:mod:`formulations.gyro`, 10 Hz) per entry of the
   measurements (seed 000 sec. 6's proposed future work), through the
   threshold-truncated measurement model by default (``filter_snr_model =
   "truncated"``; ``"gaussian"`` is eq. 19's model, which integrates the
-  selection bias of near-threshold messages, :mod:`formulations.snr_measurement`).
+  selection bias of near-threshold messages, :mod:`attopt.formulations.snr_measurement`).
 * ``usque_snr``: the USQUE unscented filter on the same SNR measurements.
 * ``rts_snr``: the multiplicative RTS backward pass over ``mekf_snr`` (its
   ``runtime_s`` includes the forward MEKF).
 * ``fg_online``: the causal fixed-lag factor-graph smoother
-  (:func:`solvers.smoother.smooth_online`) on the same SNR measurements.
+  (:func:`attopt.solvers.smoother.smooth_online`) on the same SNR measurements.
 * ``fg_batch``: the whole-pass factor-graph smoother
-  (:func:`solvers.smoother.smooth`) started from ``fg_online``'s estimates (or
+  (:func:`attopt.solvers.smoother.smooth`) started from ``fg_online``'s estimates (or
   from ``rts_snr``'s when ``fg_online`` is not asked for); ``runtime_s``
   includes that start.
 * ``fg_batch_offsets``: ``fg_batch`` with one power-offset variable per
@@ -31,13 +31,13 @@ rate-integrating gyro (:mod:`formulations.gyro`, 10 Hz) per entry of the
 
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a ``fg_*``
 row is asked for: the posterior Cramer-Rao bound of the pass
-(:func:`experiments.filtering.posterior_bound`, offsets not modelled), the
+(:func:`attopt.experiments.filtering.posterior_bound`, offsets not modelled), the
 same for every method of that gyro.
 
 Every filter starts from the prior of
-:func:`experiments.filtering.simulate_filter_inputs` (attitude error drawn
+:func:`attopt.experiments.filtering.simulate_filter_inputs` (attitude error drawn
 with ``initial_sigma_deg`` per axis, bias estimate 0) and works in ECI
-(:mod:`experiments.filtering`); errors are reported in the orbit frame like
+(:mod:`attopt.experiments.filtering`); errors are reported in the orbit frame like
 the single-frame rows.  The gyro of the ``i``-th entry of ``gyros`` and the
 prior are drawn from child stream ``1 + i`` of the trial's seed.
 """
@@ -50,8 +50,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
-from experiments.filtering import (
+from attopt.experiments.filtering import (
     FilterInputs,
     GyroTruth,
     bound_columns,
@@ -64,15 +63,15 @@ from experiments.filtering import (
     run_filters,
     simulate_filter_inputs,
 )
-from experiments.metrics import error_columns
-from experiments.scenarios.adsb_snr import build_adsb_geometry, true_attitude
-from formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
-from formulations.conventions import euler321_from_attitude, orbit_frame_attitude
-from formulations.gyro import GYRO_MODELS
-from formulations.snr_measurement import SnrMeasurement
-from formulations.snr_problem import SnrEpoch
-from solvers.filters import FilterResult
-from solvers.result import BatchSolution
+from attopt.experiments.metrics import error_columns
+from attopt.experiments.scenarios.adsb_snr import build_adsb_geometry, true_attitude
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
+from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
+from attopt.formulations.gyro import GYRO_MODELS
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.filters import FilterResult
+from attopt.solvers.result import BatchSolution
 
 SNR_SUFFIX = "_snr"
 FILTER_METHODS = {

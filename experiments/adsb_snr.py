@@ -1,6 +1,6 @@
 """Experiment ``adsb-snr``: the SNR attitude solvers over seed 000's one-hour pass.
 
-Scenario (seed 000 sec. 5.1): :mod:`experiments.scenarios.adsb_snr` gives the
+Scenario (seed 000 sec. 5.1): :mod:`attopt.experiments.scenarios.adsb_snr` gives the
 orbit, the true attitude, the two tilted helices and a modelled global aircraft
 population (``n_aircraft`` great-circle flights of ``traffic_seed``).  The
 geometry and the noise-free SNRs are deterministic scenario inputs, computed
@@ -13,7 +13,7 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    TRUE attitude, up to the pattern's own limit
    (``SEED000_HELIX.max_off_boresight_rad``, ``G >= 4 dBi``, sec. 5.1).
 2. *True SNR*: ``G(alpha) + 10 lg P0 - 10 lg P_n`` (eqs. 1-4, 13) at the true
-   attitude, ``P0`` from :class:`~formulations.link_budget.LinkBudget` at the
+   attitude, ``P0`` from :class:`~attopt.formulations.link_budget.LinkBudget` at the
    slant range.
 3. *Measured*: true + ``snr_sigma_db`` x N(0, 1), one draw per visible
    (epoch, antenna, aircraft) row from ``numpy.random.default_rng(seed)`` in one
@@ -25,7 +25,7 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    measurements are biased upward and the Gaussian likelihood of eq. 19
    (``deterministic``, ``nlse``, ``nlp``) is misspecified; ``nlp_truncated``
    maximises the likelihood of the truncated measurements instead
-   (:mod:`formulations.snr_truncation`).  The rows record the mean bias of the
+   (:mod:`attopt.formulations.snr_truncation`).  The rows record the mean bias of the
    kept measurements (``snr_bias_db``) and a second bound for the truncated
    measurements (``bound_truncated_*``, :func:`epoch_statistics`), the right
    bound for every method on thresholded data.  Measured over the hour (trial 0
@@ -33,10 +33,10 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    with mean NEES 11.2 at 6 dB, and 0.99 +/- 0.01 with mean NEES 2.99 with
    ``threshold_db = -100`` (nothing discarded, same noise).
 5. Each method's ``solve_sequence`` over the pass of
-   :class:`~formulations.snr_problem.SnrEpoch` s, warm-started from the previous
+   :class:`~attopt.formulations.snr_problem.SnrEpoch` s, warm-started from the previous
    valid estimate as a flight estimator would be (the first epoch has no
    prior: the one-step methods start from the two-step solution, or a
-   multi-start, :mod:`solvers.snr.initialisation`).
+   multi-start, :mod:`attopt.solvers.snr.initialisation`).
 
 Rows, per method and epoch: ``t``, ``n_visible`` (before the threshold),
 ``n_obs``, ``n_obs_antenna1``, ``n_obs_antenna2``, ``snr_bias_db``; the
@@ -49,7 +49,7 @@ method's own covariance; 3-2-1 Euler-angle differences
 ``euler_{yaw,pitch,roll}_err_deg`` wrapped to [-180, 180) (what seed 000
 Table 2 tabulates); ``loss`` (the method's own objective: eq. 19 weighted by
 ``C``, for ``nlp_truncated`` the truncated negative log-likelihood,
-:mod:`solvers.snr.fit`); ``wrong_minimum`` and
+:mod:`attopt.solvers.snr.fit`); ``wrong_minimum`` and
 ``loss_from_truth`` (below); ``valid``, ``reason``; ``runtime_s``.
 
 ``runtime_s`` is the wall time (``time.perf_counter``) of the method's whole
@@ -58,7 +58,7 @@ only column that is not reproducible: every other column is bitwise identical
 across engines, workers and reruns (``docs/sweeps.md``).  Before timing, every
 method solves one epoch of each padding bucket size of the pass untimed, so
 that the one-off construction of CasADi functions and IPOPT problems per
-process (:mod:`solvers.snr.padding`) is not charged to the pass, as flight
+process (:mod:`attopt.solvers.snr.padding`) is not charged to the pass, as flight
 code would be compiled beforehand.
 
 Wrong local minima (issue 4 sec. 3).  Every ``wrong_minimum_every``-th epoch
@@ -94,11 +94,13 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
-
-from experiments.adsb_filters import DEFAULT_FILTERS, PAPER_SOURCE, check_parameters, filter_rows
-from experiments.adsb_report import (
+from attopt.experiments.adsb_filters import (
+    DEFAULT_FILTERS,
+    PAPER_SOURCE,
+    check_parameters,
+    filter_rows,
+)
+from attopt.experiments.adsb_report import (
     AXES,
     MANY_OBSERVATIONS,
     bounded_valid_rows,
@@ -106,21 +108,31 @@ from experiments.adsb_report import (
     report,
     signed_max,
 )
-from experiments.experiment import Experiment, Setting
-from experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG, OFFSET_PRIOR_SIGMA_DB, child_rng
-from experiments.metrics import error_columns
-from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_chunks
-from experiments.sweep.aggregate import valid_mask
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.link_budget import LinkBudget
-from formulations.snr_model import cramer_rao_bound, predict_snr
-from formulations.snr_problem import SnrEpoch
-from formulations.snr_truncation import truncated_information_factor
-from solvers.result import BatchSolution
-from solvers.snr import SNR_SOLVERS
-from solvers.snr.driver import SnrSolver
-from solvers.snr.initialisation import StartSource
-from solvers.snr.padding import bucket_size
+from attopt.experiments.experiment import Experiment, Setting
+from attopt.experiments.filtering import (
+    INITIAL_ATTITUDE_SIGMA_DEG,
+    OFFSET_PRIOR_SIGMA_DB,
+    child_rng,
+)
+from attopt.experiments.metrics import error_columns
+from attopt.experiments.scenarios.adsb_snr import (
+    BORESIGHTS_BODY,
+    build_adsb_geometry,
+    observation_chunks,
+)
+from attopt.experiments.sweep.aggregate import valid_mask
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.snr_truncation import truncated_information_factor
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.snr import SNR_SOLVERS
+from attopt.solvers.snr.driver import SnrSolver
+from attopt.solvers.snr.initialisation import StartSource
+from attopt.solvers.snr.padding import bucket_size
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 PATTERN = SEED000_HELIX
 """The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi``."""
@@ -128,7 +140,7 @@ LINK_BUDGET = LinkBudget()
 NO_GYRO = "none"
 """``gyro`` column of the single-frame rows."""
 OFFSET_STREAM = 100
-"""Child stream (:func:`experiments.filtering.child_rng`) of the transmitters' power offsets."""
+"""Child stream (:func:`~attopt.experiments.filtering.child_rng`) of the power offsets."""
 WRONG_MINIMUM_RTOL = 1e-6
 """Relative loss excess over the truth-started solve that counts as a wrong minimum."""
 WRONG_MINIMUM_ATOL = 1e-9
@@ -168,7 +180,7 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
 class NoiseFreePass:
     """Visible (epoch, antenna, aircraft) rows of a pass with their noise-free SNRs.
 
-    Rows are in the order of :func:`experiments.scenarios.adsb_snr.observation_chunks`
+    Rows are in the order of :func:`attopt.experiments.scenarios.adsb_snr.observation_chunks`
     (epoch, antenna, aircraft).  Shared per process: do not modify in place.
     """
 
@@ -311,7 +323,7 @@ def epoch_statistics(
 
     ``bound_*`` is eq. 22 with the received observations (the Gaussian model of
     eq. 19); ``bound_truncated_*`` weights each received observation by
-    :func:`~formulations.snr_truncation.truncated_information_factor` at its
+    :func:`~attopt.formulations.snr_truncation.truncated_information_factor` at its
     true SNR, the Fisher information of the threshold-truncated measurement it
     actually is (given which were received): the bound for every method here.
     """
@@ -416,7 +428,7 @@ def _method_rows(
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One noisy pass solved by every method in ``setting["methods"]`` and every
-    filter in ``setting["filters"]`` (:mod:`experiments.adsb_filters`)."""
+    filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_filters`)."""
     scenario = noise_free_pass(
         setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
     )

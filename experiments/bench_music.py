@@ -1,10 +1,10 @@
 """Benchmark of MUSIC with peak refinement against the CRB and pyroomacoustics.
 
-``python -m experiments.bench_music [--trials 200] [--seed 0]`` prints, in one
+``python -m attopt.experiments.bench_music [--trials 200] [--seed 0]`` prints, in one
 run:
 
 * DOA RMSE of theta and phi against the stochastic CRB
-  (:func:`formulations.doa_crb.stochastic_crb`) at input SNR -14..14 dB with
+  (:func:`attopt.formulations.doa_crb.stochastic_crb`) at input SNR -14..14 dB with
   L = 100 (seed 003 Table 1) and at L = 1..1000 with SNR 0 dB (Table 2),
   with the seed's DOA RMSEs beside them.  Every trial has its own generator
   ``SeedSequence(seed, spawn_key=(condition, trial))``; the source is at
@@ -18,7 +18,7 @@ run:
 * Cost of one ``doa-ground`` pass (``--pass-sets``, default 20000 sets, about
   one 5000-s pass) at SNR 0 dB (given), L = 100 and 1000, random directions
   in the seed's 62-degree cone: drawing the sample covariances directly
-  (:func:`formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
+  (:func:`attopt.formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
   8-10) and :meth:`MusicEstimator.estimate_covariance`, against simulating the
   snapshots and :meth:`MusicEstimator.estimate` in chunks of
   ``CHUNK_ELEMENTS`` samples (``experiments/doa_ground.py`` uses the direct
@@ -34,10 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyroomacoustics as pra
-
-from formulations.doa_array import SEED003_UCA, simulate_sample_covariance, simulate_snapshots
-from formulations.doa_crb import stochastic_crb
-from solvers.doa import MusicEstimator
+from attopt.formulations.doa_array import (
+    SEED003_UCA,
+    simulate_sample_covariance,
+    simulate_snapshots,
+)
+from attopt.formulations.doa_crb import stochastic_crb
+from attopt.solvers.doa import MusicEstimator
 
 THETA, PHI = np.radians(45.0), np.radians(60.0)
 SNR_SWEEP_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)

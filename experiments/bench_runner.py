@@ -3,7 +3,7 @@
 Two trial kinds of the ``noop`` experiment: one that only draws random
 numbers, and one that sleeps (0.5 s by default) like a real solver would
 compute.  Each is run as a plain ``for`` loop calling the trial function (the
-reference), then through :func:`~experiments.sweep.run_sweep` with the local
+reference), then through :func:`~attopt.experiments.sweep.run_sweep` with the local
 engine on 1 worker (in process) and on N workers (process pool), and with a
 Dask LocalCluster of N workers.  Wall times include everything a user waits
 for: starting the workers, storing chunks, aggregating and writing the report.
@@ -23,8 +23,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from experiments.sweep import resolve_parameters, run_sweep, trial_seed
-from experiments.sweep.toys import NOOP
+from attopt.experiments.sweep import resolve_parameters, run_sweep, trial_seed
+from attopt.experiments.sweep.toys import NOOP
 
 SETTINGS = 4
 SEED = 0

@@ -1,22 +1,22 @@
 """Scaling benchmark of the batch factor-graph smoother on ``adsb-snr`` (issue 6 sec. 4).
 
 For each pass length (default 15 min, 1 h, 4 h) on the ``adsb-snr``
-scenario (:mod:`experiments.adsb_snr`: seed 000's noise and 6 dB threshold,
+scenario (:mod:`attopt.experiments.adsb_snr`: seed 000's noise and 6 dB threshold,
 10,000 aircraft, 1 s epochs), with the measurements the SNR filters use
-(:func:`experiments.adsb_filters.snr_measurements`, threshold-truncated
+(:func:`attopt.experiments.adsb_filters.snr_measurements`, threshold-truncated
 model, wrapped for the inertial attitude by
-:func:`experiments.filtering.referenced`) and the ``mems`` gyro at 10 Hz
-(:func:`experiments.filtering.simulate_filter_inputs`, 10 deg initial
+:func:`attopt.experiments.filtering.referenced`) and the ``mems`` gyro at 10 Hz
+(:func:`attopt.experiments.filtering.simulate_filter_inputs`, 10 deg initial
 attitude error), it times:
 
 * ``mekf``: the forward MEKF (``mekf_snr``), and ``rts`` its backward pass;
-* ``smoother``: :func:`solvers.smoother.smooth` started from the RTS result
+* ``smoother``: :func:`attopt.solvers.smoother.smooth` started from the RTS result
   (``initial=``; the time of the smoother alone, split into factor set-up,
   optimisation and marginals, with the number of passes over the
   measurements, each one ``predict`` per epoch);
 * ``predict``: one pass of ``predict`` over all epochs at the truth, the
   interface's cost that bounds the smoother's from below;
-* ``online`` (with ``--online``): :func:`solvers.smoother.smooth_online`
+* ``online`` (with ``--online``): :func:`attopt.solvers.smoother.smooth_online`
   with its default options (causal estimates, split into factor set-up and
   iSAM2 updates with marginals, with its ratio to the MEKF of the same run,
   its model evaluations per epoch and its window).
@@ -31,7 +31,7 @@ per doubling of the pass (target: at most 2.5).  One trial: the errors of a
 pass are strongly correlated in time, so its RMS can differ from the bound
 by tens of per cent either way; the RMS-to-bound ratio needs Monte Carlo.
 
-Run with ``python -m experiments.bench_smoother`` (``--durations 900 1800
+Run with ``python -m attopt.experiments.bench_smoother`` (``--durations 900 1800
 3600`` for other lengths; building the 4 h scenario takes about a minute;
 ``--online`` adds the online smoother).
 """
@@ -43,19 +43,18 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-
-from experiments.adsb_filters import adsb_gyro_truth, snr_measurements
-from experiments.adsb_snr import PARAMETERS, noise_free_pass, simulate_pass
-from experiments.filtering import (
+from attopt.experiments.adsb_filters import adsb_gyro_truth, snr_measurements
+from attopt.experiments.adsb_snr import PARAMETERS, noise_free_pass, simulate_pass
+from attopt.experiments.filtering import (
     child_rng,
     posterior_bound,
     referenced,
     simulate_filter_inputs,
 )
-from formulations.conventions import attitude_error
-from formulations.gyro import GYRO_MODELS
-from solvers.filters import mekf, rts_smooth
-from solvers.smoother import OnlineReport, smooth, smooth_online
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.gyro import GYRO_MODELS
+from attopt.solvers.filters import mekf, rts_smooth
+from attopt.solvers.smoother import OnlineReport, smooth, smooth_online
 
 BURN_IN_S = 300.0
 

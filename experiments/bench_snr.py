@@ -1,6 +1,6 @@
 """Benchmark of the SNR attitude solvers (seed 000 secs. 3.2-3.3) at 20 observations.
 
-Epochs come from the ``adsb-snr`` scenario (:mod:`experiments.scenarios.adsb_snr`):
+Epochs come from the ``adsb-snr`` scenario (:mod:`attopt.experiments.scenarios.adsb_snr`):
 real satellite-to-aircraft geometry, true attitude wandering by a few degrees,
 SNR from the seed-000 helix (eq. 63) and the link budget plus 1 dB Gaussian
 noise (sec. 5.1).  Messages below the 6 dB threshold are not received; of
@@ -11,7 +11,7 @@ timed (validation, solve, covariance and result assembly included).  The
 table gives the median milliseconds per epoch, the ratio to the NLSE
 (warm-started) measured in the same run, median iterations (IPOPT
 iterations, MINPACK residual evaluations, QUEST Newton steps), failed epochs,
-and the RMS attitude error.  Run with ``python -m experiments.bench_snr``.
+and the RMS attitude error.  Run with ``python -m attopt.experiments.bench_snr``.
 """
 
 from __future__ import annotations
@@ -20,18 +20,21 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from attopt.experiments.scenarios.adsb_snr import (
+    BORESIGHTS_BODY,
+    build_adsb_geometry,
+    observation_table,
+)
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import AttoptError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snr_model import SNR_SIGMA_DB, predict_snr
+from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
+from attopt.solvers.result import AttitudeSolution
+from attopt.solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
+from attopt.solvers.snr.driver import SnrSolver
 from scipy.spatial.transform import Rotation
-
-from experiments.scenarios.adsb_snr import BORESIGHTS_BODY, build_adsb_geometry, observation_table
-from formulations.conventions import attitude_error
-from formulations.errors import AttoptError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.link_budget import LinkBudget
-from formulations.snr_model import SNR_SIGMA_DB, predict_snr
-from formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
-from solvers.result import AttitudeSolution
-from solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
-from solvers.snr.driver import SnrSolver
 
 OBSERVATIONS = 20
 PER_ANTENNA = 10

@@ -16,10 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from attopt.formulations.conventions import attitude_error
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from scipy.spatial.transform import Rotation
-
-from formulations.conventions import attitude_error
-from solvers.wahba import WAHBA_SOLVERS
 
 
 @dataclass(frozen=True)

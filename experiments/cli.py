@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 if TYPE_CHECKING:
-    from experiments.sweep import SweepResult
+    from attopt.experiments.sweep import SweepResult
 
 app = typer.Typer(
     help="Spacecraft attitude determination as optimisation, compared by Monte Carlo.",
@@ -92,8 +92,8 @@ def run(
     progress: Annotated[bool, typer.Option(help="Show a progress bar with ETA.")] = True,
 ) -> None:
     """Run a Monte Carlo sweep of EXPERIMENT, resuming what is already in --out."""
-    from experiments.registry import UnknownExperimentError, get_experiment
-    from experiments.sweep import (
+    from attopt.experiments.registry import UnknownExperimentError, get_experiment
+    from attopt.experiments.sweep import (
         ConfigError,
         EngineSetupError,
         ManifestMismatchError,
@@ -140,7 +140,7 @@ def run(
 @app.command("list")
 def list_command() -> None:
     """List the registered experiments."""
-    from experiments.registry import list_experiments
+    from attopt.experiments.registry import list_experiments
 
     listing = list_experiments()
     width = max((len(name) for name, _ in listing), default=0)
@@ -156,7 +156,7 @@ def bench_runner(
     workers: Annotated[int, typer.Option(min=2, help="Workers of the parallel engines.")] = 2,
 ) -> None:
     """Overhead per trial of each engine against a serial loop of the same trials."""
-    from experiments.bench_runner import format_table, run_benchmark
+    from attopt.experiments.bench_runner import format_table, run_benchmark
 
     rows = run_benchmark(
         noop_trials=noop_trials, sleep_trials=sleep_trials, sleep_s=sleep, workers=workers
@@ -170,13 +170,13 @@ def bench_wahba(
     calls: Annotated[int, typer.Option(min=100, help="Single-epoch calls per timing.")] = 2000,
 ) -> None:
     """Wahba solvers against scipy's align_vectors: per call and batched throughput."""
-    from experiments.bench_wahba import format_table, run
+    from attopt.experiments.bench_wahba import format_table, run
 
     typer.echo(format_table(run(n_batch=epochs, calls=calls), epochs))
 
 
 def _print_result(result: SweepResult) -> None:
-    from experiments.sweep.report import failure_digest
+    from attopt.experiments.sweep.report import failure_digest
 
     summary = result.summary
     keys = list(summary.columns[: summary.columns.get_loc("n_rows")])

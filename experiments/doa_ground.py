@@ -2,11 +2,11 @@
 
 Settings are seed 003's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
-once).  One trial is one pass of :mod:`experiments.scenarios.doa_ground`
+once).  One trial is one pass of :mod:`attopt.experiments.scenarios.doa_ground`
 (geometry and truth are the same in every trial, as in the seed; only the
 noise is drawn), and every estimator sees the same DOAs:
 
-1. MUSIC (:class:`~solvers.doa.music.MusicEstimator`, eq. 11) on every
+1. MUSIC (:class:`~attopt.solvers.doa.music.MusicEstimator`, eq. 11) on every
    visible ``(epoch, station)`` pair, from a sample covariance drawn from
    ``numpy.random.default_rng(seed)`` with the exact distribution of eqs.
    8-10's ``X X^H / L`` (:func:`estimate_doas`).  MUSIC is given the input SNR
@@ -16,15 +16,15 @@ noise is drawn), and every estimator sees the same DOAs:
    filters propagate.  Unit vectors ``S_dr`` (eq. 12) against ``S_o`` (eq.
    17, far field) with ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2``
    from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
-2. ``ekf_seed003_q<Q>``: the EKF of seed 003 (:mod:`solvers.doa.ekf`, rigid-body
+2. ``ekf_seed003_q<Q>``: the EKF of seed 003 (:mod:`attopt.solvers.doa.ekf`, rigid-body
    dynamics, no gyro) over all epochs from the paper's initial condition (50
-   deg Euler angles, 0.5 deg/s rates; :mod:`experiments.scenarios.doa_ground`
+   deg Euler angles, 0.5 deg/s rates; :mod:`attopt.experiments.scenarios.doa_ground`
    explains that reading) with prior sigmas ``initial_sigma_deg`` and
    ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
    the seed's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
    our EKF reproduces the seed's attitude RMSEs (docs/doa.md).
 3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
-   model, same data; :mod:`solvers.doa.eks`).  The EKF and RTS rows carry
+   model, same data; :mod:`attopt.solvers.doa.eks`).  The EKF and RTS rows carry
    ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
    (filter and smoother) linearised along the truth, with the DOA CRB at the
    true DOAs of every visible station, and ``crb_{x,y,z}_deg``, the same with
@@ -33,13 +33,13 @@ noise is drawn), and every estimator sees the same DOAs:
    errors below ``pbound`` are possible).  Both are the same for every trial
    of a setting and computed once per worker.
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
-   (:data:`solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
+   (:data:`attopt.solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``bls_seed003`` (:data:`~experiments.doa_report.BATCH_LS`), in the first
+5. ``bls_seed003`` (:data:`~attopt.experiments.doa_report.BATCH_LS`), in the first
    ``filter_trials`` trials of each setting
-   (:func:`experiments.sweep.seeding.trial_index`): the whole-pass batch
+   (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
    least squares over the seed's deterministic dynamics
-   (:mod:`solvers.doa.batch_ls`, ``Q = 0``), started from the lowest-``Q``
+   (:mod:`attopt.solvers.doa.batch_ls`, ``Q = 0``), started from the lowest-``Q``
    RTS pass at epoch 0; its ``pbound_*`` and ``crb_*`` are both the ``Q = 0``
    smoother bound, its time includes the EKF and RTS passes it starts from.
 6. ``filters`` (default ``mekf`` and ``fg_batch``), in the first
@@ -51,10 +51,10 @@ noise is drawn), and every estimator sees the same DOAs:
    EKF).  The smoother starts its iterations from the lowest-``Q`` RTS pass
    (its result does not depend on the start once it converges; its time
    includes that pass).  Their rows carry the posterior bound of the pass
-   with the gyro (:func:`experiments.filtering.posterior_bound`).
+   with the gyro (:func:`attopt.experiments.filtering.posterior_bound`).
 
 Rows.  Attitude rows every ``row_step_s`` (a 5000 s pass has 20 000 epochs)
-per method with :func:`experiments.metrics.error_columns`, the ``phase``
+per method with :func:`attopt.experiments.metrics.error_columns`, the ``phase``
 (``converging`` before ``settle_s``, then ``settled``: seed 003's RMSEs of
 about 0.1 deg can only be post-convergence values, its Fig. 6 shows
 convergence within 1500 s), rate errors (``rate_err_{x,y,z}_deg_s``) of the
@@ -74,11 +74,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
-
-from experiments.doa_report import BATCH_LS, GYRO_FILTERS, ekf_method, report, rts_method
-from experiments.experiment import Experiment, Setting
-from experiments.filtering import (
+from attopt.experiments.doa_report import BATCH_LS, GYRO_FILTERS, ekf_method, report, rts_method
+from attopt.experiments.experiment import Experiment, Setting
+from attopt.experiments.filtering import (
     GYRO_STREAM,
     VECTOR_FILTERS,
     GyroTruth,
@@ -88,8 +86,8 @@ from experiments.filtering import (
     run_filters,
     simulate_filter_inputs,
 )
-from experiments.metrics import error_columns
-from experiments.scenarios.doa_ground import (
+from attopt.experiments.metrics import error_columns
+from attopt.experiments.scenarios.doa_ground import (
     DURATION_S,
     FILTER_INITIAL_EULER_DEG,
     FILTER_INITIAL_RATE_DEG_S,
@@ -98,26 +96,27 @@ from experiments.scenarios.doa_ground import (
     DoaGroundGeometry,
     build_geometry,
 )
-from experiments.sweep.seeding import trial_index
-from formulations.attitude_measurement import VectorMeasurement
-from formulations.conventions import attitude_from_euler321
-from formulations.doa_array import (
+from attopt.experiments.sweep.seeding import trial_index
+from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.formulations.conventions import attitude_from_euler321
+from attopt.formulations.doa_array import (
     doa_unit_vector,
     simulate_sample_covariance,
     unit_vector_covariance,
 )
-from formulations.doa_crb import stochastic_crb
-from formulations.doa_measurement import DoaMeasurement
-from formulations.errors import ConvergenceError, UnobservableError
-from formulations.gyro import MEMS_GYRO
-from solvers.doa.batch_ls import BatchLsResult, batch_least_squares
-from solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_vectors
-from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
-from solvers.doa.music import DoaEstimates, MusicEstimator
-from solvers.filters.common import FilterPrior
-from solvers.result import BatchSolution
-from solvers.smoother.batch import single_frame_initial
-from solvers.wahba import WAHBA_SOLVERS
+from attopt.formulations.doa_crb import stochastic_crb
+from attopt.formulations.doa_measurement import DoaMeasurement
+from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.formulations.gyro import MEMS_GYRO
+from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
+from attopt.solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_vectors
+from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
+from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
+from attopt.solvers.filters.common import FilterPrior
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.smoother.batch import single_frame_initial
+from attopt.solvers.wahba import WAHBA_SOLVERS
+from scipy.spatial.transform import Rotation
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)
@@ -178,7 +177,7 @@ def estimate_doas(
     """MUSIC estimates of every visible ``(epoch, station)`` pair, in epoch-major order.
 
     Each pair's sample covariance is drawn directly
-    (:func:`~formulations.doa_array.simulate_sample_covariance`: the exact
+    (:func:`~attopt.formulations.doa_array.simulate_sample_covariance`: the exact
     distribution of ``X X^H / L`` of eqs. 8-10, at a cost independent of ``L``).
     """
     epochs, stations = np.nonzero(geometry.visible)
@@ -268,7 +267,7 @@ def _model_bound(
     initial_rate_sigma_deg_s: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Attitude standard deviations (deg, ``(N, 3)``) of the posterior Cramer-Rao bound of
-    the EKF's model (filter, smoother), :func:`solvers.doa.eks.posterior_bound_ekf` with
+    the EKF's model (filter, smoother), :func:`attopt.solvers.doa.eks.posterior_bound_ekf` with
     the DOA CRB of every visible station at the truth: the same for every trial of a
     setting, so cached.  With ``process_noise = 0`` it is the Cramer-Rao bound of the
     seed's problem itself (known, torque-free dynamics)."""

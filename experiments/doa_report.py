@@ -35,10 +35,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from attopt.experiments.experiment import ReportContext
+from attopt.solvers.doa.ekf import PROCESS_NOISE
 from scipy.stats import chi2
-
-from experiments.experiment import ReportContext
-from solvers.doa.ekf import PROCESS_NOISE
 
 # Seed 003 Tables 1-2: (snr_db, L) -> RMSE theta, phi, yaw, roll, pitch (deg).
 SEED003_TABLES: dict[tuple[float, int], tuple[float, float, float, float, float]] = {

@@ -3,8 +3,8 @@
 The scenarios define the true attitude relative to the orbit frame (``A_bo``)
 at the measurement epochs.  A gyro measures the body rate relative to the
 inertial frame (ECI, GCRS), so the filters estimate ``A_bi = A_bo A_oi``
-(:mod:`solvers.filters`) and their measurements are wrapped in
-:class:`~formulations.attitude_measurement.ReferencedMeasurement` with the
+(:mod:`attopt.solvers.filters`) and their measurements are wrapped in
+:class:`~attopt.formulations.attitude_measurement.ReferencedMeasurement` with the
 epoch's ``A_oi``.  Between epochs the orbit frame is interpolated by
 spherical linear interpolation (``scipy.spatial.transform.Slerp``: the orbit
 frame turns at the nearly constant orbit rate, so the interpolation error is
@@ -29,14 +29,13 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
+from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
+from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, rts_smooth, usque
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.smoother import SmootherOptions, SmootherResult, smooth, smooth_online
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
-
-from formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
-from formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
-from solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, rts_smooth, usque
-from solvers.result import BatchSolution
-from solvers.smoother import SmootherOptions, SmootherResult, smooth, smooth_online
 
 Array = NDArray[np.float64]
 
@@ -131,7 +130,7 @@ def referenced(
 
 FILTERS = ("mekf", "usque", "rts", "fg_online", "fg_batch", "fg_batch_offsets")
 """Filter kinds: the MEKF, USQUE, the RTS pass over the MEKF, and the factor-graph
-smoother (:mod:`solvers.smoother`): causal fixed-lag (``fg_online``), batch over the
+smoother (:mod:`attopt.solvers.smoother`): causal fixed-lag (``fg_online``), batch over the
 whole pass (``fg_batch``), and batch with one power offset per transmitter
 (``fg_batch_offsets``, SNR measurements only).  The smoother rows keep their
 names; the others take the caller's suffix."""
@@ -305,7 +304,7 @@ def filter_columns(
     """Bias estimate, error and sigma (deg/h, per axis), the 6-state NEES ``nees_full``
     and the update counts, per epoch.
 
-    The attitude columns come from :func:`experiments.metrics.error_columns`
+    The attitude columns come from :func:`attopt.experiments.metrics.error_columns`
     applied to :func:`in_orbit_frame` of the solution.
     """
     true_bias = inputs.gyro.bias[truth.epoch_samples]

@@ -1,11 +1,11 @@
 """Markdown report of ``geo-snr-stations`` (seed 004; issue 8 sec. 4).
 
-Sections: Table 3 (M2M4, :func:`solvers.geo.m2m4.snr_table`) beside the
+Sections: Table 3 (M2M4, :func:`attopt.solvers.geo.m2m4.snr_table`) beside the
 seed's values; the boresight error with exact and perturbed RF parameters
-(Fig. 6, :func:`solvers.geo.boresight.rf_sensitivity`); each method's
+(Fig. 6, :func:`attopt.solvers.geo.boresight.rf_sensitivity`); each method's
 roll/pitch RMS with its bound and the yaw (unobservable) line; the manoeuvre
 detection result; the filters' errors with 3-sigma bounds (Figs. 9-10,
-``usque_3sigma.png``).  Column meanings: :mod:`experiments.geo_snr_stations`.
+``usque_3sigma.png``).  Column meanings: :mod:`attopt.experiments.geo_snr_stations`.
 """
 
 from __future__ import annotations
@@ -19,15 +19,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-
-from experiments.experiment import ReportContext
-from experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.experiment import ReportContext
+from attopt.experiments.scenarios.geo_snr_stations import (
     MANOEUVRE_START_S,
     START_UTC,
     build_geo_snr_scenario,
 )
-from solvers.geo.boresight import rf_sensitivity
-from solvers.geo.m2m4 import snr_table
+from attopt.solvers.geo.boresight import rf_sensitivity
+from attopt.solvers.geo.m2m4 import snr_table
 
 TABLE3_SEED = {0.0: 0.02, 2.0: 2.025, 4.0: 4.034, 6.0: 5.98, 8.0: 7.99, 10.0: 10.04}
 """Seed 004 Table 3: mean M2M4 estimate (dB) at each true SNR."""

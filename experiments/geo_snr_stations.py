@@ -1,18 +1,18 @@
 """Experiment ``geo-snr-stations``: Garuda-1's boresight from ground-station SNRs (seed 004).
 
-One trial simulates the hour of :mod:`experiments.scenarios.geo_snr_stations`
+One trial simulates the hour of :mod:`attopt.experiments.scenarios.geo_snr_stations`
 (SNR noise from the trial's seed) and solves it with, per epoch:
 
 * ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12);
 * ``lsq``: least-squares boresight over every station that hears the satellite;
-* ``nlp``: the CasADi/IPOPT NLP of :mod:`solvers.snr.nlp` on every heard
+* ``nlp``: the CasADi/IPOPT NLP of :mod:`attopt.solvers.snr.nlp` on every heard
   station's SNR (the seed's eq. 7 model through
-  :func:`formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight;
+  :func:`attopt.formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight;
 * ``usque``: the unscented filter of sec. V.B on the three filter stations;
 * ``usque_detect``: the same with manoeuvre detection and automatic
-  re-initialisation (:mod:`solvers.geo.manoeuvre`), run with and without the
+  re-initialisation (:mod:`attopt.solvers.geo.manoeuvre`), run with and without the
   manoeuvre so that false alarms show;
-* ``fg_batch``: the factor-graph smoother (:func:`solvers.smoother.smooth`) on
+* ``fg_batch``: the factor-graph smoother (:func:`attopt.solvers.smoother.smooth`) on
   the filters' SNRs, started from ``usque_detect`` (``usque`` would carry the
   manoeuvre's unmodelled rate into the start).
 
@@ -26,8 +26,8 @@ random walk of ``rate_rrw_deg_h_sqrt_h`` and a 1 deg/h initial rate-error sigma.
 
 Prior.  The seed starts its filter with 5 deg per axis.  An attitude error is
 drawn with that sigma from the trial's child stream
-(:func:`experiments.filtering.child_rng`) and its boresight is replaced by
-``cone``'s at the first epoch (:func:`solvers.geo.manoeuvre.boresight_prior`,
+(:func:`attopt.experiments.filtering.child_rng`) and its boresight is replaced by
+``cone``'s at the first epoch (:func:`attopt.solvers.geo.manoeuvre.boresight_prior`,
 yaw kept, yaw sigma 5 deg): from the raw draw (up to 9 deg off) the
 stations fall outside the 9 deg main lobe at the sigma points and USQUE
 never updates (measured: no update in the hour).
@@ -42,7 +42,7 @@ carry with a large sigma) is in ``yaw_err_deg``.  ``sigma_{x,y,z}_deg``: the
 method's own standard deviations (NaN for ``cone``/``lsq``);
 ``bound_{x,y}_deg``: the filters' and smoother's own sigma, and for the
 snapshot methods the Cramer-Rao bound of their stations' SNRs
-(:func:`formulations.geo_fisher.snr_fisher_information`, pseudo-inverse: the
+(:func:`attopt.formulations.geo_fisher.snr_fisher_information`, pseudo-inverse: the
 boresight axis is its nullspace).  ``usque_detect`` rows add the windowed
 test's ``p_value`` and ``detected`` at the epochs it restarted.
 """
@@ -54,33 +54,32 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
-
-from experiments.experiment import Experiment, Setting
-from experiments.filtering import GYRO_STREAM, child_rng
-from experiments.geo_report import report
-from experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.experiment import Experiment, Setting
+from attopt.experiments.filtering import GYRO_STREAM, child_rng
+from attopt.experiments.geo_report import report
+from attopt.experiments.scenarios.geo_snr_stations import (
     MANOEUVRE_START_S,
     SNR_SIGMA_DB,
     GeoSnrScenario,
     build_geo_snr_scenario,
     true_attitude,
 )
-from formulations.errors import AttoptError
-from formulations.geo_fisher import snr_fisher_information
-from formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
-from formulations.gyro import GyroModel, GyroSamples, mean_rates
-from solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
-from solvers.geo.boresight import (
+from attopt.formulations.errors import AttoptError
+from attopt.formulations.geo_fisher import snr_fisher_information
+from attopt.formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
+from attopt.formulations.gyro import GyroModel, GyroSamples, mean_rates
+from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
+from attopt.solvers.geo.boresight import (
     StationCones,
     cone_intersection,
     least_squares_boresight,
     station_cones,
 )
-from solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
-from solvers.smoother import SmootherOptions, smooth
-from solvers.snr.nlp import NlpSolver
+from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
+from attopt.solvers.smoother import SmootherOptions, smooth
+from attopt.solvers.snr.nlp import NlpSolver
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -88,7 +87,7 @@ FILTER_STATIONS = ("Surabaya", "General Santos", "Labuan")
 """The three stations of the cone intersection and the filters: those that hear
 Garuda-1 during the whole hour (``docs/geo.md``)."""
 FILTER_OPTIONS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.radians(90.0))
-"""No innovation gate (the seed's filter has none; :mod:`solvers.geo.manoeuvre`),
+"""No innovation gate (the seed's filter has none; :mod:`attopt.solvers.geo.manoeuvre`),
 and a 90 deg validity limit: the yaw sigma is large by nature, not a failure."""
 
 MIN_WINDOW = 3
@@ -368,4 +367,4 @@ EXPERIMENT = Experiment(
     report=report,
     summary_columns=summary_columns,
 )
-"""The experiment (:mod:`experiments.registry` name ``geo-snr-stations``)."""
+"""The experiment (:mod:`attopt.experiments.registry` name ``geo-snr-stations``)."""

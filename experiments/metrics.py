@@ -12,10 +12,9 @@ which the seeds' tables report.  Invalid epochs are NaN throughout.
 from __future__ import annotations
 
 import numpy as np
+from attopt.formulations.conventions import attitude_error, euler321_from_attitude
+from attopt.solvers.result import BatchSolution
 from scipy.spatial.transform import Rotation
-
-from formulations.conventions import attitude_error, euler321_from_attitude
-from solvers.result import BatchSolution
 
 AXES = ("x", "y", "z")
 

@@ -1,7 +1,7 @@
 """Names of the experiments the CLI can run, imported only when requested.
 
 ``EXPERIMENTS`` maps a short name to the import path ``"package.module:OBJECT"``
-of a module-level :class:`~experiments.experiment.Experiment`.  Modules are
+of a module-level :class:`~attopt.experiments.experiment.Experiment`.  Modules are
 imported lazily, so a registered module that is missing or broken only fails
 when that experiment is requested.  Anywhere a name is accepted, an import
 path is accepted as well (e.g. for experiments kept outside this package).
@@ -12,14 +12,14 @@ from __future__ import annotations
 import importlib
 import sys
 
-from experiments.experiment import Experiment
+from attopt.experiments.experiment import Experiment
 
 EXPERIMENTS: dict[str, str] = {
-    "noop": "experiments.sweep.toys:NOOP",
-    "wahba-mag-sun": "experiments.wahba_mag_sun:EXPERIMENT",
-    "adsb-snr": "experiments.adsb_snr:EXPERIMENT",
-    "doa-ground": "experiments.doa_ground:EXPERIMENT",
-    "geo-snr-stations": "experiments.geo_snr_stations:EXPERIMENT",
+    "noop": "attopt.experiments.sweep.toys:NOOP",
+    "wahba-mag-sun": "attopt.experiments.wahba_mag_sun:EXPERIMENT",
+    "adsb-snr": "attopt.experiments.adsb_snr:EXPERIMENT",
+    "doa-ground": "attopt.experiments.doa_ground:EXPERIMENT",
+    "geo-snr-stations": "attopt.experiments.geo_snr_stations:EXPERIMENT",
 }
 
 

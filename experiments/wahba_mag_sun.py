@@ -1,6 +1,6 @@
 """Experiment ``wahba-mag-sun``: every Wahba solver on seed 002's scenario.
 
-One trial is one pass of :mod:`experiments.scenarios.wahba_mag_sun` (6000 s
+One trial is one pass of :mod:`attopt.experiments.scenarios.wahba_mag_sun` (6000 s
 at 1 Hz) with fresh sensor noise; every solver sees the same measurements.
 Rows are per method and epoch: the body-axis attitude error, the Cramer-Rao
 bound of that epoch (``sqrt`` of the diagonal of ``[sum a_i (I - b_i b_i^T)]^-1``
@@ -9,23 +9,23 @@ the normalised estimation error squared ``nees``), and the 3-2-1 Euler-angle
 differences the seed's Table 1 reports.
 
 Gyro-aided filters (``filters``: the MEKF, USQUE and the RTS smoother over
-the MEKF, :mod:`experiments.filtering`) see the same vector measurements
-(each epoch one :class:`~formulations.attitude_measurement.VectorMeasurement`
+the MEKF, :mod:`attopt.experiments.filtering`) see the same vector measurements
+(each epoch one :class:`~attopt.formulations.attitude_measurement.VectorMeasurement`
 of the Sun and field directions, orbit-frame references; the Sun row is
 dropped in eclipse) plus a simulated gyro (``gyro``, a
-:data:`formulations.gyro.GYRO_MODELS` name; seed 002 has none, so the default
+:data:`attopt.formulations.gyro.GYRO_MODELS` name; seed 002 has none, so the default
 is the MEMS unit) and a prior with ``initial_sigma_deg`` attitude error per
 axis.  The gyro and the prior draw from a child stream of the trial's seed
-(:func:`experiments.filtering.child_rng`), so the single-frame rows do not
+(:func:`attopt.experiments.filtering.child_rng`), so the single-frame rows do not
 depend on the filters.  Filter rows carry the single-frame columns plus
-:func:`experiments.filtering.filter_columns` (gyro-bias error and sigma,
+:func:`attopt.experiments.filtering.filter_columns` (gyro-bias error and sigma,
 6-state NEES ``nees_full``, update counts), the bias estimates
 ``bias_{x,y,z}_deg_h`` and ``runtime_s``, the wall time of the pass (for
 ``rts``: the MEKF's plus the backward pass's); single-frame rows have NaN
-there.  ``fg_batch`` is the GTSAM whole-pass smoother (:mod:`solvers.smoother`)
+there.  ``fg_batch`` is the GTSAM whole-pass smoother (:mod:`attopt.solvers.smoother`)
 started from the RTS estimates (its ``runtime_s`` includes them); with it,
 the gyro-aided rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao
-bound of the pass (:func:`experiments.filtering.posterior_bound`).
+bound of the pass (:func:`attopt.experiments.filtering.posterior_bound`).
 """
 
 from __future__ import annotations
@@ -37,9 +37,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
-from experiments.experiment import Experiment, Setting
-from experiments.filtering import (
+from attopt.experiments.experiment import Experiment, Setting
+from attopt.experiments.filtering import (
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
     VECTOR_FILTERS,
@@ -52,8 +51,8 @@ from experiments.filtering import (
     run_filters,
     simulate_filter_inputs,
 )
-from experiments.metrics import error_columns
-from experiments.scenarios.wahba_mag_sun import (
+from attopt.experiments.metrics import error_columns
+from attopt.experiments.scenarios.wahba_mag_sun import (
     MAG_SIGMA,
     SUN_SIGMA,
     VectorGeometry,
@@ -61,12 +60,12 @@ from experiments.scenarios.wahba_mag_sun import (
     simulate_measurements,
     true_attitude,
 )
-from experiments.wahba_report import report
-from formulations.attitude_measurement import VectorMeasurement
-from formulations.conventions import orbit_frame_attitude
-from formulations.gyro import GYRO_MODELS
-from formulations.wahba_covariance import quest_covariance
-from solvers.wahba import WAHBA_SOLVERS
+from attopt.experiments.wahba_report import report
+from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.formulations.conventions import orbit_frame_attitude
+from attopt.formulations.gyro import GYRO_MODELS
+from attopt.formulations.wahba_covariance import quest_covariance
+from attopt.solvers.wahba import WAHBA_SOLVERS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
 

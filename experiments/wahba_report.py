@@ -9,10 +9,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-
-from experiments.experiment import ReportContext
-from experiments.scenarios.wahba_mag_sun import START_UTC, build_geometry
-from formulations.gyro import GYRO_MODELS, GyroModel
+from attopt.experiments.experiment import ReportContext
+from attopt.experiments.scenarios.wahba_mag_sun import START_UTC, build_geometry
+from attopt.formulations.gyro import GYRO_MODELS, GyroModel
 
 # Seed 002 Table 1 (RMS error, deg; "nd" = no data): method -> interval -> (roll, pitch, yaw).
 SEED002_TABLE1: dict[str, dict[str, tuple[float, float, float] | None]] = {
@@ -404,7 +403,7 @@ def _bound_lines(ctx: ReportContext, filters: list[str]) -> list[str]:
     lines = [
         "RMS (deg) against the posterior Cramer-Rao bound of the whole pass (`bound`: RMS of "
         "the smoother's marginal sigma at the truth, gyro and every vector; "
-        "`experiments.filtering.posterior_bound`), per interval:",
+        "`attopt.experiments.filtering.posterior_bound`), per interval:",
         "",
         "| filter | " + " | ".join(f"{i}: RMS / bound" for i in INTERVAL_ORDER) + " |",
         "|---|" + "---|" * len(INTERVAL_ORDER),

@@ -2,5 +2,5 @@
 
 Each problem of the seed papers is written here once; ``solvers`` consume it.
 Frames, quaternion order and the attitude direction are fixed in
-``formulations.conventions`` (documented in ``docs/conventions.md``).
+``attopt.formulations.conventions`` (documented in ``docs/conventions.md``).
 """

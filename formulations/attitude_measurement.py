@@ -10,15 +10,15 @@ so they contain no measurement-specific code.  Rows are grouped in blocks
 (one observation each: one SNR, one unit vector, one Euler-angle triple) for
 outlier gating.
 
-Symbolic models are written once with :mod:`formulations.symbolic` and
+Symbolic models are written once with :mod:`attopt.formulations.symbolic` and
 differentiated by CasADi
-(:func:`formulations.attitude_model.attitude_model_function`): the attitude
-enters as ``C(v) A`` (:func:`formulations.attitude_model.increment_matrix`,
+(:func:`attopt.formulations.attitude_model.attitude_model_function`): the attitude
+enters as ``C(v) A`` (:func:`attopt.formulations.attitude_model.increment_matrix`,
 seed 000 eq. 28), whose derivative at ``v = 0`` is the body-frame Jacobian.
 
 Implementations: :class:`EulerAngleMeasurement` (seed 000 eqs. 41-46, the
 "paper MEKF" observation), :class:`VectorMeasurement` (unit vectors, seed 002
-eqs. 2-4), :class:`formulations.snr_measurement.SnrMeasurement` (SNRs, seed
+eqs. 2-4), :class:`attopt.formulations.snr_measurement.SnrMeasurement` (SNRs, seed
 000 eq. 13); :class:`ReferencedMeasurement` re-expresses any of them for an
 attitude relative to another reference frame.
 """
@@ -30,13 +30,12 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
+from attopt.formulations.conventions import euler321_from_attitude
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.symbolic import CASADI
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
-from formulations.conventions import euler321_from_attitude
-from formulations.errors import InvalidObservationError
-from formulations.symbolic import CASADI
 
 Array = NDArray[np.float64]
 
@@ -119,7 +118,7 @@ class EulerAngleMeasurement(AttitudeMeasurement):
     the NLSE's); the Jacobian (AD) equals minus seed 000 eq. 44's ``H_v``, the
     Euler-rate kinematics matrix at the predicted angles: the seed's error
     vector is the opposite rotation of attopt's ``delta`` (its eq. 36 has
-    ``- delta_beta``, see :mod:`formulations.gyro`).  One gating block.
+    ``- delta_beta``, see :mod:`attopt.formulations.gyro`).  One gating block.
     """
 
     def __init__(self, angles: ArrayLike, covariance: ArrayLike) -> None:

@@ -1,7 +1,7 @@
 """Attitude-model machinery shared by every measurement model: increment and AD.
 
 A measurement model ``h(A, params)`` is written once with
-:mod:`formulations.symbolic`.  Solvers vary the attitude as ``A = C(v) A_ref``
+:mod:`attopt.formulations.symbolic`.  Solvers vary the attitude as ``A = C(v) A_ref``
 (:func:`increment_matrix`, seed 000 eq. 28) and need ``h`` and ``dh/dv`` at
 ``v = 0``: the Jacobian with respect to the body-frame attitude error
 (``docs/conventions.md``).  :func:`attitude_model_function` builds that pair
@@ -17,9 +17,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.symbolic import namespace_of
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.symbolic import namespace_of
 
 Array = NDArray[np.float64]
 

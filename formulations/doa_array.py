@@ -35,11 +35,10 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_model import bucket
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.symbolic import CASADI, namespace_of
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.attitude_model import bucket
-from formulations.errors import InvalidObservationError
-from formulations.symbolic import CASADI, namespace_of
 
 Array = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
@@ -125,7 +124,7 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
     Input ``i`` is ``N`` stacked values of the function's input shape
     (``(N, rows, columns)``, or ``(N, rows)`` for a column), or one value
     shared by every point.  The map is built for
-    :func:`~formulations.attitude_model.bucket` ``(N)`` points (the last
+    :func:`~attopt.formulations.attitude_model.bucket` ``(N)`` points (the last
     repeated) and evaluated on numpy buffers (no CasADi matrices): each
     point's nonzeros, column-major, follow the previous point's.
     """

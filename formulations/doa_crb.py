@@ -15,8 +15,8 @@ with the real phase ``psi(eta)`` of seed 003 eq. 20,
 ``CRB = (1 + 1 / (M SNR)) / (2 L SNR) [G^T (I - 1 1^T / M) G]^{-1}``,
 
 ``SNR = P / sigma^2`` per element.  ``G`` is CasADi's derivative of the phase
-function (:meth:`~formulations.doa_array.UniformCircularArray.steering_phase`
-of :func:`~formulations.doa_array.doa_unit_vector`), so the bound holds for
+function (:meth:`~attopt.formulations.doa_array.UniformCircularArray.steering_phase`
+of :func:`~attopt.formulations.doa_array.doa_unit_vector`), so the bound holds for
 any planar array.  For the UCA the columns of ``G`` are
 ``k r cos theta cos(phi - varphi_m)`` and ``-k r sin theta sin(phi - varphi_m)``,
 giving ``CRB_theta = (1 + 1 / (M SNR)) / (L M SNR (k r cos theta)^2)`` and
@@ -30,15 +30,14 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike
-
-from formulations.doa_array import (
+from attopt.formulations.doa_array import (
     SEED003_UCA,
     Array,
     UniformCircularArray,
     doa_unit_vector,
     evaluate_mapped,
 )
+from numpy.typing import ArrayLike
 
 _SINGULAR = 1e-12
 """Relative determinant below which the information matrix is singular."""

@@ -16,7 +16,7 @@ approximation (eq. 17, ``far_field=True``) drops ``R_b``: the line of sight
 then turns by at most ``asin(|R_b| / |D_o|)`` (``docs/doa.md``).
 
 The model is written once in CasADi and differentiated by AD
-(:func:`~formulations.attitude_model.attitude_model_function`).  Two
+(:func:`~attopt.formulations.attitude_model.attitude_model_function`).  Two
 directions get a special treatment:
 
 * near the array axis (measured ``theta < axis_threshold``) ``phi`` is
@@ -39,14 +39,13 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
+from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
+from attopt.formulations.doa_array import doa_from_unit_vector, doa_jacobian, doa_unit_vector
+from attopt.formulations.errors import InvalidObservationError
 from numpy.typing import ArrayLike
 from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import Array, AttitudeMeasurement
-from formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
-from formulations.doa_array import doa_from_unit_vector, doa_jacobian, doa_unit_vector
-from formulations.errors import InvalidObservationError
 
 AXIS_THRESHOLD = float(np.radians(5.0))
 """Measured polar angle below which a station is measured by direction cosines (rad)."""

@@ -7,7 +7,7 @@ evaluated from two numbers computed accurately by the SNR model:
 * ``versine = 1 - cos(alpha) = |l - b|^2 / 2`` (unit ``l``, ``b``), accurate
   near 0 degrees, where ``1 - l . b`` would cancel.
 
-Patterns are written with the :mod:`formulations.symbolic` namespaces, so one
+Patterns are written with the :mod:`attopt.formulations.symbolic` namespaces, so one
 definition serves numpy and CasADi, and none of them uses ``arccos``: their
 derivatives stay finite at ``alpha = 0``.  Each pattern states its main lobe
 (``max_off_boresight_rad`` and ``min_cos``): the region where it is valid and
@@ -30,10 +30,9 @@ from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.symbolic import NUMPY, ArrayNamespace
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.errors import InvalidObservationError
-from formulations.symbolic import NUMPY, ArrayNamespace
 
 
 class GainPattern(Protocol):

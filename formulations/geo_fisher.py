@@ -3,8 +3,8 @@
 With SNRs ``y = h(A) + n``, ``n ~ N(0, sigma^2 I)``, the Fisher information of
 the attitude error is ``F = H^T H / sigma^2`` (eqs. 13-14), ``H = dh / d delta``.
 Seed 004 derives ``H`` by hand (eqs. 15-24); here it is CasADi's automatic
-derivative of the one SNR model (:func:`formulations.geo_link.geo_snr_db` in
-the form of :func:`formulations.snr_model.predict_snr`), with respect to
+derivative of the one SNR model (:func:`attopt.formulations.geo_link.geo_snr_db` in
+the form of :func:`attopt.formulations.snr_model.predict_snr`), with respect to
 attopt's body-frame error ``delta`` of ``exp(delta) A``.  Seed 004's
 ``delta alpha`` (eq. 17, ``A_hat = exp(-[delta alpha x]) A``) is ``-delta``:
 ``F`` and its nullspace are the same.
@@ -22,17 +22,16 @@ eigenvalue, ``|H|^2 / sigma^2``, is the "information magnitude" of Fig. 8.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.geo_link import (
+from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
     GARUDA1,
     GeoLink,
     attitude_pointing,
     station_terms,
 )
-from formulations.snr_model import fisher_information, predict_snr
+from attopt.formulations.snr_model import fisher_information, predict_snr
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -87,7 +86,7 @@ def information_map(
     """Information magnitude ``(n_roll, n_pitch)`` about the attitude pointing at the station.
 
     Seed 004 Fig. 8: the base attitude has its boresight on the line of sight
-    to ``station_km`` (``theta_b = 0``, :func:`formulations.geo_link.attitude_pointing`);
+    to ``station_km`` (``theta_b = 0``, :func:`attopt.formulations.geo_link.attitude_pointing`);
     each grid point is ``exp([roll, pitch, 0]) A_base`` (body-frame rotations).
     """
     los = np.asarray(station_km, float) - np.asarray(satellite_km, float)

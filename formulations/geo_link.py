@@ -5,7 +5,7 @@ The SNR at a ground station, in dB (seed 004 eq. 7)::
     SNR = EIRP - L + G_r/T_r - k - R_s,   EIRP = P_t + G_t(theta_b)   (eq. 3)
 
 * ``G_t`` is the broadcaster's main lobe, ``G_max - C (theta_b / theta_3dB)^2``
-  (eq. 5, :class:`formulations.gain_patterns.ParabolicPattern`), with ``G_max``
+  (eq. 5, :class:`attopt.formulations.gain_patterns.ParabolicPattern`), with ``G_max``
   of a parabolic dish ``10 lg[eta (pi D / lambda)^2]`` (eq. 4; the "phi" printed
   in eq. 4 is pi).  The efficiency is ``eta = 0.55``: eq. 4's approximation
   ``6.9 A / lambda^2`` (``A = pi D^2 / 4``) is ``eta = 6.9 / (4 pi) = 0.549``.
@@ -17,7 +17,7 @@ The SNR at a ground station, in dB (seed 004 eq. 7)::
   edge is put at :data:`LOBE_EDGE_DEG`.
 * ``theta_b`` is the angle between the boresight (body ``+z``,
   :data:`BORESIGHT_BODY`) and the line of sight from the satellite to the
-  station (seed 004 eq. 15), computed by :func:`formulations.snr_model.off_boresight`.
+  station (seed 004 eq. 15), computed by :func:`attopt.formulations.snr_model.off_boresight`.
 * ``L = L0 + Delta L`` with ``L0 = 20 lg(4 pi d / lambda)`` and
   ``Delta L = 20 lg(d / h)`` (eq. 6): ``d`` the slant range and ``h`` the
   altitude of the satellite above the station, read as the difference of their
@@ -27,12 +27,12 @@ The SNR at a ground station, in dB (seed 004 eq. 7)::
   omnidirectional station antenna) over ``T_r = 38 K``; ``k`` is Boltzmann's
   constant and ``R_s = 2.4`` kbit/s the noise bandwidth.
 
-In the form of :func:`formulations.snr_model.snr_db`, ``SNR = G_t(theta_b) +
+In the form of :func:`attopt.formulations.snr_model.snr_db`, ``SNR = G_t(theta_b) +
 p0 - P_n`` with ``p0 = P_t - L + G_r`` (:meth:`GeoLink.received_isotropic_dbw`)
 and ``P_n = 10 lg(k T_r R_s)``: :func:`geo_snr_db` is that same symbolic
 definition (numpy and CasADi), so attitude Jacobians come from CasADi AD
-(:func:`formulations.snr_model.predict_snr`) and SNRs of an epoch are an
-:class:`~formulations.snr_measurement.SnrMeasurement` (:func:`geo_snr_epoch`).
+(:func:`attopt.formulations.snr_model.predict_snr`) and SNRs of an epoch are an
+:class:`~attopt.formulations.snr_measurement.SnrMeasurement` (:func:`geo_snr_epoch`).
 
 Frames: the attitude maps the frame of the positions (ECI for filters, ECEF
 for the LOS search) to the body frame; positions are in km.
@@ -47,15 +47,14 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import ParabolicPattern
+from attopt.formulations.link_budget import SPEED_OF_LIGHT_M_PER_S, noise_power_dbw
+from attopt.formulations.snr_model import snr_db
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.symbolic import NUMPY, ArrayNamespace, namespace_of
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import ParabolicPattern
-from formulations.link_budget import SPEED_OF_LIGHT_M_PER_S, noise_power_dbw
-from formulations.snr_model import snr_db
-from formulations.snr_problem import SnrEpoch
-from formulations.symbolic import NUMPY, ArrayNamespace, namespace_of
 
 Array = NDArray[np.float64]
 
@@ -202,7 +201,7 @@ def geo_snr_db(
 
     numpy inputs are checked: :class:`InvalidObservationError` if the
     satellite is not above a station (``h <= 0``), a position is NaN/inf, or a
-    station lies beyond the main lobe (:func:`formulations.snr_model.snr_db`).
+    station lies beyond the main lobe (:func:`attopt.formulations.snr_model.snr_db`).
     """
     relative, distance, height = link_geometry(satellite_km, stations_km)
     xp = namespace_of(attitude_matrix, relative)
@@ -230,7 +229,7 @@ def geo_snr_epoch(
     sigma_db: ArrayLike,
     link: GeoLink = GARUDA1,
 ) -> SnrEpoch:
-    """The SNRs of one epoch as an :class:`~formulations.snr_problem.SnrEpoch`.
+    """The SNRs of one epoch as an :class:`~attopt.formulations.snr_problem.SnrEpoch`.
 
     Its "orbit frame" is the frame of the positions (ECI for the filters), so
     ``SnrMeasurement(geo_snr_epoch(...))`` models the attitude relative to

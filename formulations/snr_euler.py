@@ -2,10 +2,10 @@
 
 The NLSE of seed 000 sec. 3.3 estimates ``z = [psi, theta, phi]`` (yaw, pitch,
 roll).  :func:`euler321_matrix` is eq. 8 written symbolically (CasADi), the
-same attitude as :func:`formulations.conventions.attitude_from_euler321`
+same attitude as :func:`attopt.formulations.conventions.attitude_from_euler321`
 (pinned in ``tests/test_snr_solvers.py``), and
 :func:`snr_euler_jacobian_function` composes it with the one model definition
-:func:`formulations.snr_model.snr_db`, so the Jacobian ``d f / d z`` of eq. 21
+:func:`attopt.formulations.snr_model.snr_db`, so the Jacobian ``d f / d z`` of eq. 21
 is CasADi's automatic derivative.
 """
 
@@ -14,10 +14,9 @@ from __future__ import annotations
 from functools import lru_cache
 
 import casadi as ca
-
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import GainPattern
-from formulations.snr_model import snr_db
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.snr_model import snr_db
 
 
 def euler321_matrix(angles: ca.SX | ca.MX) -> ca.SX | ca.MX:
@@ -46,7 +45,7 @@ def snr_euler_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
     """``(z[3], los[m x 3], boresight[m x 3], p0[m], noise) -> (snr[m], d snr / d z [m x 3])``.
 
     ``snr`` is eq. 13 at the attitude ``euler321_matrix(z)`` (eq. 18 without
-    noise); inputs are not checked (use :func:`formulations.snr_problem.epoch_issue`).
+    noise); inputs are not checked (use :func:`attopt.formulations.snr_problem.epoch_issue`).
     """
     if m < 1:
         raise InvalidObservationError(f"need at least one observation, got m = {m}")

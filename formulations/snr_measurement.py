@@ -1,9 +1,9 @@
-"""SNRs of one epoch as an :class:`~formulations.attitude_measurement.AttitudeMeasurement`.
+"""SNRs of one epoch as an :class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement`.
 
 Each received message's SNR is a scalar measurement (seed 000 eqs. 4, 13):
-the model ``f_k(A)`` of :func:`formulations.snr_model.snr_db`, with its
+the model ``f_k(A)`` of :func:`attopt.formulations.snr_model.snr_db`, with its
 Jacobian with respect to the body-frame attitude error by CasADi AD
-(:func:`~formulations.snr_model.predict_snr`).  Filtering with the SNRs
+(:func:`~attopt.formulations.snr_model.predict_snr`).  Filtering with the SNRs
 themselves is seed 000's proposed future work (sec. 6).
 
 Two measurement models:
@@ -11,7 +11,7 @@ Two measurement models:
 * ``truncated=False``: ``y_k = f_k(A) + nu_k``, ``nu_k ~ N(0, sigma_k^2)``,
   the Gaussian model of seed 000 eq. 19;
 * ``truncated=True``: a message is received only when ``y_k >= tau`` (seed
-  000 sec. 5.1, :mod:`formulations.snr_truncation`), so the received ``y_k``
+  000 sec. 5.1, :mod:`attopt.formulations.snr_truncation`), so the received ``y_k``
   has mean ``f_k + sigma lambda(x_k)`` and variance ``sigma^2 (1 - x_k
   lambda - lambda^2)``, ``x_k = (f_k - tau) / sigma``, ``lambda`` the inverse
   Mills ratio.  Those two moments are the filter's measurement model (the
@@ -35,15 +35,14 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.snr_model import observation_mask, predict_snr, snr_db
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
+from attopt.formulations.symbolic import CASADI
 from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import Array, AttitudeMeasurement
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import GainPattern
-from formulations.snr_model import observation_mask, predict_snr, snr_db
-from formulations.snr_problem import SnrEpoch
-from formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
-from formulations.symbolic import CASADI
 
 
 @lru_cache(maxsize=16)
@@ -61,7 +60,7 @@ def truncated_mean_model(pattern: GainPattern, sigma_db: float, threshold_db: fl
 def truncated_mean_slope(sigma_db: float, threshold_db: float) -> ca.Function:
     """``d E[y | y >= tau] / d f`` by CasADi AD (scalar function; maps over a row of ``f``).
 
-    It equals :func:`~formulations.snr_truncation.truncated_information_factor`
+    It equals :func:`~attopt.formulations.snr_truncation.truncated_information_factor`
     (the truncated variance over ``sigma^2``), an identity the tests check.
     """
     f = ca.SX.sym("f")

@@ -1,8 +1,8 @@
 """SNR measurement model of ADS-B attitude determination (seed 000 sec. 3.1).
 
 ``SNR = G(alpha) + 10 lg P0 - 10 lg(k_B T B) + nu`` dB (seed 000 eqs. 1-4, 11)
-with ``G = 10 lg g`` the receive gain pattern (:mod:`formulations.gain_patterns`),
-``P0`` and the noise power from :mod:`formulations.link_budget`, and
+with ``G = 10 lg g`` the receive gain pattern (:mod:`attopt.formulations.gain_patterns`),
+``P0`` and the noise power from :mod:`attopt.formulations.link_budget`, and
 ``cos alpha = (A l_o) . b_B`` (eqs. 5-7, 13): ``A = C_o^B`` the attitude
 (orbit to body, ``docs/conventions.md``), ``l_o`` the unit line of sight in the
 orbit frame and ``b_B`` the boresight of the receiving antenna in the body frame.
@@ -15,7 +15,7 @@ Earth-looking antennas therefore point towards nadir (``+z`` of the orbit
 frame at zero attitude).
 
 The model is written once (:func:`snr_db`) with the namespaces of
-:mod:`formulations.symbolic`: numpy arrays give vectorised values over epochs
+:mod:`attopt.formulations.symbolic`: numpy arrays give vectorised values over epochs
 and observations, CasADi values give expressions from which
 :func:`snr_function` and :func:`snr_jacobian_function` build
 ``casadi.Function`` objects whose Jacobian is CasADi's automatic derivative.
@@ -35,17 +35,16 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_model import (
+from attopt.formulations.attitude_model import (
     attitude_model_function,
     evaluate_at_attitudes,
     increment_matrix,
 )
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import GainPattern
-from formulations.symbolic import NUMPY, namespace_of
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.symbolic import NUMPY, namespace_of
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -265,7 +264,7 @@ def predict_snr(
     The Jacobian is with respect to the body-frame rotation-vector error
     ``delta`` of ``exp(delta) A`` at ``delta = 0`` (``docs/conventions.md``),
     evaluated by CasADi AD of the model at ``C(v) A``, ``v = 0``
-    (:func:`formulations.attitude_model.attitude_model_function`; ``C(v)``
+    (:func:`attopt.formulations.attitude_model.attitude_model_function`; ``C(v)``
     and ``exp(v)`` agree to first order), one observation per mapped call.  ``attitude`` is one
     rotation or a stack of ``N``; arrays broadcast as in :func:`snr_db`.
     Observations where ``mask`` is False are not evaluated (NaN values and
@@ -273,7 +272,7 @@ def predict_snr(
     :class:`InvalidObservationError`; ``mask="valid"`` evaluates exactly the
     valid ones (:func:`observation_mask`) and leaves the rest NaN.
     ``model`` replaces :func:`snr_db` (same arguments, pattern bound) by a
-    function of it, e.g. the truncated mean of :mod:`formulations.snr_measurement`.
+    function of it, e.g. the truncated mean of :mod:`attopt.formulations.snr_measurement`.
     """
     a, los, bore = _numpy_inputs(attitude.as_matrix(), los_orbit, boresight_body)
     offset = np.asarray(p0_dbw, dtype=float) - np.asarray(noise_dbw, dtype=float)

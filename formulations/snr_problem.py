@@ -2,7 +2,7 @@
 
 An epoch holds ``m`` received ADS-B messages: the measured SNR ``y_k`` (dB,
 seed 000 eq. 4), the unit line of sight ``l_k`` in the orbit frame (satellite
-to aircraft, :func:`formulations.snr_model.line_of_sight`), the index of the
+to aircraft, :func:`attopt.formulations.snr_model.line_of_sight`), the index of the
 antenna that received it, the isotropic power ``10 lg P0_k`` (dBW, eq. 3) and
 the noise power ``10 lg P_n`` (dBW, eq. 2).  The antennas' boresights in the
 body frame and the gain pattern are inputs too.  The unknown is the attitude
@@ -10,13 +10,13 @@ body frame and the gain pattern are inputs too.  The unknown is the attitude
 
 Batches are plain sequences of :class:`SnrEpoch` (epochs differ in ``m``); the
 NLP solver pads each epoch to a bucket size itself
-(:mod:`solvers.snr.padding`).
+(:mod:`attopt.solvers.snr.padding`).
 
-Policy on bad input (mirrors :mod:`formulations.vector_observations`):
+Policy on bad input (mirrors :mod:`attopt.formulations.vector_observations`):
 
 * structurally malformed input (wrong shapes or dimensions, antenna index out
   of range, negative or non-integer antenna index) raises
-  :class:`~formulations.errors.InvalidObservationError` when the
+  :class:`~attopt.formulations.errors.InvalidObservationError` when the
   :class:`SnrEpoch` is constructed;
 * content problems are found by :func:`epoch_issue` and returned as an
   :class:`EpochIssue` (reason and exception class).  A single-epoch solve
@@ -46,12 +46,11 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
+from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snr_model import SNR_SIGMA_DB
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.errors import AttoptError, InvalidObservationError, UnobservableError
-from formulations.gain_patterns import GainPattern
-from formulations.link_budget import LinkBudget
-from formulations.snr_model import SNR_SIGMA_DB
 
 Array = NDArray[np.float64]
 

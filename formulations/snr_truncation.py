@@ -2,7 +2,7 @@
 
 Truncation model.  A message is decoded only when its MEASURED SNR reaches the
 threshold ``tau`` (``P_SNR^req = 6 dB``, seed 000 sec. 5.1;
-:attr:`formulations.snr_problem.SnrEpoch.threshold_db`).  With the Gaussian
+:attr:`attopt.formulations.snr_problem.SnrEpoch.threshold_db`).  With the Gaussian
 measurement of seed 000 eq. 4, ``y = f(A) + nu``, ``nu ~ N(0, sigma^2)``, a
 received ``y`` is therefore ``N(f, sigma^2)`` truncated below at ``tau``:
 
@@ -31,7 +31,7 @@ information is eq. 22 with each row weighted by that factor
 the thresholded measurements, the right bound for any estimator on them.
 
 ``log Phi`` (:func:`log_normal_cdf`) is written once for numpy and CasADi
-(:mod:`formulations.symbolic`).  CasADi 3.8 has ``erf`` but no ``erfc``, and
+(:mod:`attopt.formulations.symbolic`).  CasADi 3.8 has ``erf`` but no ``erfc``, and
 ``log((1 + erf(x / sqrt 2)) / 2)`` loses every digit for ``x << 0`` (``Phi``
 below the rounding of 1) and its relative accuracy for ``x >> 0`` (``log Phi ~
 -Phi(-x)``), so with ``u = |x| / sqrt 2``:
@@ -60,10 +60,9 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from attopt.formulations.snr_model import fisher_information
+from attopt.formulations.symbolic import ArrayNamespace, namespace_of
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.snr_model import fisher_information
-from formulations.symbolic import ArrayNamespace, namespace_of
 
 Array = NDArray[np.float64]
 
@@ -198,7 +197,7 @@ def truncated_fisher_information(
     thresholded measurements, ``c_k`` :func:`truncated_information_factor` at ``f_k``.
 
     ``jacobian`` ``(..., m, 3)`` and ``predicted_db`` ``(..., m)`` as from
-    :func:`formulations.snr_model.predict_snr`; ``sigma_db`` broadcasts against ``(..., m)``.
+    :func:`attopt.formulations.snr_model.predict_snr`; ``sigma_db`` broadcasts against ``(..., m)``.
     """
     predicted = np.asarray(predicted_db, dtype=float)
     sigma = np.broadcast_to(np.asarray(sigma_db, dtype=float), predicted.shape)

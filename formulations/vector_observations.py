@@ -8,7 +8,7 @@ measurements ``b_i`` and reference-frame directions ``r_i`` with weights
 Policy on bad input:
 
 * malformed input as a whole (wrong shapes) raises
-  :class:`~formulations.errors.InvalidObservationError` immediately;
+  :class:`~attopt.formulations.errors.InvalidObservationError` immediately;
 * per-epoch problems (NaN/inf components, zero-length vectors, zero, negative
   or NaN weights, fewer than two observations, (anti)parallel directions) mark
   that epoch invalid with a reason and the exception class a single-epoch call
@@ -27,10 +27,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
+from attopt.formulations.wahba import attitude_profile_matrix
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.errors import AttoptError, InvalidObservationError, UnobservableError
-from formulations.wahba import attitude_profile_matrix
 
 MIN_NORM = 1e-12
 PARALLEL_TOLERANCE = 1e-3

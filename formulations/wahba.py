@@ -2,7 +2,7 @@
 
 All functions take a leading epoch axis: body and reference vectors ``(N, n, 3)``
 and weights ``(N, n)``.  The attitude convention is ``b = A r``
-(``formulations.conventions``).
+(``attopt.formulations.conventions``).
 """
 
 from __future__ import annotations

@@ -3,15 +3,14 @@
 All are ``(N, 3, 3)`` in rad^2, body frame, for weights ``a_i = 1 / sigma_i^2``
 with ``sigma_i`` the per-axis (direction-cosine) noise of observation ``i``.
 The error they describe is the body-frame rotation vector of
-``A_est * A_true.inv()`` (``formulations.conventions.attitude_error``).
+``A_est * A_true.inv()`` (``attopt.formulations.conventions.attitude_error``).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from attopt.formulations.wahba import det3
 from numpy.typing import NDArray
-
-from formulations.wahba import det3
 
 Array = NDArray[np.float64]
 

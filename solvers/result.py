@@ -22,7 +22,7 @@ class AttitudeSolution:
 
     Attributes:
         method: registry name of the solver.
-        attitude: ``A`` with ``b = A r`` (``formulations.conventions``).
+        attitude: ``A`` with ``b = A r`` (``attopt.formulations.conventions``).
         covariance: ``(3, 3)`` attitude-error covariance, rad^2, body frame.
         loss: the problem's loss at ``attitude`` (Wahba's loss, seed 002 eq. 14).
         diagnostics: iterations, certificates and other per-method numbers.

@@ -23,8 +23,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
-from experiments.experiment import Experiment, ReportContext, Row, Setting
+from attopt.experiments.experiment import Experiment, ReportContext, Row, Setting
 
 
 def toy_grid(parameters: Mapping[str, Any]) -> list[Setting]:

@@ -7,8 +7,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-
-from experiments.adsb_snr import (
+from attopt.experiments.adsb_snr import (
     EXPERIMENT,
     NO_GYRO,
     PARAMETERS,
@@ -17,8 +16,8 @@ from experiments.adsb_snr import (
     simulate_pass,
     summary_columns,
 )
-from experiments.sweep import run_sweep
-from solvers.snr.fit import fit_at
+from attopt.experiments.sweep import run_sweep
+from attopt.solvers.snr.fit import fit_at
 
 SHORT = {"duration_s": 120.0}
 """Two minutes of the pass: 157-193 received messages per epoch, at least 3 per antenna."""

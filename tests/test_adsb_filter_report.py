@@ -9,16 +9,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from scipy.stats import chi2
-
-from experiments.adsb_filter_report import (
+from attopt.experiments.adsb_filter_report import (
     BURN_IN_S,
     burn_in,
     filter_report,
     nees_interval,
     run_averaged_nees,
 )
-from experiments.experiment import ReportContext
+from attopt.experiments.experiment import ReportContext
+from scipy.stats import chi2
 
 FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr"]
 GYROS = ["seed000", "mems"]
@@ -139,7 +138,7 @@ def test_section_tables_targets_and_figures(tmp_path):
     nees = _line(lines, "- **(c) NEES consistency**")
     assert f"[{lo:.3f}, {hi:.3f}]" in nees
     assert nees.count("inside: **met**") == 4 and "**MISSED**" not in nees
-    assert "python -m experiments.bench_filters" in text
+    assert "python -m attopt.experiments.bench_filters" in text
     for gyro in GYROS:
         for name in (f"filter_errors_{gyro}.png", f"gyro_bias_{gyro}.png"):
             assert (tmp_path / name).stat().st_size > 10_000
@@ -202,8 +201,8 @@ def test_bias_figure_uses_estimates_when_the_rows_have_them(tmp_path):
 def test_modules_import_in_either_order():
     root = Path(__file__).resolve().parents[1]
     for first, second in (
-        ("experiments.adsb_filter_report", "experiments.adsb_report"),
-        ("experiments.adsb_report", "experiments.adsb_filter_report"),
+        ("attopt.experiments.adsb_filter_report", "attopt.experiments.adsb_report"),
+        ("attopt.experiments.adsb_report", "attopt.experiments.adsb_filter_report"),
     ):
         code = f"import {first}, {second}; {second}.__name__"
         subprocess.run([sys.executable, "-c", code], cwd=root, check=True)

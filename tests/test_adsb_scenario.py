@@ -9,10 +9,7 @@ import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation, get_sun
 from astropy.time import Time
-from sgp4.api import Satrec
-from sgp4.io import verify_checksum
-
-from experiments.environment.traffic import (
+from attopt.experiments.environment.traffic import (
     MEAN_RADIUS_KM,
     Traffic,
     angle_from_origin,
@@ -20,7 +17,7 @@ from experiments.environment.traffic import (
     positions_ecef_km,
     sample_traffic,
 )
-from experiments.scenarios.adsb_snr import (
+from attopt.experiments.scenarios.adsb_snr import (
     BETA_OPT_DEG,
     BORESIGHTS_BODY,
     TLE_EPOCH_UTC,
@@ -32,7 +29,9 @@ from experiments.scenarios.adsb_snr import (
     visible_counts,
     visible_observations,
 )
-from formulations.conventions import euler321_from_attitude
+from attopt.formulations.conventions import euler321_from_attitude
+from sgp4.api import Satrec
+from sgp4.io import verify_checksum
 
 MAIN_LOBE_DEG = 41.67  # cos^6(a) = 10**0.4 / 14.4598: G >= 4 dBi (seed 000 eq. 63)
 SIDEREAL_NODE_RATE_DEG_DAY = 0.9856473598  # 360 deg per tropical year

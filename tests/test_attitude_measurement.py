@@ -13,22 +13,22 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import (
+from attopt.formulations.attitude_measurement import (
     AttitudeMeasurement,
     EulerAngleMeasurement,
     ReferencedMeasurement,
     VectorMeasurement,
 )
-from formulations.conventions import attitude_from_euler321, euler321_from_attitude
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.snr_measurement import SnrMeasurement
-from formulations.snr_model import observation_mask
-from formulations.snr_problem import SnrEpoch
+from attopt.formulations.conventions import attitude_from_euler321, euler321_from_attitude
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_model import observation_mask
+from attopt.formulations.snr_problem import SnrEpoch
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
 from tests.strategies import attitudes
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _epoch, _geometry
 

@@ -1,4 +1,6 @@
-"""The covariance sweep of :mod:`solvers.smoother.chain_marginals` against GTSAM's Bayes tree.
+"""The covariance sweep of the chain marginals against GTSAM's Bayes tree.
+
+:mod:`attopt.solvers.smoother.chain_marginals`.
 
 Graphs with the smoother's structure (with transmitter offsets): a chain of
 3-dimensional attitude and bias keys (prior on the first node, a 3-row
@@ -13,9 +15,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-
-from solvers.smoother.chain_marginals import sequential_marginals
-from solvers.smoother.conventions import attitude_key, bias_key, offset_key
+from attopt.solvers.smoother.chain_marginals import sequential_marginals
+from attopt.solvers.smoother.conventions import attitude_key, bias_key, offset_key
 
 UNIT1, UNIT3, UNIT6 = (gtsam.noiseModel.Unit.Create(d) for d in (1, 3, 6))
 

@@ -7,11 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.stats import ks_2samp
-
-from formulations.doa_array import (
+from attopt.formulations.doa_array import (
     SEED003_UCA,
     doa_from_unit_vector,
     doa_jacobian,
@@ -21,8 +17,11 @@ from formulations.doa_array import (
     steering_vector,
     unit_vector_covariance,
 )
-from formulations.doa_crb import stochastic_crb
-from formulations.errors import InvalidObservationError
+from attopt.formulations.doa_crb import stochastic_crb
+from attopt.formulations.errors import InvalidObservationError
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import ks_2samp
 
 M = SEED003_UCA.n_elements
 KR = 2.0 * np.pi  # k r with r = lambda = 150 mm

@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from attopt.experiments.scenarios.doa_ground import WHEEL_MOMENTUM
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
+from attopt.solvers.filters.common import apply_error, error_vector
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from experiments.scenarios.doa_ground import WHEEL_MOMENTUM
-from formulations.conventions import attitude_error
-from formulations.errors import ConvergenceError, UnobservableError
-from solvers.doa.batch_ls import BatchLsResult, batch_least_squares
-from solvers.filters.common import apply_error, error_vector
 from tests.test_doa_ekf import DT, VectorPass, relative_covariance_difference, simulate_vectors
 from tests.test_doa_eks import bound
 
@@ -65,7 +65,7 @@ def test_noise_free_recovers_the_truth(seed: int, angle: float, rate_error: floa
 def test_covariance_is_the_zero_process_noise_smoother_bound() -> None:
     """At the truth (noise-free vectors) ``S_k N^-1 S_k^T`` is the posterior bound of the
     EKF's model with ``Q = 0``, computed by the filter-and-RTS recursion
-    (:func:`~solvers.doa.eks.posterior_bound_ekf`): two independent computations of the
+    (:func:`~attopt.solvers.doa.eks.posterior_bound_ekf`): two independent computations of the
     same Cramer-Rao bound.  The recursion needs a prior: with a wide one (1e-2 rad^2/s^2,
     1 rad^2; measured difference 3e-7, its own weight) at every epoch, and at epoch 0
     (``S_0 = I``) exactly, ``(N + P_0^-1)^-1``, with a tighter one (measured 1.5e-9)."""

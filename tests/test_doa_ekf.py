@@ -7,18 +7,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-from experiments.scenarios.doa_ground import (
+from attopt.experiments.scenarios.doa_ground import (
     FILTER_INITIAL_EULER_DEG,
     FILTER_INITIAL_RATE_DEG_S,
     WHEEL_MOMENTUM,
     build_geometry,
 )
-from formulations.attitude_measurement import VectorMeasurement
-from formulations.conventions import attitude_error, attitude_from_euler321
-from formulations.errors import ConvergenceError
-from solvers.doa.ekf import (
+from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.formulations.conventions import attitude_error, attitude_from_euler321
+from attopt.formulations.errors import ConvergenceError
+from attopt.solvers.doa.ekf import (
     INERTIA_SEED003,
     MAX_STEP_ANGLE,
     EkfPrior,
@@ -28,7 +26,8 @@ from solvers.doa.ekf import (
     step_function,
     update_function,
 )
-from solvers.filters.common import apply_error
+from attopt.solvers.filters.common import apply_error
+from scipy.spatial.transform import Rotation
 
 PASS_S = 1200.0
 STEP_S = 1.0

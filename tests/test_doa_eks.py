@@ -8,16 +8,16 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from attopt.experiments.scenarios.doa_ground import WHEEL_MOMENTUM
+from attopt.formulations.conventions import attitude_error
+from attopt.solvers.doa.ekf import EkfPrior, EkfResult
+from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
+from attopt.solvers.filters import mekf, rts_smooth
+from attopt.solvers.filters.common import apply_error, error_vector
+from attopt.solvers.filters.rts import composed_error
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from experiments.scenarios.doa_ground import WHEEL_MOMENTUM
-from formulations.conventions import attitude_error
-from solvers.doa.ekf import EkfPrior, EkfResult
-from solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
-from solvers.filters import mekf, rts_smooth
-from solvers.filters.common import apply_error, error_vector
-from solvers.filters.rts import composed_error
 from tests.filter_passes import GYRO, prior_covariance, simulate_pass
 from tests.filter_passes import drawn_prior as drawn_gyro_prior
 from tests.test_doa_ekf import (
@@ -123,7 +123,7 @@ def ekf_smoother() -> tuple[tuple, tuple, Rotation]:
 
 @pytest.mark.parametrize("smoother", [mekf_smoother, ekf_smoother], ids=["mekf", "ekf"])
 def test_rts_backward_is_the_textbook_recursion(smoother) -> None:
-    """The smoothers built on ``solvers.filters.rts.rts_backward``, the gyro MEKF's
+    """The smoothers built on ``attopt.solvers.filters.rts.rts_backward``, the gyro MEKF's
     ``rts_smooth`` (state ``[delta, delta_beta]``) and the EKF's ``rts_smooth_ekf``
     (``[delta_omega, delta]``), equal the textbook recursion: one backward pass
     serves both filters."""

@@ -4,18 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-
-from experiments.doa_ground import EXPERIMENT, grid
-from experiments.scenarios.doa_ground import (
+from attopt.experiments.doa_ground import EXPERIMENT, grid
+from attopt.experiments.scenarios.doa_ground import (
     DURATION_S,
     MIN_ELEVATION_DEG,
     WHEEL_MOMENTUM,
     build_geometry,
     coverage,
 )
-from experiments.sweep.seeding import trial_seed
-from formulations.doa_measurement import DoaMeasurement
-from solvers.doa.ekf import INERTIA_SEED003
+from attopt.experiments.sweep.seeding import trial_seed
+from attopt.formulations.doa_measurement import DoaMeasurement
+from attopt.solvers.doa.ekf import INERTIA_SEED003
 
 COARSE_STEP_S = 10.0
 """The whole pass at a coarse step keeps the geometry cheap."""

@@ -22,8 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-
-from experiments.doa_report import (
+from attopt.experiments.doa_report import (
     attitude_methods,
     attitude_table,
     consistency_table,
@@ -32,7 +31,7 @@ from experiments.doa_report import (
     runtime_table,
     shared_trials,
 )
-from experiments.experiment import ReportContext
+from attopt.experiments.experiment import ReportContext
 
 SETTLE_S = 100.0
 ROW_STEP_S = 10.0

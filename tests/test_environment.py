@@ -7,16 +7,15 @@ import pytest
 from astropy import units as u
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
-
-from experiments.environment.geomagnetic import (
+from attopt.experiments.environment.geomagnetic import (
     enu_to_ecef_matrices,
     geomagnetic_field_eci,
     igrf_enu,
 )
-from experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
-from experiments.environment.shadow import EARTH_RADIUS_KM, in_cylindrical_shadow
-from experiments.environment.sun import sun_direction_eci
-from experiments.scenarios.wahba_mag_sun import (
+from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
+from attopt.experiments.environment.shadow import EARTH_RADIUS_KM, in_cylindrical_shadow
+from attopt.experiments.environment.sun import sun_direction_eci
+from attopt.experiments.scenarios.wahba_mag_sun import (
     MAG_SIGMA,
     START_UTC,
     SUN_SIGMA,
@@ -26,7 +25,7 @@ from experiments.scenarios.wahba_mag_sun import (
     build_geometry,
     simulate_measurements,
 )
-from formulations.conventions import euler321_from_attitude, orbit_frame_attitude
+from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
 
 CHECK_ENU_NT = np.array([874.0, 18540.0, -32983.0])  # ppigrf: 45N 10E, 500 km, 2025-06-01
 

@@ -3,7 +3,7 @@ statistical consistency on a seeded Monte Carlo, fault handling and bad input.
 
 Scenario (unless a test says otherwise): a body turning at a constant
 ``(0.01, -0.02, 0.015)`` rad/s relative to the inertial frame, a gyro with
-:data:`~formulations.gyro.MEMS_GYRO`'s noise statistics sampled at 2 Hz (the
+:data:`~attopt.formulations.gyro.MEMS_GYRO`'s noise statistics sampled at 2 Hz (the
 filter cost is dominated by the updates, so the rate barely matters), and at
 1 Hz two inertial unit vectors measured in the body with ``sigma`` per axis.
 
@@ -20,21 +20,21 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
-
-from formulations.attitude_measurement import (
+from attopt.formulations.attitude_measurement import (
     AttitudeMeasurement,
     EulerAngleMeasurement,
     VectorMeasurement,
 )
-from formulations.conventions import attitude_error
-from formulations.errors import ConvergenceError, InvalidObservationError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.gyro import GyroModel, GyroSamples, simulate_gyro
-from formulations.snr_measurement import SnrMeasurement
-from formulations.snr_problem import SnrEpoch
-from solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth, usque
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gyro import GyroModel, GyroSamples, simulate_gyro
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth, usque
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from tests.filter_passes import (
     GYRO,
     RATE,

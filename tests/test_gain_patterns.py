@@ -7,11 +7,8 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import (
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import (
     SEED000_HELIX,
     CosinePowerPattern,
     ParabolicPattern,
@@ -19,7 +16,9 @@ from formulations.gain_patterns import (
     gain_dbi_at_angle,
     off_boresight_angle_squared,
 )
-from formulations.symbolic import CASADI, NUMPY
+from attopt.formulations.symbolic import CASADI, NUMPY
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 PARABOLIC = ParabolicPattern(peak_gain_dbi=11.6, theta_3db_rad=math.radians(50.0), min_gain_dbi=4.0)
 TABLE_ANGLES = np.radians(np.linspace(0.0, 41.0, 15))

@@ -5,15 +5,14 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
-
-from experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.scenarios.geo_snr_stations import (
     SNR_SIGMA_DB,
     build_geo_snr_scenario,
     stations_ecef_km,
 )
-from formulations.errors import InvalidObservationError, UnobservableError
-from formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db
-from solvers.geo.boresight import (
+from attopt.formulations.errors import InvalidObservationError, UnobservableError
+from attopt.formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db
+from attopt.solvers.geo.boresight import (
     StationCones,
     boresight_error_rad,
     cone_intersection,
@@ -21,7 +20,7 @@ from solvers.geo.boresight import (
     rf_sensitivity,
     station_cones,
 )
-from solvers.geo.los import (
+from attopt.solvers.geo.los import (
     _belt_snr_function,
     belt_position,
     line_of_sight_errors,

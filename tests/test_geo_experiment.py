@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-
-from experiments.geo_snr_stations import EXPERIMENT, PARAMETERS, summary_columns, trial
-from experiments.registry import get_experiment
-from experiments.scenarios.geo_snr_stations import MANOEUVRE_START_S
+from attopt.experiments.geo_snr_stations import EXPERIMENT, PARAMETERS, summary_columns, trial
+from attopt.experiments.registry import get_experiment
+from attopt.experiments.scenarios.geo_snr_stations import MANOEUVRE_START_S
 
 SETTING = {**PARAMETERS, **EXPERIMENT.quick_parameters, "manoeuvre": True}
 METHODS = {"cone", "lsq", "nlp", "usque", "usque_detect", "fg_batch"}

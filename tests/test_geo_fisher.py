@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
-
-from formulations.geo_fisher import (
+from attopt.formulations.geo_fisher import (
     information_magnitude,
     information_map,
     single_snr_nullspace,
     snr_attitude_jacobian,
     snr_fisher_information,
 )
-from formulations.geo_link import attitude_pointing
-from solvers.geo.los import belt_position
+from attopt.formulations.geo_link import attitude_pointing
+from attopt.solvers.geo.los import belt_position
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 EARTH_KM = 6_378.0
 

@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-from experiments.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations import (
     FILTER_OPTIONS,
     FILTER_STATIONS,
     PARAMETERS,
@@ -22,20 +20,21 @@ from experiments.geo_snr_stations import (
     pointing_error,
     rate_model,
 )
-from experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.scenarios.geo_snr_stations import (
     MANOEUVRE_START_S,
     GeoSnrScenario,
     build_geo_snr_scenario,
 )
-from formulations.geo_link import BORESIGHT_BODY
-from solvers.geo.boresight import cone_intersection
-from solvers.geo.manoeuvre import (
+from attopt.formulations.geo_link import BORESIGHT_BODY
+from attopt.solvers.geo.boresight import cone_intersection
+from attopt.solvers.geo.manoeuvre import (
     DetectionOptions,
     ManoeuvreRun,
     boresight_prior,
     detect_and_reinitialise,
     windowed_nis_test,
 )
+from scipy.spatial.transform import Rotation
 
 MAX_DELAY_S = 120.0
 """Stated delay after the manoeuvre's start (it lasts 120 s)."""

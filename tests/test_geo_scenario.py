@@ -6,9 +6,7 @@ import astropy.units as u
 import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation
-from scipy.spatial.transform import Rotation
-
-from experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.scenarios.geo_snr_stations import (
     INITIAL_QUATERNION,
     MANOEUVRE_ANGLE_DEG,
     STATIONS,
@@ -17,8 +15,9 @@ from experiments.scenarios.geo_snr_stations import (
     initial_attitude,
     stations_ecef_km,
 )
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.errors import InvalidObservationError
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from scipy.spatial.transform import Rotation
 
 
 @pytest.fixture(scope="module")

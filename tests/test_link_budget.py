@@ -6,15 +6,14 @@ import math
 
 import numpy as np
 import pytest
-
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.link_budget import (
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.link_budget import (
     LinkBudget,
     free_space_loss_db,
     isotropic_power_dbw,
     noise_power_dbw,
 )
-from formulations.snr_model import snr_db
+from attopt.formulations.snr_model import snr_db
 
 
 def test_noise_power_by_hand():

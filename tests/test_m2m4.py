@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from formulations.errors import InvalidObservationError
-from solvers.geo.m2m4 import (
+from attopt.formulations.errors import InvalidObservationError
+from attopt.solvers.geo.m2m4 import (
     NEGATIVE_DISCRIMINANT,
     TABLE3_PAPER_DB,
     TABLE3_SNR_DB,

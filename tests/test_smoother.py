@@ -3,12 +3,12 @@
 Scenario (unless a test says otherwise): a body turning at a constant
 ``(0.01, -0.02, 0.015)`` rad/s relative to the inertial frame, a gyro sampled
 at 2 Hz, and at 1 Hz two inertial unit vectors measured in the body with
-``sigma`` per axis (:class:`~formulations.attitude_measurement.VectorMeasurement`).
+``sigma`` per axis (:class:`~attopt.formulations.attitude_measurement.VectorMeasurement`).
 
 Error convention: ``delta = rotvec(A_true A_est^T) = -attitude_error(A_est,
 A_true)`` and ``delta_beta = beta - beta_hat`` (``docs/filters.md``); GTSAM's
 ``Rot3`` is ``R = A^T`` with ``R.retract(xi) = R Exp(xi)``, so ``delta =
--xi`` (:mod:`solvers.smoother.conventions`).
+-xi`` (:mod:`attopt.solvers.smoother.conventions`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,26 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gyro import GyroModel, GyroSamples, attitude_increment, simulate_gyro
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
+from attopt.solvers.filters.common import prepare_gyro
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.smoother import SmootherOptions, single_frame_initial, smooth
+from attopt.solvers.smoother.conventions import (
+    attitude_key,
+    bias_key,
+    retract,
+    rot3,
+    to_values,
+)
+from attopt.solvers.smoother.gyro_factors import JointPrior, gyro_graph, gyro_intervals
+from attopt.solvers.smoother.measurement_factors import prepare_factor
 from gtsam.utils.numerical_derivative import (
     numericalDerivative11,
     numericalDerivative21,
@@ -27,26 +47,6 @@ from gtsam.utils.numerical_derivative import (
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
-from formulations.conventions import attitude_error
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.gyro import GyroModel, GyroSamples, attitude_increment, simulate_gyro
-from formulations.snr_measurement import SnrMeasurement
-from formulations.snr_problem import SnrEpoch
-from solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
-from solvers.filters.common import prepare_gyro
-from solvers.result import BatchSolution
-from solvers.smoother import SmootherOptions, single_frame_initial, smooth
-from solvers.smoother.conventions import (
-    attitude_key,
-    bias_key,
-    retract,
-    rot3,
-    to_values,
-)
-from solvers.smoother.gyro_factors import JointPrior, gyro_graph, gyro_intervals
-from solvers.smoother.measurement_factors import prepare_factor
 from tests.filter_passes import (
     GYRO,
     RATE,
@@ -115,7 +115,7 @@ def _ahrs_pass(rng: np.random.Generator):
 
 def test_ahrs_factor_follows_attitude_increment():
     """The AHRS factor built from gyro samples has zero error exactly where
-    :func:`formulations.gyro.attitude_increment` carries ``A_i`` to ``A_j``
+    :func:`attopt.formulations.gyro.attitude_increment` carries ``A_i`` to ``A_j``
     (with ``R = A^T``, a nonzero bias removed).  A body-frame error ``delta`` at
     ``A_j``, i.e. ``R_j Exp(xi)`` with ``xi = -delta``, gives the error ``+delta``:
     GTSAM's AHRS error is ``Log(R_j^T R_i Delta R) = -xi`` (measured)."""

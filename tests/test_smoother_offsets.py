@@ -14,17 +14,17 @@ import dataclasses
 
 import numpy as np
 import pytest
+from attopt.formulations.attitude_measurement import ReferencedMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gyro import GyroModel, simulate_gyro
+from attopt.formulations.snr_measurement import SnrMeasurement, truncated_mean_slope
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.snr_truncation import truncated_information_factor
+from attopt.solvers.smoother import SmootherOptions, smooth
+from attopt.solvers.smoother.measurement_factors import prepare_factor
 from scipy.spatial.transform import Rotation
 
-from formulations.attitude_measurement import ReferencedMeasurement
-from formulations.errors import InvalidObservationError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.gyro import GyroModel, simulate_gyro
-from formulations.snr_measurement import SnrMeasurement, truncated_mean_slope
-from formulations.snr_problem import SnrEpoch
-from formulations.snr_truncation import truncated_information_factor
-from solvers.smoother import SmootherOptions, smooth
-from solvers.smoother.measurement_factors import prepare_factor
 from tests.filter_passes import GYRO, RATE, Pass, drawn_prior, prior_covariance
 from tests.test_smoother import TIGHT, rms_deg, state_errors
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry

@@ -14,6 +14,16 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gyro import GyroModel
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf
+from attopt.solvers.smoother import OnlineOptions, smooth, smooth_online
+from attopt.solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
+from attopt.solvers.smoother.gyro_factors import JointPrior
+from attopt.solvers.smoother.measurement_factors import prepare_factor
+from attopt.solvers.smoother.online import MeasurementCallback, prior_factor
 from gtsam.utils.numerical_derivative import (
     numericalDerivative11,
     numericalDerivative21,
@@ -24,16 +34,6 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
-from formulations.conventions import attitude_error
-from formulations.errors import InvalidObservationError
-from formulations.gyro import GyroModel
-from solvers.filters import FilterOptions, FilterPrior, mekf
-from solvers.smoother import OnlineOptions, smooth, smooth_online
-from solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
-from solvers.smoother.gyro_factors import JointPrior
-from solvers.smoother.measurement_factors import prepare_factor
-from solvers.smoother.online import MeasurementCallback, prior_factor
 from tests.filter_passes import (
     GYRO,
     REFERENCES,

@@ -15,18 +15,16 @@ import re
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
-from formulations.conventions import attitude_error, attitude_from_euler321
-from formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.link_budget import LinkBudget
-from formulations.snr_euler import euler321_matrix_function, snr_euler_jacobian_function
-from formulations.snr_model import cramer_rao_bound, fisher_information, predict_snr, snr_db
-from formulations.snr_problem import SnrEpoch
-from formulations.symbolic import NUMPY
-from solvers.result import BatchSolution
-from solvers.snr import (
+from attopt.formulations.conventions import attitude_error, attitude_from_euler321
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snr_euler import euler321_matrix_function, snr_euler_jacobian_function
+from attopt.formulations.snr_model import cramer_rao_bound, fisher_information, predict_snr, snr_db
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.symbolic import NUMPY
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.snr import (
     SNR_SOLVERS,
     DeterministicSolver,
     IpoptOptions,
@@ -34,11 +32,13 @@ from solvers.snr import (
     NlpSolver,
     NlseSolver,
 )
-from solvers.snr.fit import fit_at, snr_loss
-from solvers.snr.initialisation import START_ATTITUDES, StartSource
-from solvers.snr.nlp import nlp_solver, parameter_vector
-from solvers.snr.padding import BUCKETS, bucket_size, pad_epoch
-from solvers.snr.pattern_inverse import cos_from_gain
+from attopt.solvers.snr.fit import fit_at, snr_loss
+from attopt.solvers.snr.initialisation import START_ATTITUDES, StartSource
+from attopt.solvers.snr.nlp import nlp_solver, parameter_vector
+from attopt.solvers.snr.padding import BUCKETS, bucket_size, pad_epoch
+from attopt.solvers.snr.pattern_inverse import cos_from_gain
+from scipy.spatial.transform import Rotation
+
 from tests.test_gain_patterns import PATTERNS
 from tests.test_snr_model import _directions_at
 

@@ -15,24 +15,24 @@ import casadi as ca
 import numpy as np
 import pytest
 import scipy.special
-from scipy.spatial.transform import Rotation
-from scipy.stats import truncnorm
-
-from formulations.conventions import attitude_error
-from formulations.gain_patterns import SEED000_HELIX
-from formulations.snr_model import cramer_rao_bound
-from formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
-from formulations.snr_truncation import (
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.snr_model import cramer_rao_bound
+from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
+from attopt.formulations.snr_truncation import (
     log_normal_cdf,
     truncated_fisher_information,
     truncated_information_factor,
     truncated_nll,
 )
-from formulations.symbolic import CASADI
-from solvers.snr import SNR_SOLVERS
-from solvers.snr.fit import fit_at, model_at
-from solvers.snr.nlp import IpoptOptions, nlp_solver, parameter_vector
-from solvers.snr.padding import pad_epoch
+from attopt.formulations.symbolic import CASADI
+from attopt.solvers.snr import SNR_SOLVERS
+from attopt.solvers.snr.fit import fit_at, model_at
+from attopt.solvers.snr.nlp import IpoptOptions, nlp_solver, parameter_vector
+from attopt.solvers.snr.padding import pad_epoch
+from scipy.spatial.transform import Rotation
+from scipy.stats import truncnorm
+
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
 TAU = RECEPTION_THRESHOLD_DB

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-
-from experiments.sweep import summarise
-from experiments.sweep.aggregate import invalid_reasons
+from attopt.experiments.sweep import summarise
+from attopt.experiments.sweep.aggregate import invalid_reasons
 
 NAN = float("nan")
 

@@ -1,7 +1,7 @@
-"""USQUE (``solvers.filters.usque``) on small simulated passes.
+"""USQUE (``attopt.solvers.filters.usque``) on small simulated passes.
 
 Scenario: a body turning at a constant rate, gyro samples of
-:func:`formulations.gyro.simulate_gyro`, and two body-frame unit vectors
+:func:`attopt.formulations.gyro.simulate_gyro`, and two body-frame unit vectors
 (reference x and y axes) measured at every epoch.
 """
 
@@ -11,14 +11,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
+from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, usque
+from attopt.solvers.filters.common import NON_FINITE, propagate_attitude
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
-
-from formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
-from formulations.conventions import attitude_error
-from formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
-from solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, usque
-from solvers.filters.common import NON_FINITE, propagate_attitude
 
 REFERENCES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 RATE = np.array([0.01, -0.02, 0.015])

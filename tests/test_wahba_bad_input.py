@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from attopt.formulations.errors import InvalidObservationError, UnobservableError
+from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import InvalidObservationError, UnobservableError
-from formulations.vector_observations import PARALLEL_TOLERANCE
-from solvers.wahba import WAHBA_SOLVERS
 
 SOLVERS = list(WAHBA_SOLVERS.values())
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from attopt.formulations.conventions import attitude_error
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from scipy.spatial.transform import Rotation
 
-from formulations.conventions import attitude_error
-from solvers.wahba import WAHBA_SOLVERS
 from tests.strategies import noisy_body
 
 TRUTH = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)
@@ -66,7 +66,7 @@ def test_triad_variance_belongs_to_the_anchor():
 
     With the swapped labels the formula misses the scatter by far more than 10%.
     """
-    from formulations.wahba_covariance import triad_covariance
+    from attopt.formulations.wahba_covariance import triad_covariance
 
     reference, sigmas = GEOMETRIES["sun-mag-30deg"]
     scatter, _ = _monte_carlo(WAHBA_SOLVERS["triad"], reference, sigmas, trials=4000, seed=13)
@@ -77,8 +77,8 @@ def test_triad_variance_belongs_to_the_anchor():
 
 def test_svd_covariance_equals_seed_eq19_form():
     """[tr(B A^T) I - B A^T]^-1 at the optimum equals U diag[(s2+s3)^-1, ...] U^T (eq. 19)."""
-    from formulations.wahba import attitude_profile_matrix, proper_svd
-    from formulations.wahba_covariance import svd_covariance
+    from attopt.formulations.wahba import attitude_profile_matrix, proper_svd
+    from attopt.formulations.wahba_covariance import svd_covariance
 
     reference, sigmas = GEOMETRIES["five-vectors"]
     body = noisy_body(TRUTH, reference, sigmas, np.random.default_rng(3))

@@ -15,9 +15,8 @@ from __future__ import annotations
 import numpy as np
 import ppigrf
 from astropy.time import Time
+from attopt.experiments.environment.orbit import ecef_to_eci_matrices
 from numpy.typing import ArrayLike, NDArray
-
-from experiments.environment.orbit import ecef_to_eci_matrices
 
 
 def igrf_enu(
@@ -70,7 +69,7 @@ def geomagnetic_field_eci(
 
     The ENU field of :func:`igrf_enu` is rotated to ECEF with
     :func:`enu_to_ecef_matrices` and to ECI with
-    :func:`~experiments.environment.orbit.ecef_to_eci_matrices`.
+    :func:`~attopt.experiments.environment.orbit.ecef_to_eci_matrices`.
     """
     enu = igrf_enu(times, longitude_deg, latitude_deg, height_km)
     ecef = (enu_to_ecef_matrices(longitude_deg, latitude_deg) @ enu[..., None])[..., 0]

@@ -10,7 +10,7 @@ its 6 dB threshold are applied by the caller.
 Orbit.  The TLE of :func:`satellite_tle` is generated with ``sgp4``
 (``Satrec.sgp4init`` then ``sgp4.exporter.export_tle``, so its checksums are
 sgp4's) from the mean elements below and propagated with
-:mod:`experiments.environment.orbit`: epoch :data:`TLE_EPOCH_UTC`, mean motion
+:mod:`attopt.experiments.environment.orbit`: epoch :data:`TLE_EPOCH_UTC`, mean motion
 of a circular orbit with semi-major axis 600 km above the (WGS72) equator,
 inclination 97.8 deg, eccentricity 1e-4, argument of perigee and mean anomaly 0
 (at the ascending node at epoch), no drag.  The right ascension of the
@@ -57,16 +57,13 @@ from dataclasses import dataclass
 import astropy.units as u
 import numpy as np
 from astropy.time import Time
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from experiments.environment.orbit import (
+from attopt.experiments.environment.orbit import (
     circular_orbit_tle,
     ecef_to_eci_matrices,
     propagate,
     satellite_from_tle,
 )
-from experiments.environment.traffic import (
+from attopt.experiments.environment.traffic import (
     MEAN_RADIUS_KM,
     WGS84_A_KM,
     WGS84_F,
@@ -76,7 +73,9 @@ from experiments.environment.traffic import (
     positions_ecef_km,
     sample_traffic,
 )
-from formulations.conventions import attitude_from_euler321, orbit_frame_attitude
+from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 TLE_EPOCH_UTC = "2025-06-01T00:00:00"
 SATELLITE_NUMBER = 99999
@@ -210,7 +209,7 @@ def build_adsb_geometry(
 ) -> AdsbGeometry:
     """Geometry at ``t = 0, step_s, ...`` below ``duration_s`` (cached per process).
 
-    The aircraft are :func:`experiments.environment.traffic.sample_traffic` of
+    The aircraft are :func:`attopt.experiments.environment.traffic.sample_traffic` of
     ``numpy.random.default_rng(seed)``.
     """
     return _build_adsb_geometry(float(duration_s), float(step_s), int(n_aircraft), int(seed))

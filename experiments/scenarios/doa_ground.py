@@ -31,7 +31,7 @@ external or magnetorquer torque, integrated with ``scipy.integrate.solve_ivp``
 (DOP853, ``rtol = 1e-10``) for the inertial attitude ``A_bi`` (quaternion
 kinematics ``dA/dt = -[omega x] A``) and the rate ``omega_bi``;
 ``C_bo = A_bi A_oi^T`` with ``A_oi`` the orbit frame
-(:func:`formulations.conventions.orbit_frame_attitude`).  The satellite starts
+(:func:`attopt.formulations.conventions.orbit_frame_attitude`).  The satellite starts
 Earth pointing up to :data:`TRUTH_INITIAL_EULER_DEG` (3-2-1 Euler angles) with
 the orbit frame's rate plus :data:`TRUTH_RATE_OFFSET_DEG_S`; the wheel keeps
 it within a few degrees of Earth pointing (nutation).
@@ -54,20 +54,19 @@ import astropy.units as u
 import numpy as np
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
-from numpy.typing import NDArray
-from scipy.integrate import solve_ivp
-from scipy.spatial.transform import Rotation
-
-from experiments.environment.orbit import (
+from attopt.experiments.environment.orbit import (
     circular_orbit_tle,
     ecef_to_eci_matrices,
     propagate,
     satellite_from_tle,
 )
-from experiments.environment.traffic import geodetic_normal
-from formulations.conventions import attitude_from_euler321, orbit_frame_attitude
-from formulations.doa_array import doa_from_unit_vector
-from solvers.doa.ekf import INERTIA_SEED003, angular_acceleration
+from attopt.experiments.environment.traffic import geodetic_normal
+from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
+from attopt.formulations.doa_array import doa_from_unit_vector
+from attopt.solvers.doa.ekf import INERTIA_SEED003, angular_acceleration
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

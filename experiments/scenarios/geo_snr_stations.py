@@ -2,7 +2,7 @@
 
 Orbit.  The TLE printed in seed 004 sec. II.A (re-spaced to the fixed TLE
 columns; both checksums hold) propagated with SGP4 and moved to ECI (GCRS) and
-ECEF (ITRS) by :mod:`experiments.environment.orbit` (offline: the package
+ECEF (ITRS) by :mod:`attopt.experiments.environment.orbit` (offline: the package
 forbids IERS downloads).  Its epoch is the simulation start,
 :data:`START_UTC` = 2015-11-30 17:00:00 UTC; Garuda-1 sits at 123.0 deg E.
 
@@ -14,7 +14,7 @@ Attitude (ECI -> body, ``docs/conventions.md``).  Seed 004 eq. 27 gives
 ``q = [-0.0176892, -0.706875, 0.706868, 0.0187807]``, scalar last, in the
 convention of its ref. 8 (Markley and Crassidis), i.e. the Shuster quaternion
 of seed 002 eq. 21, the conjugate of scipy's: ``A_0 =
-Rotation.from_quat(q).inv()`` (``formulations.conventions.
+Rotation.from_quat(q).inv()`` (``attopt.formulations.conventions.
 attitude_from_shuster_quaternion``).  With it the boresight (body ``+z``)
 points 0.003 deg from nadir, at the sub-satellite point; read as a scipy
 quaternion it would point 3 deg away, off the Earth's centre towards 105.5 deg E.
@@ -36,7 +36,7 @@ the boresight (nearly unobservable).  A 25 deg turn about an axis
 perpendicular to the boresight would point the beam off the Earth (whose
 radius seen from GEO is 8.7 deg).
 
-SNRs.  Noise-free SNRs are seed 004 eq. 7 (:func:`formulations.geo_link.geo_snr_db`).
+SNRs.  Noise-free SNRs are seed 004 eq. 7 (:func:`attopt.formulations.geo_link.geo_snr_db`).
 A station hears the satellite when it is above its horizon and the
 noise-free SNR is at least :data:`DETECTION_THRESHOLD_DB` (0 dB, the lowest
 SNR of Table 3).  Measured SNRs add Gaussian noise of :data:`SNR_SIGMA_DB`
@@ -53,15 +53,12 @@ import astropy.units as u
 import numpy as np
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
-from experiments.environment.traffic import MEAN_RADIUS_KM as MEAN_EARTH_RADIUS_KM
-from experiments.environment.traffic import geodetic_normal
-from formulations.conventions import attitude_from_shuster_quaternion
-from formulations.errors import InvalidObservationError
-from formulations.geo_link import (
+from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
+from attopt.experiments.environment.traffic import MEAN_RADIUS_KM as MEAN_EARTH_RADIUS_KM
+from attopt.experiments.environment.traffic import geodetic_normal
+from attopt.formulations.conventions import attitude_from_shuster_quaternion
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
     GARUDA1,
     GeoLink,
@@ -70,8 +67,10 @@ from formulations.geo_link import (
     geo_snr_db,
     geo_snr_epoch,
 )
-from formulations.snr_measurement import SnrMeasurement
-from solvers.geo.los import belt_position, line_of_sight_errors, locate_on_geo_belt
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.solvers.geo.los import belt_position, line_of_sight_errors, locate_on_geo_belt
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -275,7 +274,7 @@ def los_geometry_study(
 
     Stations hear the satellite when the noise-free SNR is at least
     :data:`DETECTION_THRESHOLD_DB`; ``n_trials`` noisy SNR sets (ECEF, the
-    attitude known) are solved by :func:`solvers.geo.los.locate_on_geo_belt`.
+    attitude known) are solved by :func:`attopt.solvers.geo.los.locate_on_geo_belt`.
     """
     stations, up = stations_ecef_km()
     satellite = belt_position(np.radians(satellite_longitude_deg))

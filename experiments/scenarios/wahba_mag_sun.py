@@ -11,10 +11,10 @@ each orbit has an eclipse of about 24 min.  :data:`START_UTC` is 47 min after
 the TLE epoch, chosen so that the 6000 s window holds exactly one eclipse,
 entering 1001 s after the start and lasting about 1450 s (the eclipse of seed
 002 sec. 3 is at 1000-1500 s; ours is wherever the orbit puts it, computed
-with the cylindrical shadow of :mod:`experiments.environment.shadow`).
+with the cylindrical shadow of :mod:`attopt.experiments.environment.shadow`).
 
 Reference vectors are expressed in the orbit frame of
-:func:`formulations.conventions.orbit_frame_attitude` (seed 002 eqs. 1-4).
+:func:`attopt.formulations.conventions.orbit_frame_attitude` (seed 002 eqs. 1-4).
 
 True attitude (orbit -> body), 3-2-1 Euler angles of seed 000 eq. 8 with ``t``
 in seconds from the start, imitating the pitch profile of seed 002 Fig. 2
@@ -33,14 +33,13 @@ from dataclasses import dataclass
 import astropy.units as u
 import numpy as np
 from astropy.time import Time
+from attopt.experiments.environment.geomagnetic import geomagnetic_field_eci
+from attopt.experiments.environment.orbit import propagate, satellite_from_tle
+from attopt.experiments.environment.shadow import in_cylindrical_shadow
+from attopt.experiments.environment.sun import sun_direction_eci
+from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from experiments.environment.geomagnetic import geomagnetic_field_eci
-from experiments.environment.orbit import propagate, satellite_from_tle
-from experiments.environment.shadow import in_cylindrical_shadow
-from experiments.environment.sun import sun_direction_eci
-from formulations.conventions import attitude_from_euler321, orbit_frame_attitude
 
 # TIMED (NORAD 26998), epoch 26130.94162250 = 2026-05-10 22:35:56.184 UTC.
 TLE_LINE1 = "1 26998U 01055B   26130.94162250  .00000829  00000+0  79016-4 0  9991"

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from experiments.experiment import Experiment
+from attopt.experiments.experiment import Experiment
 
 CONFIG_TABLES = ("parameters",)
 

@@ -1,9 +1,9 @@
 """Execution engines: in-process, a local process pool, or Dask.
 
-Every engine runs :func:`~experiments.sweep.tasks.run_chunk` on plain
-:class:`~experiments.sweep.tasks.ChunkSpec` objects and yields
+Every engine runs :func:`~attopt.experiments.sweep.tasks.run_chunk` on plain
+:class:`~attopt.experiments.sweep.tasks.ChunkSpec` objects and yields
 ``(spec, outcome)`` pairs as chunks finish, where ``outcome`` is the
-:class:`~experiments.sweep.tasks.ChunkResult` or the exception that prevented
+:class:`~attopt.experiments.sweep.tasks.ChunkResult` or the exception that prevented
 the chunk from finishing (a dead worker, a missing module on a worker...).
 Such a chunk is not stored, so rerunning the sweep retries it.
 
@@ -25,7 +25,7 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from types import TracebackType
 from typing import Any
 
-from experiments.sweep.tasks import ChunkResult, ChunkSpec, run_chunk
+from attopt.experiments.sweep.tasks import ChunkResult, ChunkSpec, run_chunk
 
 ENGINES = ("local", "dask")
 THREAD_VARIABLES = (

@@ -9,23 +9,22 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-from tqdm import tqdm
-
-from experiments.experiment import Experiment, ReportContext, Setting
-from experiments.registry import display_name, reference_of
-from experiments.sweep.aggregate import invalid_reasons, summarise
-from experiments.sweep.config import resolve_parameters
-from experiments.sweep.engines import Engine, make_engine
-from experiments.sweep.report import RunDescription, render_report
-from experiments.sweep.seeding import check_root_seed
-from experiments.sweep.store import SweepIdentity, SweepStore
-from experiments.sweep.tasks import (
+from attopt.experiments.experiment import Experiment, ReportContext, Setting
+from attopt.experiments.registry import display_name, reference_of
+from attopt.experiments.sweep.aggregate import invalid_reasons, summarise
+from attopt.experiments.sweep.config import resolve_parameters
+from attopt.experiments.sweep.engines import Engine, make_engine
+from attopt.experiments.sweep.report import RunDescription, render_report
+from attopt.experiments.sweep.seeding import check_root_seed
+from attopt.experiments.sweep.store import SweepIdentity, SweepStore
+from attopt.experiments.sweep.tasks import (
     ChunkResult,
     ChunkSpec,
     default_chunk_size,
     plan_chunks,
     scalar_setting_items,
 )
+from tqdm import tqdm
 
 
 @dataclass(frozen=True)
@@ -56,7 +55,7 @@ class SweepResult:
     elapsed_s: float
     code_versions: dict[str, int]
     """Finished trials per version of the code that computed them
-    (:func:`~experiments.sweep.store.code_version`)."""
+    (:func:`~attopt.experiments.sweep.store.code_version`)."""
 
     @property
     def complete(self) -> bool:

@@ -36,9 +36,8 @@ from typing import Any
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
-
-from experiments.experiment import Setting
-from experiments.sweep.tasks import ChunkResult, Task, scalar_setting_items
+from attopt.experiments.experiment import Setting
+from attopt.experiments.sweep.tasks import ChunkResult, Task, scalar_setting_items
 
 MANIFEST = "manifest.json"
 ROWS_DIR = "rows"

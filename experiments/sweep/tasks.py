@@ -20,10 +20,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-
-from experiments.experiment import Experiment, Row, Setting
-from experiments.registry import get_experiment
-from experiments.sweep.seeding import describe_seed, trial_seed
+from attopt.experiments.experiment import Experiment, Row, Setting
+from attopt.experiments.registry import get_experiment
+from attopt.experiments.sweep.seeding import describe_seed, trial_seed
 
 Task = tuple[int, int]
 """``(setting_index, trial_index)``."""

@@ -12,8 +12,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-
-from experiments.experiment import Experiment, Row, Setting
+from attopt.experiments.experiment import Experiment, Row, Setting
 
 
 def noop_grid(parameters: Mapping[str, Any]) -> list[Setting]:

@@ -1,5 +1,5 @@
 """Direction-of-arrival estimation on antenna arrays (seed 003): MUSIC."""
 
-from solvers.doa.music import DoaEstimates, MusicEstimator
+from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
 
 __all__ = ["DoaEstimates", "MusicEstimator"]

@@ -8,22 +8,22 @@ the pass (eqs. 12, 17, 22, 30-33)::
 
     J(x_0) = sum_k sum_i w_ki |nu_ki(x_k(x_0))|^2,   x_{k+1} = f(x_k),
 
-with ``f`` the EKF's step map (:func:`solvers.doa.ekf.step_function`, eq. 27)
+with ``f`` the EKF's step map (:func:`attopt.solvers.doa.ekf.step_function`, eq. 27)
 and ``nu`` the geodesic innovation of the filters.  The Cramer-Rao bound of
 this problem is the ``crb_*`` column of experiment ``doa-ground`` (the EKF's
-posterior bound with ``Q = 0``, :func:`solvers.doa.eks.posterior_bound_ekf`),
+posterior bound with ``Q = 0``, :func:`attopt.solvers.doa.eks.posterior_bound_ekf`),
 so this estimator shows how much of the gap between the seed's EKF and the
 bound an estimator can close.
 
 Gauss-Newton with Levenberg-Marquardt damping on the error state ``delta_0 =
 [delta_omega, delta]`` of epoch 0 (``A_true = C(delta) A``, the EKF's
 convention).  One pass (:func:`pass_function`, run by
-:func:`~solvers.filters.casadi_pass.accumulate`) propagates the trajectory
+:func:`~attopt.solvers.filters.casadi_pass.accumulate`) propagates the trajectory
 and the sensitivity ``S_k = d delta_k / d delta_0`` (``S_{k+1} = Phi_k S_k``,
 ``Phi_k`` the step's AD transition matrix, eq. 28) and sums the normal
 equations ``N = sum S_k^T E M_k E^T S_k``, ``g = sum S_k^T E z_k`` and the
 cost ``J``, with ``M = J^T R^-1 J`` and ``z = J^T R^-1 nu`` of the epoch's
-vectors (:func:`~solvers.doa.ekf.vector_information_function`) and ``E``
+vectors (:func:`~attopt.solvers.doa.ekf.vector_information_function`) and ``E``
 selecting the attitude block.  The step solves ``(N + lambda diag N) delta_0
 = g``; it is accepted if the next pass's cost is lower (then ``lambda``
 shrinks tenfold), else refused (``lambda`` grows tenfold).  Converged when the
@@ -48,12 +48,9 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_model import increment_matrix
-from formulations.errors import ConvergenceError, UnobservableError
-from solvers.doa.ekf import (
+from attopt.formulations.attitude_model import increment_matrix
+from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.solvers.doa.ekf import (
     INERTIA_SEED003,
     check_lengths,
     check_steps,
@@ -62,7 +59,9 @@ from solvers.doa.ekf import (
     vector_arrays,
     vector_information_function,
 )
-from solvers.filters.casadi_pass import accumulate
+from attopt.solvers.filters.casadi_pass import accumulate
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -168,7 +167,7 @@ def batch_least_squares(
         initial_attitude, initial_rate: the start at epoch 0 (``C_bo``,
             ``omega_bi`` in rad/s), in the basin of the minimum.
         body, reference, sigma: unit vectors as for
-            :func:`~solvers.doa.ekf.run_ekf_vectors` (``(N, S, 3)``, ``(N, S, 3)``,
+            :func:`~attopt.solvers.doa.ekf.run_ekf_vectors` (``(N, S, 3)``, ``(N, S, 3)``,
             ``(N, S)``; NaN body rows absent).
         orbit_turns: ``N - 1`` rotations ``O_{k+1} O_k^T`` of the orbit frame.
         wheel_momentum: ``(3,)`` or ``(N, 3)`` (N m s, body).
@@ -182,7 +181,7 @@ def batch_least_squares(
         UnobservableError: the vectors do not determine the initial state
             (normal matrix singular to :data:`MAX_CONDITION`).
         ConvergenceError: the start's trajectory turns more than
-            :data:`~solvers.doa.ekf.MAX_STEP_ANGLE` per step.
+            :data:`~attopt.solvers.doa.ekf.MAX_STEP_ANGLE` per step.
     """
     body, reference, weight = vector_arrays(body, reference, sigma)
     n, slots = weight.shape

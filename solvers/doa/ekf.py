@@ -19,11 +19,11 @@ kinematics ``A_dot = -[omega_bo x] A``, ``omega_bo = omega_bi - A omega_o``
   eccentricity and ``J2`` needs no model.  ``Exp`` is the Rodrigues formula with
   its coefficients as Taylor series to ``|phi|^8``, exact to rounding for
   ``|phi| <= 0.1 rad`` (23 deg/s at 250 ms); larger steps raise
-  :class:`~formulations.errors.ConvergenceError`.
+  :class:`~attopt.formulations.errors.ConvergenceError`.
 
 Error state and transition matrix (eqs. 28-29).  The attitude error is
 multiplicative and in the body frame, ``A_true = C(delta) A_est``
-(``formulations.attitude_model.increment_matrix``, the convention of every
+(``attopt.formulations.attitude_model.increment_matrix``, the convention of every
 filter here), so ``[delta_omega, delta]`` replaces the seed's additive
 ``[delta_omega, delta q_bo]``; to first order ``delta = 2 delta q_bo``, the
 seed's eq. 29 lower-left block ``0.5 E`` becomes ``E`` and the lower-right
@@ -31,14 +31,15 @@ seed's eq. 29 lower-left block ``0.5 E`` becomes ``E`` and the lower-right
 transition matrix is the AD Jacobian of the step map above (not the Euler
 approximation ``E + A dt`` of eq. 28).
 
-Measurement (eqs. 30-33).  Any :class:`~formulations.attitude_measurement.AttitudeMeasurement`
-of ``C_bo``; its AD Jacobian ``J`` with respect to the body-frame error
+Measurement (eqs. 30-33).  Any
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` of
+``C_bo``; its AD Jacobian ``J`` with respect to the body-frame error
 ``delta`` is the attitude block of ``H`` and the rate block is zero (eq. 32).
 Rows without a finite innovation or Jacobian are left out.  The seed's form
-is a :class:`~formulations.attitude_measurement.VectorMeasurement` per epoch:
+is a :class:`~attopt.formulations.attitude_measurement.VectorMeasurement` per epoch:
 the measured unit vectors ``S_dr`` of eq. 12 against ``S_o`` of eq. 17, for
 which ``J = [(C_bo S_o) x]`` up to the sign of ``delta`` (eq. 33 with ``delta
-= 2 delta q``).  The angle form :class:`~formulations.doa_measurement.DoaMeasurement`
+= 2 delta q``).  The angle form :class:`~attopt.formulations.doa_measurement.DoaMeasurement`
 has no prediction for a station the estimate puts behind the array plane, so
 from the seed's 98 deg initial error the filter can get stuck with the array
 facing away (measured: noise-free, 160-180 deg after 2500 s); the unit
@@ -60,13 +61,13 @@ slots, NaN for absent) and runs whole epochs (:func:`epoch_function`) in
 CasADi's virtual machine with ``Function.mapaccum`` (:func:`accumulate`),
 about 30 times faster.  Both return what a fixed-interval smoother needs
 (:class:`EkfResult`); the smoother and the posterior bound of this model are
-in :mod:`solvers.doa.eks`.
+in :mod:`attopt.solvers.doa.eks`.
 
 Noise.  ``Q = q E_6`` per step with ``q = 1e-9`` (sec. 5.2).  ``R`` comes
 with the measurement; for MUSIC DOAs the experiment uses ``R_W = sigma^2 E``
 per station with ``sigma^2 = tr(J Sigma J^T) / 2``, ``Sigma`` MUSIC's
 ``(theta, phi)`` covariance (the CRB at the estimate) and ``J`` eq. 12's
-Jacobian (:func:`formulations.doa_array.unit_vector_covariance`): the
+Jacobian (:func:`attopt.formulations.doa_array.unit_vector_covariance`): the
 isotropic form of eq. 22, whose diagonal the seed fits to simulations.
 """
 
@@ -79,15 +80,14 @@ from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, body_vectors_model
+from attopt.formulations.attitude_model import attitude_model_function, increment_matrix
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError
+from attopt.formulations.symbolic import CASADI, namespace_of
+from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
+from attopt.solvers.filters.common import noise_subset, solve_noise
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement, body_vectors_model
-from formulations.attitude_model import attitude_model_function, increment_matrix
-from formulations.errors import ConvergenceError, InvalidObservationError
-from formulations.symbolic import CASADI, namespace_of
-from solvers.filters.casadi_pass import accumulate, lower_symmetric
-from solvers.filters.common import noise_subset, solve_noise
 
 Array = NDArray[np.float64]
 
@@ -231,7 +231,7 @@ def update_function() -> ca.Function:
     ``M = J^T R^-1 J`` and ``z = J^T R^-1 nu`` of the epoch's rows (module
     docstring); ``H = [0, J]`` (seed 003 eqs. 31-33).  Joseph form of ``P+``
     with ``G = P E (I + M P_aa)^-1``; the attitude is corrected by
-    ``C(delta)`` (:func:`~formulations.attitude_model.increment_matrix`, i.e.
+    ``C(delta)`` (:func:`~attopt.formulations.attitude_model.increment_matrix`, i.e.
     ``Rotation.from_mrp(delta / 4)``) and ``P+`` taken symmetric from its
     lower triangle.
     """
@@ -259,7 +259,7 @@ def update_function() -> ca.Function:
 
 def geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
     """The geodesic innovation of one vector (``VectorMeasurement.innovation``,
-    :mod:`formulations.attitude_measurement`) in CasADi, and whether it is defined
+    :mod:`attopt.formulations.attitude_measurement`) in CasADi, and whether it is defined
     (not exactly antipodal)."""
     unit = predicted / ca.norm_2(predicted)
     cosine = ca.dot(measured, unit)
@@ -276,8 +276,8 @@ def vector_information_function(slots: int) -> ca.Function:
     ``body`` and ``reference`` are ``slots x 3`` (seed 003 eqs. 12, 17),
     ``weight`` the ``slots`` inverse variances ``1 / sigma^2`` of ``R_W =
     sigma^2 E`` (eq. 22), zero for an absent vector.  The model and its
-    Jacobian are :class:`~formulations.attitude_measurement.VectorMeasurement`'s
-    (:func:`~formulations.attitude_measurement.body_vectors_model`, eqs. 30-33),
+    Jacobian are :class:`~attopt.formulations.attitude_measurement.VectorMeasurement`'s
+    (:func:`~attopt.formulations.attitude_measurement.body_vectors_model`, eqs. 30-33),
     the innovation its geodesic one; a vector with weight zero or an exactly
     antipodal innovation adds nothing.  ``rows`` counts three per vector used,
     as the measurement's rows; ``cost = sum w |nu|^2`` is the weighted squared
@@ -534,7 +534,7 @@ def vector_arrays(
 
     ``body`` and ``reference`` ``(N, S, 3)``, ``sigma`` ``(N, S)`` (or
     broadcastable); a slot is present where its body and reference vectors
-    are finite (:class:`~formulations.attitude_measurement.VectorMeasurement`'s
+    are finite (:class:`~attopt.formulations.attitude_measurement.VectorMeasurement`'s
     rule).  Each epoch's present vectors are moved to the front, in their
     order, and the slots cut to the largest count at any epoch (at least one):
     the epoch's cost grows with the slots, not with the stations.  Absent slots
@@ -589,7 +589,7 @@ def run_ekf_vectors(
     """:func:`run_ekf` on unit-vector measurements, with the epoch loop in CasADi.
 
     The same filter as :func:`run_ekf` with one
-    :class:`~formulations.attitude_measurement.VectorMeasurement` of the
+    :class:`~attopt.formulations.attitude_measurement.VectorMeasurement` of the
     present vectors per epoch (results equal to rounding), at about 15 us
     per epoch (measured with up to two vectors per epoch).
 

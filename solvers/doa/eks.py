@@ -1,8 +1,8 @@
 """Fixed-interval smoothing and the posterior bound of the seed-003 EKF (sec. 5, eqs. 23-33).
 
 Smoother.  A multiplicative Rauch-Tung-Striebel backward pass over an
-:class:`~solvers.doa.ekf.EkfResult` (the dynamics-driven filter of
-:mod:`solvers.doa.ekf`, no gyro), state ``[delta_omega, delta]``.  With ``P_k``
+:class:`~attopt.solvers.doa.ekf.EkfResult` (the dynamics-driven filter of
+:mod:`attopt.solvers.doa.ekf`, no gyro), state ``[delta_omega, delta]``.  With ``P_k``
 the filtered covariance, ``P^-_{k+1}`` the predicted one and ``Phi_k`` the
 transition from epoch ``k`` to ``k + 1`` (eq. 28),
 
@@ -14,15 +14,15 @@ where ``x_k`` is the smoothed state's offset from the filtered one
 (``A^s_k = C(x_k[3:]) A_k``, ``omega^s_k = omega_k + x_k[:3]``) and ``(-)`` the
 error state of the smoothed estimate relative to the predicted one: the rate
 difference and the attitude error vector
-(:func:`~solvers.filters.common.error_vector`, four times the MRPs of ``A^s
+(:func:`~attopt.solvers.filters.common.error_vector`, four times the MRPs of ``A^s
 (A^-)^T``, the filters' convention).  That is the EKF's own error:
-:func:`~solvers.filters.common.apply_error` is its update's retraction
-``C(delta) A`` (:func:`~formulations.attitude_model.increment_matrix`) and
+:func:`~attopt.solvers.filters.common.apply_error` is its update's retraction
+``C(delta) A`` (:func:`~attopt.formulations.attitude_model.increment_matrix`) and
 ``Phi`` maps first-order body-frame rotation vectors, which the error vector
-is to first order.  The pass is the generic one of :mod:`solvers.filters.rts`
-(:func:`~solvers.filters.rts.rts_backward`, run in CasADi's virtual machine)
+is to first order.  The pass is the generic one of :mod:`attopt.solvers.filters.rts`
+(:func:`~attopt.solvers.filters.rts.rts_backward`, run in CasADi's virtual machine)
 with the attitude block last, ``attitude_start = 3``; the gyro MEKF's smoother
-(:func:`~solvers.filters.rts.rts_smooth`, state ``[delta, delta_beta]``) runs
+(:func:`~attopt.solvers.filters.rts.rts_smooth`, state ``[delta, delta_beta]``) runs
 it with ``attitude_start = 0``.  ``P^s_{k+1} <= P^-_{k+1}`` makes ``P^s_k <=
 P_k``: the smoothed covariance never exceeds the filtered one.
 
@@ -44,11 +44,8 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.errors import InvalidObservationError
-from solvers.doa.ekf import (
+from attopt.formulations.errors import InvalidObservationError
+from attopt.solvers.doa.ekf import (
     INERTIA_SEED003,
     PROCESS_NOISE,
     EkfResult,
@@ -59,9 +56,11 @@ from solvers.doa.ekf import (
     vector_arrays,
     vector_information_function,
 )
-from solvers.filters.casadi_pass import accumulate
-from solvers.filters.common import apply_error, error_vector
-from solvers.filters.rts import rts_backward
+from attopt.solvers.filters.casadi_pass import accumulate
+from attopt.solvers.filters.common import apply_error, error_vector
+from attopt.solvers.filters.rts import rts_backward
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -69,7 +68,7 @@ Array = NDArray[np.float64]
 def rts_smooth_ekf(result: EkfResult) -> EkfResult:
     """Fixed-interval smoothed estimates of an EKF pass (module docstring).
 
-    Returns an :class:`~solvers.doa.ekf.EkfResult` whose ``attitude``, ``rate``
+    Returns an :class:`~attopt.solvers.doa.ekf.EkfResult` whose ``attitude``, ``rate``
     and ``covariance`` are smoothed; ``updates``, the ``predicted_*`` fields
     and ``transition`` are the filter's (the pass's inputs).  The last epoch's
     estimate is the filter's.
@@ -131,9 +130,9 @@ def posterior_bound_ekf(
 ) -> tuple[Array, Array]:
     """Posterior Cramer-Rao bounds of the filter and of the smoother (module docstring).
 
-    The EKF's covariance recursion (:func:`~solvers.doa.ekf.update_function`,
-    :func:`~solvers.doa.ekf.step_function`, ``Q = q E_6``) with ``Phi`` and
-    ``H`` at the truth, then :func:`~solvers.filters.rts.rts_backward` on it.
+    The EKF's covariance recursion (:func:`~attopt.solvers.doa.ekf.update_function`,
+    :func:`~attopt.solvers.doa.ekf.step_function`, ``Q = q E_6``) with ``Phi`` and
+    ``H`` at the truth, then :func:`~attopt.solvers.filters.rts.rts_backward` on it.
 
     Args:
         truth_attitude: ``N`` true ``C_bo``.

@@ -11,7 +11,7 @@ For each snapshot set ``X`` (``M x L``):
    cosines in the array plane, so the search runs over ``p`` (no singularity
    at the array axis).  :meth:`MusicEstimator.estimate_covariance` starts
    here from given ``R`` and ``L`` (e.g. drawn by
-   :func:`formulations.doa_array.simulate_sample_covariance`).
+   :func:`attopt.formulations.doa_array.simulate_sample_covariance`).
 2. Coarse grid: a square lattice of ``p`` over the visible cone
    ``theta <= cone_half_angle``; the grid maximum and the highest other local
    maximum (at least its 8 lattice neighbours) outside the main lobe
@@ -21,7 +21,7 @@ For each snapshot set ``X`` (``M x L``):
    quantisation remains.  The seed's own DOA errors level off at 0.287 and
    0.289 deg (its Tables 1-2), which is ``1 deg / sqrt(12)``: the
    quantisation of a 1-degree search grid.
-4. Covariance: the stochastic CRB (:func:`formulations.doa_crb.stochastic_crb`)
+4. Covariance: the stochastic CRB (:func:`attopt.formulations.doa_crb.stochastic_crb`)
    at the estimate, with the SNR given or estimated from the eigenvalues
    (MUSIC is asymptotically efficient for one source, so this is its
    large-``L`` covariance).
@@ -54,9 +54,7 @@ from functools import cached_property, lru_cache
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
-from formulations.doa_array import (
+from attopt.formulations.doa_array import (
     SEED003_UCA,
     Array,
     ComplexArray,
@@ -64,12 +62,13 @@ from formulations.doa_array import (
     doa_from_unit_vector,
     evaluate_mapped,
 )
-from formulations.doa_crb import stochastic_crb
-from formulations.errors import (
+from attopt.formulations.doa_crb import stochastic_crb
+from attopt.formulations.errors import (
     ConvergenceError,
     InvalidObservationError,
     UnobservableError,
 )
+from numpy.typing import ArrayLike, NDArray
 
 SPECTRUM_BLOCK = 1024
 """Sets per block of the grid spectrum: about 30 MB of ``e^H a``, in few large BLAS calls."""

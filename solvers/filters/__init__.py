@@ -1,14 +1,14 @@
 """Recursive filter baselines: MEKF, USQUE and the multiplicative RTS smoother."""
 
-from solvers.filters.common import (
+from attopt.solvers.filters.common import (
     FilterHistory,
     FilterOptions,
     FilterPrior,
     FilterResult,
 )
-from solvers.filters.mekf import mekf
-from solvers.filters.rts import rts_smooth
-from solvers.filters.usque import usque
+from attopt.solvers.filters.mekf import mekf
+from attopt.solvers.filters.rts import rts_smooth
+from attopt.solvers.filters.usque import usque
 
 __all__ = [
     "FilterHistory",

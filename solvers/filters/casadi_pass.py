@@ -1,8 +1,8 @@
 """Passes run in CasADi's virtual machine: the epoch loop and the symmetric covariance.
 
-Shared by the seed-003 EKF and its smoother (:mod:`solvers.doa.ekf`,
-:mod:`solvers.doa.eks`) and by the multiplicative RTS backward pass
-(:mod:`solvers.filters.rts`).
+Shared by the seed-003 EKF and its smoother (:mod:`attopt.solvers.doa.ekf`,
+:mod:`attopt.solvers.doa.eks`) and by the multiplicative RTS backward pass
+(:mod:`attopt.solvers.filters.rts`).
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 Every filter estimates the attitude ``A`` (reference -> body, the reference
 being the frame the gyro rates are relative to) and the gyro bias from a
-:class:`~formulations.gyro.GyroSamples` record and one
-:class:`~formulations.attitude_measurement.AttitudeMeasurement` (or ``None``)
+:class:`~attopt.formulations.gyro.GyroSamples` record and one
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` (or ``None``)
 per output epoch.  The error state is ``[delta, delta_beta]`` with ``delta``
 four times the modified Rodrigues parameters of ``A_true A_est^T`` (seed 000
 eq. 28; the generalised Rodrigues parameters with ``a = 1, f = 4`` of
@@ -44,15 +44,19 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.attitude_model import increment_matrix
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError
+from attopt.formulations.gyro import (
+    GyroModel,
+    GyroSamples,
+    attitude_increment,
+    error_state_transition,
+)
+from attopt.solvers.result import BatchSolution
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.attitude_model import increment_matrix
-from formulations.errors import ConvergenceError, InvalidObservationError
-from formulations.gyro import GyroModel, GyroSamples, attitude_increment, error_state_transition
-from solvers.result import BatchSolution
 
 Array = NDArray[np.float64]
 
@@ -87,7 +91,7 @@ def error_jacobian(delta: Array) -> Array:
 
     The derivative of the body-frame perturbation at ``apply_error(delta, A)``
     with respect to the error vector, by CasADi AD of
-    :func:`formulations.attitude_model.increment_matrix` (``I`` at ``delta = 0``).
+    :func:`attopt.formulations.attitude_model.increment_matrix` (``I`` at ``delta = 0``).
     """
     return _error_jacobian_function()(np.asarray(delta, dtype=float)).full()
 
@@ -121,7 +125,7 @@ class FilterOptions:
         relinearise_fraction: the MEKF repeats its update while the second-order
             term of the attitude step, ``|s|^2 / 2``, exceeds this fraction of
             the smallest posterior attitude standard deviation
-            (:func:`solvers.filters.mekf.update`).
+            (:func:`attopt.solvers.filters.mekf.update`).
         max_update_iterations: at most this many passes of that update.
         max_rejected_epochs: after this many consecutive measurement epochs
             with at least as many gated observations as used ones
@@ -195,7 +199,7 @@ def propagate_covariance(
     """``P <- Phi_j P Phi_j^T + Q_j`` over consecutive gyro steps at the estimated
     ``rates``, and the steps' product ``Phi``.
 
-    ``Phi_j`` is :func:`~formulations.gyro.error_state_transition`, ``Q_j`` the
+    ``Phi_j`` is :func:`~attopt.formulations.gyro.error_state_transition`, ``Q_j`` the
     step's :func:`step_noise` (with the gap growth ``hold_variance``).
     """
     total = np.eye(STATE_SIZE)
@@ -550,7 +554,7 @@ def propagate_attitude(attitude: Rotation, rates: Array, dt: float) -> Rotation:
     """Carry attitudes over consecutive steps at constant rates (seed 000 eq. 25).
 
     ``rates`` is ``(k, 3)`` for one attitude or ``(K, k, 3)`` for a stack of
-    ``K``; step ``j`` applies :func:`formulations.gyro.attitude_increment`.
+    ``K``; step ``j`` applies :func:`attopt.formulations.gyro.attitude_increment`.
     The increments' matrices are multiplied in order (later steps on the
     left) and the product applied once.
     """

@@ -1,13 +1,13 @@
 """Multiplicative extended Kalman filter with gyro bias (seed 000 secs. 4.2-4.5).
 
 Lefferts, Markley and Shuster (1982); Markley and Crassidis (2014), ch. 6.
-Error state ``x = [delta, delta_beta]`` (:mod:`solvers.filters.common`).
+Error state ``x = [delta, delta_beta]`` (:mod:`attopt.solvers.filters.common`).
 
 Propagation over each gyro step ``dt`` with the estimated rate
 ``w = omega_measured - beta_hat`` (seed 000 eqs. 33-36): the attitude by
 ``exp(-[w x] dt)`` and the covariance by ``P <- Phi P Phi^T + Q`` with the
-closed-form :func:`~formulations.gyro.error_state_transition` and
-:meth:`~formulations.gyro.GyroModel.process_noise` (Markley and Crassidis eq.
+closed-form :func:`~attopt.formulations.gyro.error_state_transition` and
+:meth:`~attopt.formulations.gyro.GyroModel.process_noise` (Markley and Crassidis eq.
 6.93, instead of the seed's truncated series of eq. 47 and ``Q_k = Q``).
 
 Update at an epoch with a measurement: ``H = [dh/d delta, 0]`` from the
@@ -24,11 +24,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.gyro import GyroModel, GyroSamples
-from solvers.filters.common import (
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
     EpochRecord,
@@ -55,6 +53,7 @@ from solvers.filters.common import (
     usable_rows,
     validate_inputs,
 )
+from scipy.spatial.transform import Rotation
 
 
 def propagate(
@@ -91,7 +90,7 @@ def update(
     iterated EKF's Gauss-Newton step on the MAP cost (Bell and Cathey 1993):
     ``x_{i+1} = K_i (z - h(x_i) + H_i x_i)`` with ``h`` and ``H_i``
     re-evaluated at ``x_i``; ``H_i`` is the measurement's body-frame Jacobian
-    times :func:`~solvers.filters.common.error_jacobian` ``(x_i)``, the
+    times :func:`~attopt.solvers.filters.common.error_jacobian` ``(x_i)``, the
     derivative with respect to the state, so the iteration converges
     quadratically.  It is repeated while the step's second-order term
     ``|s|^2 / 2`` exceeds ``options.relinearise_fraction`` of the smallest
@@ -197,7 +196,8 @@ def mekf(
 ) -> FilterResult:
     """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
     its measurement (``None``: propagation only).  The result keeps a
-    :class:`~solvers.filters.common.FilterHistory` for :func:`~solvers.filters.rts.rts_smooth`.
+    :class:`~attopt.solvers.filters.common.FilterHistory` for
+    :func:`~attopt.solvers.filters.rts.rts_smooth`.
     """
     options = options or FilterOptions()
     index = validate_inputs(samples, t, measurements, prior)

@@ -11,22 +11,22 @@ to ``k + 1``,
 
 where ``x_k`` is the smoothed state's offset from the filtered one (``A^s_k =
 C(x_k[a]) A_k`` in the attitude block ``a``, sums elsewhere, ``C(delta) A`` the
-attitude :func:`~solvers.filters.common.apply_error` gives) and ``(-)`` the
+attitude :func:`~attopt.solvers.filters.common.apply_error` gives) and ``(-)`` the
 error state of the smoothed estimate relative to the predicted one: the
-attitude error vector (:func:`~solvers.filters.common.error_vector`, four times
+attitude error vector (:func:`~attopt.solvers.filters.common.error_vector`, four times
 the MRPs of ``A^s (A^-)^T``, body frame of epoch ``k + 1``, where ``Phi`` maps
 the error to) and differences elsewhere.  Since ``A^s_{k+1} = C(x_{k+1})
 A_{k+1}`` and ``A_{k+1} = C(c_{k+1}) A^-_{k+1}`` (``c`` the filter's
 correction), the attitude part is the error vector of the composition ``C(x)
 C(c)``, computed from quaternions in CasADi (:func:`composed_error`), so the
 whole pass runs in CasADi's virtual machine
-(:func:`~solvers.filters.casadi_pass.accumulate`).  ``P^s_{k+1} <= P^-_{k+1}``
+(:func:`~attopt.solvers.filters.casadi_pass.accumulate`).  ``P^s_{k+1} <= P^-_{k+1}``
 makes ``P^s_k <= P_k``: the smoothed covariance never exceeds the filtered one.
 
 The pass knows only where the attitude block sits.  :func:`rts_smooth` runs it
-on the output epochs of :func:`solvers.filters.mekf.mekf` (the filter-based
+on the output epochs of :func:`attopt.solvers.filters.mekf.mekf` (the filter-based
 smoothing baseline; state ``[delta, delta_beta]``, ``a = 0:3``); the seed-003
-EKF's smoother (:func:`solvers.doa.eks.rts_smooth_ekf`, state ``[delta_omega,
+EKF's smoother (:func:`attopt.solvers.doa.eks.rts_smooth_ekf`, state ``[delta_omega,
 delta]``) with ``a = 3:6``.
 """
 
@@ -37,12 +37,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.errors import InvalidObservationError
-from solvers.filters.casadi_pass import accumulate, lower_symmetric
-from solvers.filters.common import (
+from attopt.formulations.errors import InvalidObservationError
+from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
+from attopt.solvers.filters.common import (
     EpochRecord,
     FilterOptions,
     FilterResult,
@@ -50,6 +47,8 @@ from solvers.filters.common import (
     error_vector,
     filter_result,
 )
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -112,7 +111,7 @@ def rts_backward(
         predicted_covariance: ``(N, n, n)`` ``P^-_k`` before it (row 0 unused).
         transition: ``(N - 1, n, n)``, ``transition[k]`` from epoch ``k`` to ``k + 1``.
         correction: ``(N, n)`` filtered minus predicted state at each epoch:
-            the attitude error vector (:func:`~solvers.filters.common.error_vector`
+            the attitude error vector (:func:`~attopt.solvers.filters.common.error_vector`
             of the filtered attitude relative to the predicted one) in the
             attitude block, plain differences elsewhere (row 0 unused).
         attitude_start: index of the three attitude-error components.
@@ -120,7 +119,7 @@ def rts_backward(
     Returns:
         ``(N, n)`` offsets of the smoothed state from the filtered one (zero at
         the last epoch; apply the attitude block with
-        :func:`~solvers.filters.common.apply_error`) and the ``(N, n, n)``
+        :func:`~attopt.solvers.filters.common.apply_error`) and the ``(N, n, n)``
         smoothed covariances.
     """
     filtered_covariance = np.asarray(filtered_covariance, dtype=float)

@@ -5,7 +5,7 @@ estimation", JGCD 26(4) 536-542 ("CM"; its text is not among the project's
 sources, so the equations below are numbered (U1)-(U9) here rather than by
 CM's numbering).  Seed 004 sec. V.B runs this filter on SNR measurements
 with the multiplicative body-frame error of its eq. 26.  Same inputs,
-outputs, diagnostics and fault handling as :func:`solvers.filters.mekf.mekf`
+outputs, diagnostics and fault handling as :func:`attopt.solvers.filters.mekf.mekf`
 and the same measurement interface, of which only the predicted values are
 used: no Jacobian is evaluated.
 
@@ -13,8 +13,8 @@ State and sigma points.  The filter carries the attitude estimate ``A``
 (reference -> body), the bias ``beta`` and the ``6 x 6`` covariance ``P`` of
 the error state ``x = [delta, delta_beta]``, ``delta`` the generalised
 Rodrigues parameters of ``A_true A^T`` with ``a = 1, f = 4``, CM's choice
-(:func:`~solvers.filters.common.error_vector`,
-:func:`~solvers.filters.common.apply_error`).  At the start of every
+(:func:`~attopt.solvers.filters.common.error_vector`,
+:func:`~attopt.solvers.filters.common.apply_error`).  At the start of every
 propagation and update the error mean is zero (it has been folded into ``A``
 and ``beta``), and the ``2 n + 1 = 13`` sigma points are::
 
@@ -31,7 +31,7 @@ Propagation from one output epoch to the next, over all the gyro steps
 between them at once and vectorised over the sigma points: sigma point ``i``
 is the attitude ``A_i = apply_error(chi_i[:3], A)`` with bias ``beta_i =
 beta + chi_i[3:]``, carried through the exact kinematics with its own rates
-``omega_measured - beta_i`` (:func:`~solvers.filters.common.propagate_attitude`).
+``omega_measured - beta_i`` (:func:`~attopt.solvers.filters.common.propagate_attitude`).
 The propagated reference is sigma point 0's attitude ``A_0'``; the
 propagated points are ``chi_i' = [error_vector(A_i', A_0'), chi_i[3:]]``
 (the bias is a random walk: its points do not move), and::
@@ -42,7 +42,7 @@ propagated points are ``chi_i' = [error_vector(A_i', A_0'), chi_i[3:]]``
 
 (U5) folds the mean into the estimate, and ``T(x) = blockdiag(J(x[:3]), I)``
 in (U4) carries the covariance of the error about ``A_0'`` to the error
-about ``A^-`` to first order (``J`` of :func:`~solvers.filters.common.error_jacobian`,
+about ``A^-`` to first order (``J`` of :func:`~attopt.solvers.filters.common.error_jacobian`,
 the MEKF's reset; :func:`carried`).
 
 Update at an epoch with a measurement: fresh sigma points (U1) from ``P^-``
@@ -51,7 +51,7 @@ call, ``h_i = h(A_i)`` (the model's values only, ``jacobian=False``), and
 ``R`` is the measurement's noise covariance at ``A^-`` (attitude-dependent
 for the truncated SNR model, evaluated where the MEKF evaluates it); rows
 that are NaN for any sigma point or in ``z`` are left out (whole blocks,
-:func:`~solvers.filters.common.usable_rows`).  With
+:func:`~attopt.solvers.filters.common.usable_rows`).  With
 the measurement's own innovation ``d_i = z - h_i`` (wrapped angles,
 geodesic unit-vector differences)::
 
@@ -62,9 +62,9 @@ geodesic unit-vector differences)::
 
 ``nu - d_i`` standing for ``h_i - h_mean`` (exact for ``d = z - h``, to
 first order for nonlinear ones such as the unit vectors').  Each block is first gated on
-``nu`` and its diagonal block of ``P_nunu`` (:func:`~solvers.filters.common.gate`);
+``nu`` and its diagonal block of ``P_nunu`` (:func:`~attopt.solvers.filters.common.gate`);
 (U8) uses the accepted rows; ``P^+`` is floored if it loses definiteness
-(:func:`~solvers.filters.common.repair_covariance`).  ``nis`` is ``nu^T
+(:func:`~attopt.solvers.filters.common.repair_covariance`).  ``nis`` is ``nu^T
 P_nunu^-1 nu`` over the accepted rows.
 
 Deviations from CM:
@@ -72,7 +72,7 @@ Deviations from CM:
 * *Information form.*  (U7)-(U8) are evaluated as ``P_xnu P_nunu^-1`` through
   the statistical linearisation ``P_nunu = H P H^T + Omega + R``, ``P_xnu =
   P H^T`` (:func:`regression`) and the information-form gain
-  (:func:`~solvers.filters.common.kalman_gain`), keeping only the diagonal of
+  (:func:`~attopt.solvers.filters.common.kalman_gain`), keeping only the diagonal of
   the linearisation residual ``Omega``: the residuals of different
   observations are treated as independent.  The cost is then linear in the
   number of observations (an ``adsb-snr`` epoch can hold 2,000 SNRs, whose
@@ -94,9 +94,9 @@ Deviations from CM:
   additive noise, which does not count the noise twice.
 * *Interval noise.*  ``Q_interval`` accumulates the steps' noise over the
   interval, ``Q <- Phi_j Q Phi_j^T + Q_j`` from ``Q = 0``, ``Q_j`` the
-  per-step :meth:`~formulations.gyro.GyroModel.process_noise` plus the
-  gyro-gap growth (:func:`~solvers.filters.common.step_noise`) and ``Phi_j``
-  the closed-form :func:`~formulations.gyro.error_state_transition` at the
+  per-step :meth:`~attopt.formulations.gyro.GyroModel.process_noise` plus the
+  gyro-gap growth (:func:`~attopt.solvers.filters.common.step_noise`) and ``Phi_j``
+  the closed-form :func:`~attopt.formulations.gyro.error_state_transition` at the
   mean rate ``omega_measured - beta`` (:func:`interval_noise`): the noise
   part of the MEKF's covariance propagation.  Drawing fresh sigma points at
   every gyro step instead (CM propagate one gyro step per filter step)
@@ -113,7 +113,7 @@ Deviations from CM:
   does the same with the iterated posterior linearisation filter
   (:func:`update`): while the attitude step's second-order term exceeds
   ``options.relinearise_fraction`` of the posterior attitude sigma (the
-  MEKF's test, :func:`~solvers.filters.common.linearised`; at most
+  MEKF's test, :func:`~attopt.solvers.filters.common.linearised`; at most
   ``options.max_update_iterations`` passes), sigma points drawn from the
   current posterior re-linearise the measurement statistically.  The first
   pass is exactly (U6)-(U9); ``update_iterations`` counts the passes (1 in
@@ -125,11 +125,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.gyro import GyroModel, GyroSamples
-from solvers.filters.common import (
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
     EpochRecord,
@@ -154,6 +152,7 @@ from solvers.filters.common import (
     usable_rows,
     validate_inputs,
 )
+from scipy.spatial.transform import Rotation
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -186,7 +185,7 @@ def sigma_offsets(covariance: Array) -> tuple[Array, bool]:
 def carried(covariance: Array, state: Array) -> Array:
     """The covariance of the error about ``apply_error(state[:3], A)`` from that about
     ``A``: ``T P T^T``, ``T = blockdiag(J, I)``, ``J`` of
-    :func:`~solvers.filters.common.error_jacobian` (the MEKF's reset)."""
+    :func:`~attopt.solvers.filters.common.error_jacobian` (the MEKF's reset)."""
     reset = np.eye(STATE_SIZE)
     reset[:3, :3] = error_jacobian(state[:3])
     return reset @ covariance @ reset.T
@@ -194,7 +193,7 @@ def carried(covariance: Array, state: Array) -> Array:
 
 def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: float) -> Array:
     """Process noise (U4) accumulated over consecutive gyro steps at the mean ``rates``,
-    with the gap growth ``hold_variance`` (:func:`~solvers.filters.common.step_noise`)."""
+    with the gap growth ``hold_variance`` (:func:`~attopt.solvers.filters.common.step_noise`)."""
     zero = np.zeros((STATE_SIZE, STATE_SIZE))
     return propagate_covariance(zero, rates, hold_variance, model, dt)[0]
 
@@ -254,7 +253,7 @@ def update(
     """Unscented measurement update (U6)-(U9) with gating.
 
     The first pass is the plain unscented update.  While the attitude step is
-    not :func:`~solvers.filters.common.linearised` (at most
+    not :func:`~attopt.solvers.filters.common.linearised` (at most
     ``options.max_update_iterations`` passes) it is repeated as the iterated
     posterior linearisation filter (Garcia-Fernandez, Svensson, Morelande
     and Sarkka 2015, IEEE Trans. Signal Process. 63(20)): sigma
@@ -355,7 +354,7 @@ def usque(
 ) -> FilterResult:
     """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
     its measurement (``None``: propagation only).  Same result as
-    :func:`~solvers.filters.mekf.mekf` without the history (no RTS pass)."""
+    :func:`~attopt.solvers.filters.mekf.mekf` without the history (no RTS pass)."""
     options = options or FilterOptions()
     index = validate_inputs(samples, t, measurements, prior)
     gyro = prepare_gyro(samples, options)

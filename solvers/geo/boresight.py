@@ -1,9 +1,9 @@
 """Boresight of a GEO broadcaster from SNRs at ground stations (seed 004 sec. IV.B, eq. 12).
 
 Each station's SNR is inverted through the link of seed 004 eq. 7
-(:mod:`formulations.geo_link`, satellite position and RF parameters known) for
+(:mod:`attopt.formulations.geo_link`, satellite position and RF parameters known) for
 the transmit gain and, through the main lobe of eq. 5
-(:func:`solvers.snr.pattern_inverse.cos_from_gain`), for the off-boresight
+(:func:`attopt.solvers.snr.pattern_inverse.cos_from_gain`), for the off-boresight
 angle ``theta_b``: the boresight ``B`` lies on the cone ``l . B = cos theta_b``
 about the unit line of sight ``l`` from the satellite to the station.
 
@@ -18,16 +18,16 @@ about the unit line of sight ``l`` from the satellite to the station.
   and a third cone picks one of them.  Of the three stations given, the pair
   with the widest angle between its lines of sight is intersected and the
   third station selects.  Fewer than three stations: the two candidates
-  cannot be told apart (:class:`~formulations.errors.UnobservableError`).
+  cannot be told apart (:class:`~attopt.formulations.errors.UnobservableError`).
   A negative radicand (noisy SNRs: the cones miss each other) falls back to
   least squares over the same stations, flagged with the reason.
 * :func:`least_squares_boresight`: every station, the constrained weighted
   least squares ``min sum ((l_k . B - c_k) / sigma_k)^2, |B| = 1`` of
-  :func:`solvers.snr.boresight.estimate_boresight`, ``sigma_k`` the SNR noise
+  :func:`attopt.solvers.snr.boresight.estimate_boresight`, ``sigma_k`` the SNR noise
   mapped to ``cos theta_b``.
 
 A station that does not see the satellite (elevation below 0) is rejected
-with :class:`~formulations.errors.InvalidObservationError` naming it.
+with :class:`~attopt.formulations.errors.InvalidObservationError` naming it.
 :func:`rf_sensitivity` measures the boresight error when the solver is given
 wrong RF parameters (seed 004 Fig. 6).
 """
@@ -39,11 +39,8 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.errors import InvalidObservationError, UnobservableError
-from formulations.geo_link import (
+from attopt.formulations.errors import InvalidObservationError, UnobservableError
+from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
     GARUDA1,
     GeoLink,
@@ -51,8 +48,10 @@ from formulations.geo_link import (
     geo_snr_db,
     station_terms,
 )
-from solvers.snr.boresight import estimate_boresight
-from solvers.snr.pattern_inverse import cos_from_gain
+from attopt.solvers.snr.boresight import estimate_boresight
+from attopt.solvers.snr.pattern_inverse import cos_from_gain
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

@@ -1,7 +1,7 @@
 """Line of sight to a GEO broadcaster from SNRs at ground stations (seed 004 sec. IV.A).
 
 With the RF parameters and the attitude (or just the boresight,
-:func:`formulations.geo_link.attitude_pointing`) known, the satellite is
+:func:`attopt.formulations.geo_link.attitude_pointing`) known, the satellite is
 placed on the geostationary belt (seed 004 assumption 1: equatorial, radius
 :data:`GEO_RADIUS_KM`, ECEF) at the longitude ``lambda`` whose predicted SNRs
 (eq. 7) fit the measured ones:
@@ -23,13 +23,12 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
+from attopt.formulations.geo_link import BORESIGHT_BODY, GARUDA1, GeoLink, elevation_rad, geo_snr_db
+from attopt.formulations.snr_model import observation_mask
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
-from formulations.geo_link import BORESIGHT_BODY, GARUDA1, GeoLink, elevation_rad, geo_snr_db
-from formulations.snr_model import observation_mask
 
 Array = NDArray[np.float64]
 

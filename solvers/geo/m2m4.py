@@ -24,9 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from attopt.formulations.errors import InvalidObservationError
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.errors import InvalidObservationError
 
 Array = NDArray[np.float64]
 

@@ -7,7 +7,7 @@ leaving the restart to the user.  Here both steps are automatic.
 
 Detection: a windowed chi-square test on the normalised innovation squared
 (NIS) the filters record per epoch (``solution.loss`` = diagnostic ``nis``,
-``nu^T P_nunu^-1 nu`` over the epoch's used rows, :mod:`solvers.filters.usque`).
+``nu^T P_nunu^-1 nu`` over the epoch's used rows, :mod:`attopt.solvers.filters.usque`).
 For a consistent filter the NIS of epoch ``k`` is chi-square with ``n_k``
 degrees of freedom (``n_k`` = ``n_used``: one per SNR, whose blocks are
 scalars) and independent between epochs, so over the last ``W`` epochs::
@@ -21,7 +21,7 @@ a gate would drop exactly the rows that carry the evidence.
 
 Re-initialisation at the detection epoch ``k_d``: the snapshot boresight
 ``B`` of that epoch (cone intersection or least squares, sec. IV.B,
-:mod:`solvers.geo.boresight`) fixes roll and pitch.  Yaw about the boresight
+:mod:`attopt.solvers.geo.boresight`) fixes roll and pitch.  Yaw about the boresight
 is unobservable from SNRs (every row of the SNR Jacobian is orthogonal to the
 boresight, ``docs/geo.md``): the filter's estimate from before the failing
 window, carried to ``k_d`` with the assumed rates, keeps its yaw and is turned
@@ -41,16 +41,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.geo_link import BORESIGHT_BODY
+from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
+from attopt.solvers.filters.common import epoch_samples, propagate_attitude
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.errors import InvalidObservationError
-from formulations.geo_link import BORESIGHT_BODY
-from formulations.gyro import GyroModel, GyroSamples
-from solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
-from solvers.filters.common import epoch_samples, propagate_attitude
 
 Array = NDArray[np.float64]
 

@@ -1,6 +1,6 @@
 """Whole-pass factor-graph smoother over attitude and gyro bias (GTSAM; ``docs/smoother.md``)."""
 
-from solvers.smoother.batch import (
+from attopt.solvers.smoother.batch import (
     SmootherOptions,
     SmootherProblem,
     SmootherReport,
@@ -8,7 +8,7 @@ from solvers.smoother.batch import (
     single_frame_initial,
     smooth,
 )
-from solvers.smoother.online import OnlineOptions, OnlineReport, OnlineResult, smooth_online
+from attopt.solvers.smoother.online import OnlineOptions, OnlineReport, OnlineResult, smooth_online
 
 __all__ = [
     "OnlineOptions",

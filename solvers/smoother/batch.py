@@ -1,16 +1,16 @@
 """Batch factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
 
-Variables: one ``gtsam.Rot3`` (``R = A^T``, :mod:`solvers.smoother.conventions`)
+Variables: one ``gtsam.Rot3`` (``R = A^T``, :mod:`attopt.solvers.smoother.conventions`)
 and one bias 3-vector per node; the nodes are the output epochs (gyro sample
 times, as for the filters) and, when the first epoch is later than the first
 gyro sample, one more node there carrying the prior.
 
 Factors: the prior with its full ``6 x 6`` covariance, ``gtsam.AHRSFactor``
 and ``BetweenFactorVector`` between consecutive nodes
-(:mod:`solvers.smoother.gyro_factors`), and one stacked measurement factor per
-epoch (:mod:`solvers.smoother.measurement_factors`; SNRs of seed 000 eq. 10 /
+(:mod:`attopt.solvers.smoother.gyro_factors`), and one stacked measurement factor per
+epoch (:mod:`attopt.solvers.smoother.measurement_factors`; SNRs of seed 000 eq. 10 /
 seed 004 eq. 7, unit vectors, Euler angles, all through the
-:class:`~formulations.attitude_measurement.AttitudeMeasurement` interface).
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` interface).
 
 Optimiser: Levenberg-Marquardt driven from Python, because a Python
 ``CustomFactor`` inside GTSAM's optimisers receives a deep copy of the whole
@@ -29,7 +29,7 @@ Optimiser: Levenberg-Marquardt driven from Python, because a Python
    whitened residuals) decreased, and divide ``lambda`` by
    ``lambda_factor``; else multiply it (a rejected step at which some block
    cannot be predicted, outside an antenna's main lobe, drops that block and
-   is solved again instead, :mod:`solvers.smoother.measurement_factors`);
+   is solved again instead, :mod:`attopt.solvers.smoother.measurement_factors`);
 4. stop when the decrease predicted by the undamped linear model, or the
    decrease achieved by an accepted step, is at most ``absolute_tolerance +
    relative_tolerance * cost`` (converged); or when a rejected step changes
@@ -41,7 +41,7 @@ Optimiser: Levenberg-Marquardt driven from Python, because a Python
 
 Initialisation (``SmootherOptions.initialisation``): ``"mekf"`` (default) runs
 the forward MEKF and its RTS pass on the same inputs
-(:mod:`solvers.filters`), whose estimates are within the linearisation range
+(:mod:`attopt.solvers.filters`), whose estimates are within the linearisation range
 of the batch optimum; ``"gyro"`` integrates the gyro from the prior (cheap;
 only for passes short enough, or gyros good enough, that the drift stays
 within the measurement models' convergence range).  A caller that has
@@ -60,7 +60,7 @@ per-key blocks, block-diagonal, several times cheaper), converted to the
 error state ``[delta, delta_beta]`` (cross block negated).  At the truth the inverse of
 this information is the posterior Cramer-Rao bound of the pass.
 
-Gyro gaps follow the filters (:func:`solvers.filters.common.prepare_gyro`):
+Gyro gaps follow the filters (:func:`attopt.solvers.filters.common.prepare_gyro`):
 the last valid sample is held and the AHRS factor's covariance grows by the
 filters' hold variance; epochs in a gap longer than
 ``filter.max_gyro_gap_s`` are flagged invalid as the filters flag them, so
@@ -77,13 +77,10 @@ from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.errors import ConvergenceError, InvalidObservationError
-from formulations.gyro import GyroModel, GyroSamples
-from solvers.filters.common import (
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError
+from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.solvers.filters.common import (
     STATE_SIZE,
     EpochRecord,
     FilterOptions,
@@ -96,11 +93,11 @@ from solvers.filters.common import (
     repair_covariance,
     validate_inputs,
 )
-from solvers.filters.mekf import mekf
-from solvers.filters.rts import rts_smooth
-from solvers.result import BatchSolution
-from solvers.smoother.chain_marginals import sequential_marginals
-from solvers.smoother.conventions import (
+from attopt.solvers.filters.mekf import mekf
+from attopt.solvers.filters.rts import rts_smooth
+from attopt.solvers.result import BatchSolution
+from attopt.solvers.smoother.chain_marginals import sequential_marginals
+from attopt.solvers.smoother.conventions import (
     Array,
     attitude_key,
     bias_key,
@@ -112,8 +109,10 @@ from solvers.smoother.conventions import (
     step_arrays,
     to_values,
 )
-from solvers.smoother.gyro_factors import JointPrior, check_model, gyro_graph, gyro_intervals
-from solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from attopt.solvers.smoother.gyro_factors import JointPrior, check_model, gyro_graph, gyro_intervals
+from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 INITIALISATIONS = ("mekf", "gyro")
 UNDETERMINED_SIGMA = np.pi
@@ -260,7 +259,7 @@ class SmootherReport:
 
 @dataclass(frozen=True)
 class SmootherResult(FilterResult):
-    """A :class:`~solvers.filters.common.FilterResult` with the optimiser's report.
+    """A :class:`~attopt.solvers.filters.common.FilterResult` with the optimiser's report.
 
     ``solution.loss`` (diagnostic ``nis``) is the epoch's normalised residual
     squared at the solution, ``nu^T R^-1 nu`` over its used rows;
@@ -519,7 +518,7 @@ def _marginals(
     queries recompute separator marginals of hundreds of offsets clique by
     clique (47 s for 300 s of ``adsb-snr``); a backward sweep over the
     sequential Bayes net gives the same values (to 1e-11) in about 1 s
-    (:func:`~solvers.smoother.chain_marginals.sequential_marginals`).
+    (:func:`~attopt.solvers.smoother.chain_marginals.sequential_marginals`).
     """
     if ordering is not None:
         covariance, variances = sequential_marginals(
@@ -612,7 +611,7 @@ def smooth(
 ) -> SmootherResult:
     """Smoothed attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
 
-    Inputs as for :func:`solvers.filters.mekf.mekf`: gyro record, epochs
+    Inputs as for :func:`attopt.solvers.filters.mekf.mekf`: gyro record, epochs
     ``t`` (gyro sample times), one measurement or ``None`` per epoch, the
     prior at the first gyro sample and the gyro model.  ``initial``: a
     filter's result on the same epochs to start from (else

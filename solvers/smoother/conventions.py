@@ -12,10 +12,10 @@ right (body-frame) perturbation (verified for gtsam 4.3.0), hence::
 
     A(xi) = (R Exp(xi))^T = exp(-xi) A,      delta = -xi.
 
-Consequences used throughout :mod:`solvers.smoother`:
+Consequences used throughout :mod:`attopt.solvers.smoother`:
 
 * a measurement model ``h`` with the interface's body-frame Jacobian ``J =
-  dh/d delta`` (:class:`~formulations.attitude_measurement.AttitudeMeasurement`)
+  dh/d delta`` (:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement`)
   has ``dh/d xi = -J``;
 * GTSAM's bias variable is a plain 3-vector whose retraction is addition, so
   its tangent ``d`` is ``delta_beta`` itself;

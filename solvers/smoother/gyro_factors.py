@@ -8,7 +8,7 @@ Between consecutive nodes ``i`` and ``i + 1`` (gyro sample times ``t_i``,
   ``Delta R = prod_j Exp((omega_j - b_hat) dt)``, zero error when ``R_{i+1}
   = R_i Delta R(b_i)`` (first-order bias correction about ``b_hat``).  With
   ``R = A^T`` this is ``A_{i+1} = prod_j exp(-[(omega_j - b) x] dt) A_i``,
-  exactly :func:`formulations.gyro.attitude_increment` step by step (pinned
+  exactly :func:`attopt.formulations.gyro.attitude_increment` step by step (pinned
   by ``tests/test_smoother.py`` with a noise-free gyro).  ``b_hat`` is the
   bias estimate of node ``i`` when the graph is built; the driver rebuilds
   the graph when an estimate moves by more than
@@ -24,14 +24,14 @@ Between consecutive nodes ``i`` and ``i + 1`` (gyro sample times ``t_i``,
   correlation with the bias step, ``Q12``, is neglected: the correlation
   coefficient is ``sigma_u T / (2 sqrt(sigma_v^2 + sigma_u^2 T^2 / 3))``,
   8e-5 for the MEMS gyro over 1 s, 0.43 for seed 000's), ``h`` the gyro-gap growth of
-  :func:`solvers.filters.common.prepare_gyro` summed over the interval (the
+  :func:`attopt.solvers.filters.common.prepare_gyro` summed over the interval (the
   filters' rule: a missing sample is replaced by the last valid one, and a
   gap of ``T_g`` adds ``(sigma_hold T_g)^2``);
 * bias random walk: ``gtsam.BetweenFactorVector(b_i, b_{i+1}, 0,
   sigma_u sqrt(T))`` (seed 000 eq. 24).
 
 The prior (:class:`JointPrior`) is the full ``6 x 6`` covariance of
-:class:`~solvers.filters.common.FilterPrior`, attitude-bias cross terms
+:class:`~attopt.solvers.filters.common.FilterPrior`, attitude-bias cross terms
 included: the errors of ``gtsam.PriorFactorRot3`` and ``PriorFactorVector``
 (linearised by GTSAM) whitened jointly.  ``PriorFactorRot3``'s error is
 ``Logmap(R_prior^-1 R) = -rotvec(A A_prior^T)``, the opposite of attopt's
@@ -44,13 +44,12 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gyro import GyroModel
+from attopt.solvers.filters.common import FilterPrior, PreparedGyro
+from attopt.solvers.smoother.conventions import SIGN, Array, attitude_key, bias_key, rot3
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
-
-from formulations.errors import InvalidObservationError
-from formulations.gyro import GyroModel
-from solvers.filters.common import FilterPrior, PreparedGyro
-from solvers.smoother.conventions import SIGN, Array, attitude_key, bias_key, rot3
 
 UNIT3 = gtsam.noiseModel.Unit.Create(3)
 

@@ -1,9 +1,9 @@
 """Measurement factors of the smoother: one stacked linear factor per epoch, interface only.
 
 Every measurement is an
-:class:`~formulations.attitude_measurement.AttitudeMeasurement` (SNRs of seed
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` (SNRs of seed
 000 eq. 10 / seed 004 eq. 7 through
-:class:`~formulations.snr_measurement.SnrMeasurement`, unit vectors, Euler
+:class:`~attopt.formulations.snr_measurement.SnrMeasurement`, unit vectors, Euler
 angles; nothing here is measurement-specific).  At an attitude estimate ``A``
 of the epoch's node, ``predict`` gives ``h`` and ``J = dh/d delta`` (CasADi
 AD, body-frame error ``exp(delta) A``) for all the epoch's rows at once, and
@@ -17,7 +17,7 @@ the factor is the whitened residual of the innovation ``nu = innovation(h)``
 over the epoch's used rows (``W`` is elementwise when ``R`` is diagonal) and
 ``d nu / d h`` by central differences through ``innovation``
 (:func:`innovation_jacobian`).  The sign: ``delta = -xi``
-(:mod:`solvers.smoother.conventions`), so ``dh/dxi = -J``.  The linearisation
+(:mod:`attopt.solvers.smoother.conventions`), so ``dh/dxi = -J``.  The linearisation
 ``|| -W K xi - W nu ||^2`` is added to the linearised built-in factors as
 one ``gtsam.JacobianFactor`` on the epoch's
 attitude key, compressed by a QR factorisation of ``[-W K, W nu]`` to at most
@@ -32,10 +32,10 @@ Rows (:func:`prepare_factor`, at the initial estimate, once):
   (the truncated SNR model's ``R`` depends on the attitude;
   ``SmootherOptions.noise_updates`` re-evaluates it at the solution);
 * rows with a NaN value or that the model cannot predict are left out
-  (:func:`solvers.filters.common.usable_rows`), counted per block;
+  (:func:`attopt.solvers.filters.common.usable_rows`), counted per block;
 * outliers are gated once on the innovation at the initial estimate,
   ``S = J P J^T + R`` with ``P`` the initial estimate's attitude covariance
-  (:func:`solvers.filters.common.gate`, which forms only the diagonal blocks
+  (:func:`attopt.solvers.filters.common.gate`, which forms only the diagonal blocks
   of ``S``; the same chi-square gate as the filters), counted;
 * ``R`` is block-diagonal over the blocks (true of every implementation):
   the Huber loss and the dropping of blocks rely on it;
@@ -56,14 +56,13 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from attopt.solvers.filters.common import gate, noise_subset, usable_rows
+from attopt.solvers.smoother.conventions import Array, attitude_key, offset_key
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.errors import InvalidObservationError
-from solvers.filters.common import gate, noise_subset, usable_rows
-from solvers.smoother.conventions import Array, attitude_key, offset_key
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
 UNIT1 = gtsam.noiseModel.Unit.Create(1)
@@ -325,7 +324,7 @@ class EpochFactor:
         """``e = -W nu`` and ``de/dxi = -W K`` over the used rows from an :meth:`evaluate`
         result ``(nu, jac, lost)``, the rows of the ``lost`` blocks zero (finite where the
         model cannot predict): the nonlinear factor that GTSAM relinearises itself in
-        :mod:`solvers.smoother.online` (no Huber weights, no compression)."""
+        :mod:`attopt.solvers.smoother.online` (no Huber weights, no compression)."""
         if lost.size:
             keep = self._kept(lost)
             nu, jac = np.where(keep, nu, 0.0), np.where(keep[:, None], jac, 0.0)

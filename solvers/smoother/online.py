@@ -1,6 +1,6 @@
 """Online (causal) factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
 
-The variables and factors of the batch smoother (:mod:`solvers.smoother.batch`,
+The variables and factors of the batch smoother (:mod:`attopt.solvers.smoother.batch`,
 ``docs/smoother.md``), added one node at a time to GTSAM's
 ``IncrementalFixedLagSmoother`` (iSAM2 over the nodes of the last ``lag_s``
 seconds; older nodes are marginalised into a linear prior on the window).
@@ -13,15 +13,15 @@ first epoch is later, as in the batch):
 
 1. prediction: the previous node's estimate and ``6 x 6`` error-state
    covariance propagated over the gyro steps as the MEKF propagates them
-   (:func:`solvers.filters.mekf.propagate`: held rate across gaps, the
+   (:func:`attopt.solvers.filters.mekf.propagate`: held rate across gaps, the
    filters' hold variance);
 2. the epoch's measurement factor is prepared at the predicted attitude by
-   :func:`~solvers.smoother.measurement_factors.prepare_factor`: NaN and
+   :func:`~attopt.solvers.smoother.measurement_factors.prepare_factor`: NaN and
    unpredictable rows left out, ``R = noise_covariance_at`` held fixed, every
    block gated once with the filters' chi-square gate against the predicted
    covariance (counted);
 3. new factors: ``AHRSFactor`` and ``BetweenFactorVector`` from the previous
-   node (:func:`~solvers.smoother.gyro_factors.gyro_graph`, preintegrated about
+   node (:func:`~attopt.solvers.smoother.gyro_factors.gyro_graph`, preintegrated about
    the previous node's causal bias), and one Python ``gtsam.CustomFactor``
    for the epoch's stacked rows, whose callback evaluates the measurement
    interface (:meth:`EpochFactor.evaluate`) and returns ``e = -W nu`` and
@@ -29,12 +29,12 @@ first epoch is later, as in the batch):
    of the batch's linear factor ``A = -W K, b = W nu``); blocks the model
    cannot predict at a relinearisation point give zero rows and a zero
    Jacobian (counted as unpredictable), never NaN; node 0 carries the joint
-   prior (:class:`~solvers.smoother.gyro_factors.JointPrior` in a
+   prior (:class:`~attopt.solvers.smoother.gyro_factors.JointPrior` in a
    ``CustomFactor``, full ``6 x 6`` with cross terms);
 4. ``update`` with the node's timestamp; further empty ``update`` calls (each
    one Gauss-Newton step of iSAM2, relinearising the variables whose step
    exceeds the threshold) while the new node's step is not linearised by the
-   MEKF's rule (:func:`~solvers.filters.common.linearised`,
+   MEKF's rule (:func:`~attopt.solvers.filters.common.linearised`,
    ``filter.relinearise_fraction``) and exceeds the relinearisation
    threshold, at most ``filter.max_update_iterations`` in all: the iterated
    update of the MEKF after a large correction;
@@ -44,7 +44,7 @@ first epoch is later, as in the batch):
    batch's rule), while that node is in the window;
 6. the new node's joint marginal of ``[xi, d]`` from the iSAM2 Bayes tree,
    converted to ``[delta, delta_beta]``
-   (:func:`~solvers.smoother.conventions.error_state_covariance`).
+   (:func:`~attopt.solvers.smoother.conventions.error_state_covariance`).
 
 Cost: a ``CustomFactor`` inside GTSAM's C++ code receives a deep copy of the
 whole ``Values`` on every callback (``/work/shared/notes/verified-facts.md``);
@@ -53,12 +53,12 @@ plus one ``predict`` and the pass is linear in its length.  The callback of a
 factor at the point where it was prepared reuses that evaluation.
 
 Faults as in the batch and the filters: bad input raises
-:class:`~formulations.errors.InvalidObservationError`; epochs in a gyro gap
+:class:`~attopt.formulations.errors.InvalidObservationError`; epochs in a gyro gap
 longer than ``filter.max_gyro_gap_s``, with a 1-sigma above
 ``filter.max_attitude_sigma`` or after ``filter.max_rejected_epochs``
 consecutive gated epochs (a lost track: the online smoother has no
 re-acquisition inflation) are flagged by
-:func:`~solvers.filters.common.filter_result`; a non-finite estimate flags
+:func:`~attopt.solvers.filters.common.filter_result`; a non-finite estimate flags
 that epoch and all later ones.  No Huber loss (GTSAM's robust noise models
 act on a factor's whole residual, not per block).
 """
@@ -71,11 +71,9 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.spatial.transform import Rotation
-
-from formulations.attitude_measurement import AttitudeMeasurement
-from formulations.gyro import GyroModel, GyroSamples
-from solvers.filters.common import (
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.solvers.filters.common import (
     STATE_SIZE,
     EpochRecord,
     FilterOptions,
@@ -91,8 +89,8 @@ from solvers.filters.common import (
     repair_covariance,
     validate_inputs,
 )
-from solvers.filters.mekf import propagate
-from solvers.smoother.conventions import (
+from attopt.solvers.filters.mekf import propagate
+from attopt.solvers.smoother.conventions import (
     Array,
     attitude,
     attitude_key,
@@ -101,14 +99,15 @@ from solvers.smoother.conventions import (
     node_marginal,
     rot3,
 )
-from solvers.smoother.gyro_factors import (
+from attopt.solvers.smoother.gyro_factors import (
     GyroIntervals,
     JointPrior,
     check_model,
     gyro_graph,
     gyro_intervals,
 )
-from solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)
@@ -183,7 +182,7 @@ class OnlineReport:
 
 @dataclass(frozen=True)
 class OnlineResult(FilterResult):
-    """A :class:`~solvers.filters.common.FilterResult` with the online pass's report.
+    """A :class:`~attopt.solvers.filters.common.FilterResult` with the online pass's report.
 
     ``solution.loss`` (diagnostic ``nis``) is the epoch's normalised innovation
     squared against the predicted covariance, as the MEKF's; diagnostics
@@ -197,7 +196,7 @@ class OnlineResult(FilterResult):
 class MeasurementCallback:
     """Error function of one epoch's ``CustomFactor`` (module docstring, step 3).
 
-    ``factor`` comes from :func:`~solvers.smoother.measurement_factors.prepare_factor`
+    ``factor`` comes from :func:`~attopt.solvers.smoother.measurement_factors.prepare_factor`
     at the attitude ``prepared_at``, whose evaluation is reused there.  Counts
     the calls that evaluated the model (``evaluations``) or reused
     (``reused``), and collects the blocks zeroed at some point (``lost``).
@@ -250,7 +249,7 @@ def interval_factors(
     intervals: GyroIntervals, i: int, gyro: PreparedGyro, dt: float, bias_hat: Array
 ) -> tuple[gtsam.NonlinearFactor, gtsam.NonlinearFactor]:
     """AHRS and bias random-walk factors between nodes ``i`` and ``i + 1``, the AHRS one
-    preintegrated about ``bias_hat`` (:func:`~solvers.smoother.gyro_factors.gyro_graph`
+    preintegrated about ``bias_hat`` (:func:`~attopt.solvers.smoother.gyro_factors.gyro_graph`
     on that one interval, rekeyed)."""
     one = GyroIntervals(
         intervals.nodes[i : i + 2],
@@ -340,7 +339,7 @@ def _settle(
 ) -> tuple[int, int, Array, bool]:
     """Further updates while the new node's step is not linearised (module docstring, step 4).
 
-    The MEKF's rule (:func:`~solvers.filters.common.linearised`: the step's
+    The MEKF's rule (:func:`~attopt.solvers.filters.common.linearised`: the step's
     second-order term against ``filter.relinearise_fraction`` of the smallest
     attitude standard deviation of the node's marginal), for a step iSAM2
     would relinearise (above the thresholds).  Returns the further updates,
@@ -388,7 +387,7 @@ def smooth_online(
 ) -> OnlineResult:
     """Causal attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
 
-    Inputs as for :func:`solvers.smoother.smooth` and the filters; the estimate
+    Inputs as for :func:`attopt.solvers.smoother.smooth` and the filters; the estimate
     at epoch ``k`` uses the gyro up to ``t[k]`` and the measurements of epochs
     ``0 .. k`` only (module docstring).
     """

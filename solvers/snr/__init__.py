@@ -1,11 +1,11 @@
 """Solvers of the SNR attitude problem of seed 000 and their registry.
 
-Every solver is an :class:`~solvers.snr.driver.SnrSolver` in
+Every solver is an :class:`~attopt.solvers.snr.driver.SnrSolver` in
 :data:`SNR_SOLVERS` with the common contract
 
 * ``solve(problem, prior=None) -> AttitudeSolution`` for one
-  :class:`~formulations.snr_problem.SnrEpoch` (raises the specific
-  :mod:`formulations.errors` exception on bad input or a failed solve), and
+  :class:`~attopt.formulations.snr_problem.SnrEpoch` (raises the specific
+  :mod:`attopt.formulations.errors` exception on bad input or a failed solve), and
 * ``solve_sequence(problems, prior=None, *, warm_start=True, max_prior_age=10)
   -> BatchSolution`` for consecutive epochs (invalid ones flagged with the
   reason, each epoch warm-started from the previous valid estimate).
@@ -15,15 +15,15 @@ QUEST; seed 000 sec. 3.2), ``"nlse"`` (Levenberg-Marquardt on 3-2-1 Euler
 angles; sec. 3.3) and ``"nlp"`` (CasADi NLP on an MRP increment, IPOPT), the
 last two minimising eq. 19, and ``"nlp_truncated"`` (the same NLP maximising
 the likelihood of the threshold-truncated measurements of sec. 5.1,
-:mod:`formulations.snr_truncation`).
+:mod:`attopt.formulations.snr_truncation`).
 """
 
 from __future__ import annotations
 
-from solvers.snr.deterministic import DeterministicSolver
-from solvers.snr.driver import SnrSolver
-from solvers.snr.nlp import TRUNCATED_NLP, IpoptOptions, NlpSolver
-from solvers.snr.nlse import LmOptions, NlseSolver
+from attopt.solvers.snr.deterministic import DeterministicSolver
+from attopt.solvers.snr.driver import SnrSolver
+from attopt.solvers.snr.nlp import TRUNCATED_NLP, IpoptOptions, NlpSolver
+from attopt.solvers.snr.nlse import LmOptions, NlseSolver
 
 SNR_SOLVERS: dict[str, SnrSolver] = {
     s.name: s for s in (DeterministicSolver(), NlseSolver(), NlpSolver(), TRUNCATED_NLP)

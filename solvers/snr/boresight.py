@@ -2,7 +2,7 @@
 
 Each observation of an antenna gives ``l_k . b = c_k`` (seed 000 eqs. 5, 7, 15)
 with ``l_k`` the unit line of sight and ``c_k = cos(alpha_k)`` from the
-pattern inverse (:mod:`solvers.snr.pattern_inverse`), with standard deviation
+pattern inverse (:mod:`attopt.solvers.snr.pattern_inverse`), with standard deviation
 ``sigma_k``.  The boresight ``b`` (orbit frame) is the constrained weighted
 least-squares solution
 

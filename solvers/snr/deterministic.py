@@ -2,13 +2,13 @@
 
 Step 1, per antenna with enough observations: invert the gain pattern for
 each SNR to get ``cos(alpha_k)`` (seed 000 eqs. 4, 63;
-:mod:`solvers.snr.pattern_inverse`) and fit the antenna's boresight in the
+:mod:`attopt.solvers.snr.pattern_inverse`) and fit the antenna's boresight in the
 orbit frame, ``{b_i}_o``, to the cones ``l_k . b = cos(alpha_k)`` (eq. 15) by
-least squares on the unit sphere (:mod:`solvers.snr.boresight`).
+least squares on the unit sphere (:mod:`attopt.solvers.snr.boresight`).
 
 Step 2: Wahba's problem (eqs. 16-17) with the pairs
 ``({b_i}_B, {b_i}_o)`` (body = mounting direction, reference = estimate),
-solved by QUEST (``solvers.wahba.WAHBA_SOLVERS["quest"]``, as in seed 000
+solved by QUEST (``attopt.solvers.wahba.WAHBA_SOLVERS["quest"]``, as in seed 000
 sec. 5.1).  QUEST's weights are ``a_i = 1 / sigma_i^2`` with ``sigma_i^2`` the
 mean tangent-plane variance of the estimated boresight, whose covariance
 comes from the SNR noise through step 1; the returned covariance is QUEST's
@@ -23,7 +23,7 @@ all SNR solvers are scored alike; Wahba's loss (eq. 17) is a diagnostic.
 
 Observations.  Seed 000 sec. 3.3 requires ``m_i >= 3`` per antenna; with the
 default ``min_per_antenna = 3`` an antenna with fewer is not used and the
-epoch is flagged (:class:`~formulations.errors.UnobservableError`) unless two
+epoch is flagged (:class:`~attopt.formulations.errors.UnobservableError`) unless two
 non-parallel antennas remain.  ``min_per_antenna = 2`` also uses antennas with
 two observations: the two cones meet in two lines, a two-fold ambiguity
 resolved by the candidate closer to the a-priori boresight direction
@@ -40,16 +40,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from attopt.formulations.errors import AttoptError, ConvergenceError, UnobservableError
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.snr.boresight import BoresightEstimate, estimate_boresight
+from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
+from attopt.solvers.snr.fit import fit_at
+from attopt.solvers.snr.pattern_inverse import cos_from_gain
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import AttoptError, ConvergenceError, UnobservableError
-from formulations.snr_problem import SnrEpoch
-from solvers.snr.boresight import BoresightEstimate, estimate_boresight
-from solvers.snr.driver import EpochEstimate, SnrSolver
-from solvers.snr.fit import fit_at
-from solvers.snr.pattern_inverse import cos_from_gain
-from solvers.wahba import WAHBA_SOLVERS
 
 Array = NDArray[np.float64]
 

@@ -1,15 +1,15 @@
 """The part every SNR solver shares: validate, warm-start, estimate, assemble.
 
 A solver (:class:`SnrSolver` subclass) supplies its validation rule
-(``min_per_antenna``, :func:`formulations.snr_problem.epoch_issue`) and an
+(``min_per_antenna``, :func:`attopt.formulations.snr_problem.epoch_issue`) and an
 :meth:`SnrSolver.estimate` for one validated epoch with an optional a-priori
 attitude.  This module turns that into the project's result types
-(:mod:`solvers.result`):
+(:mod:`attopt.solvers.result`):
 
 * :meth:`SnrSolver.solve` solves one epoch and raises the specific exception
-  of bad input (:class:`~formulations.errors.InvalidObservationError`,
-  :class:`~formulations.errors.UnobservableError`) or of a failed solve
-  (:class:`~formulations.errors.ConvergenceError`, with the solver status as
+  of bad input (:class:`~attopt.formulations.errors.InvalidObservationError`,
+  :class:`~attopt.formulations.errors.UnobservableError`) or of a failed solve
+  (:class:`~attopt.formulations.errors.ConvergenceError`, with the solver status as
   message);
 * :meth:`SnrSolver.solve_sequence` solves consecutive epochs, flags invalid or
   failed ones with the reason (never an attitude) and warm-starts each epoch
@@ -27,12 +27,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from attopt.formulations.errors import AttoptError, ConvergenceError
+from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
+from attopt.solvers.result import AttitudeSolution, BatchSolution
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import AttoptError, ConvergenceError
-from formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
-from solvers.result import AttitudeSolution, BatchSolution
 
 DEFAULT_MAX_PRIOR_AGE = 10
 """Epochs a valid estimate stays usable as the next epochs' warm start."""

@@ -6,11 +6,11 @@
   the predicted SNRs with respect to the body-frame rotation-vector error at
   ``A`` (``docs/conventions.md``), i.e. the Cramer-Rao bound of the epoch
   evaluated at the estimate instead of the truth
-  (:func:`formulations.snr_model.fisher_information`,
-  :func:`formulations.snr_model.cramer_rao_bound`; infinite along unobservable
+  (:func:`attopt.formulations.snr_model.fisher_information`,
+  :func:`attopt.formulations.snr_model.cramer_rao_bound`; infinite along unobservable
   directions).  ``J`` is the CasADi AD Jacobian
-  :func:`formulations.snr_model.snr_jacobian_function` at ``v = 0``, the one
-  :func:`formulations.snr_model.predict_snr` wraps, called directly (on the
+  :func:`attopt.formulations.snr_model.snr_jacobian_function` at ``v = 0``, the one
+  :func:`attopt.formulations.snr_model.predict_snr` wraps, called directly (on the
   padded bucket) because ``predict_snr`` rejects observations beyond the main
   lobe, and at a noisy estimate an observation near the lobe edge may fall
   just outside it while it still is part of the loss that was minimised.  The
@@ -18,12 +18,12 @@
 
 Objectives (:data:`Objective`).  ``"least_squares"`` is the above (seed 000
 eqs. 19, 22).  ``"truncated_ml"`` models the reception threshold
-(:mod:`formulations.snr_truncation`): the loss is the negative log-likelihood
+(:mod:`attopt.formulations.snr_truncation`): the loss is the negative log-likelihood
 of the received, threshold-truncated measurements,
 ``sum_k [1/2 w_k (y_k - f_k)^2 + log Phi((f_k - tau) / sigma_k)]`` (up to a
 constant), and the covariance the inverse of its Fisher information, eq. 22
 with row ``k`` weighted by
-:func:`~formulations.snr_truncation.truncated_information_factor` at the
+:func:`~attopt.formulations.snr_truncation.truncated_information_factor` at the
 predicted ``f_k``, through the same AD Jacobian.
 """
 
@@ -34,18 +34,17 @@ from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
-
-from formulations.snr_model import (
+from attopt.formulations.snr_model import (
     cramer_rao_bound,
     fisher_information,
     observation_mask,
     snr_jacobian_function,
 )
-from formulations.snr_problem import SnrEpoch
-from formulations.snr_truncation import truncated_fisher_information, truncated_nll
-from solvers.snr.padding import pad_epoch
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.snr_truncation import truncated_fisher_information, truncated_nll
+from attopt.solvers.snr.padding import pad_epoch
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
@@ -65,10 +64,12 @@ def snr_loss(measured: Any, predicted: Any, weights: Any) -> Any:
 def truncated_loss(
     measured: Any, predicted: Any, weights: Any, sigma_db: Any, threshold_db: Any
 ) -> Any:
-    """``sum_k w_k sigma_k^2 l_k``, ``l_k`` :func:`~formulations.snr_truncation.truncated_nll`.
+    """``sum_k w_k sigma_k^2 l_k``, ``l_k`` the truncated negative log-likelihood.
+
+    ``l_k`` is :func:`~attopt.formulations.snr_truncation.truncated_nll`.
 
     ``w_k sigma_k^2`` is 1 for an observation and 0 for a padding row
-    (:mod:`solvers.snr.padding`), so a padding row contributes nothing to
+    (:mod:`attopt.solvers.snr.padding`), so a padding row contributes nothing to
     either term; on observations this is the truncated negative
     log-likelihood ``sum_k [1/2 w_k (y_k - f_k)^2 + log Phi((f_k - tau) / sigma_k)]``.
     numpy or CasADi (``sigma_db`` must be finite and positive on padding rows too).

@@ -8,7 +8,7 @@ solver needs a start in the basin of the global minimum.
   (e.g. the prior puts an observation behind an antenna, where the model is
   not finite), the epoch is initialised as without a prior.
 * Without a prior (first epoch, after a gap): from the deterministic two-step
-  solution of seed 000 sec. 3.2 (:mod:`solvers.snr.deterministic`) when it is
+  solution of seed 000 sec. 3.2 (:mod:`attopt.solvers.snr.deterministic`) when it is
   valid and the local solve from it converges; otherwise by multi-start from
   the fixed set :data:`START_ATTITUDES` around nadir pointing, keeping the
   converged solve of lowest loss.
@@ -26,11 +26,10 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
+from attopt.formulations.conventions import attitude_from_euler321
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.snr.deterministic import two_step
 from scipy.spatial.transform import Rotation
-
-from formulations.conventions import attitude_from_euler321
-from formulations.snr_problem import SnrEpoch
-from solvers.snr.deterministic import two_step
 
 START_YAWS_DEG = tuple(range(0, 360, 45))
 """Yaw of the multi-start attitudes (deg)."""

@@ -1,12 +1,12 @@
 """The SNR attitude problem as a CasADi NLP solved by IPOPT (seed 000 eqs. 19-20, 22).
 
 Problem.  ``min_v 1/2 sum_k w_k (y_k - f_k(C(v) A_ref))^2`` with ``f_k`` the
-SNR model of seed 000 eq. 13 (:func:`formulations.snr_model.snr_function`),
+SNR model of seed 000 eq. 13 (:func:`attopt.formulations.snr_model.snr_function`),
 ``w_k = 1 / sigma_k^2`` (the ``C`` of eq. 22; 0 for padding rows) and
-``C(v)`` :func:`formulations.snr_model.increment_matrix`, the rotation with
+``C(v)`` :func:`attopt.formulations.snr_model.increment_matrix`, the rotation with
 modified Rodrigues parameters ``v / 4``.
 
-Objective (:attr:`NlpSolver.objective`, :data:`solvers.snr.fit.Objective`).
+Objective (:attr:`NlpSolver.objective`, :data:`attopt.solvers.snr.fit.Objective`).
 ``"least_squares"`` (registry ``"nlp"``) is the loss above, seed 000 eq. 19.
 It is the maximum-likelihood estimator only if every measurement is
 ``N(f_k, sigma_k^2)``; but messages are decoded only when the MEASURED SNR
@@ -14,11 +14,11 @@ reaches the threshold ``tau`` (sec. 5.1), so the received ones are truncated
 normals, biased upward near ``tau``, and eq. 19's minimiser is biased.
 ``"truncated_ml"`` (registry ``"nlp_truncated"``) minimises instead their
 negative log-likelihood ``sum_k [1/2 w_k (y_k - f_k)^2 + w_k sigma_k^2 log
-Phi((f_k - tau) / sigma_k)]`` (:func:`solvers.snr.fit.truncated_loss`,
-:mod:`formulations.snr_truncation`), with the standard deviations (1 on
+Phi((f_k - tau) / sigma_k)]`` (:func:`attopt.solvers.snr.fit.truncated_loss`,
+:mod:`attopt.formulations.snr_truncation`), with the standard deviations (1 on
 padding rows, whose weight 0 removes both terms) and ``tau`` as extra
 parameters; its covariance is the inverse Fisher information of the truncated
-model at the estimate (:func:`solvers.snr.fit.fit_at`).  Both objectives share
+model at the estimate (:func:`attopt.solvers.snr.fit.fit_at`).  Both objectives share
 the builder, parametrisation and options below.  With ``tau`` far below every
 SNR the extra term vanishes and the two coincide; with noise-free data the
 truncated ML does NOT return the truth (``y = f`` is not what a selection on
@@ -27,7 +27,7 @@ the noise produces).
 Parametrisation.  The decision variable is the 3-vector ``v``, a local
 attitude increment about a reference ``A_ref`` that is re-centred every epoch
 (the prior, i.e. the previous epoch's estimate while tracking, or a start of
-:mod:`solvers.snr.initialisation`), so ``v = 0`` at the start and ``v`` is the
+:mod:`attopt.solvers.snr.initialisation`), so ``v = 0`` at the start and ``v`` is the
 body-frame rotation-vector error to first order (``docs/conventions.md``).
 Compared with a unit quaternion ``q`` (4 variables) and the equality
 constraint ``|q| = 1``:
@@ -57,7 +57,7 @@ worker process builds its own and uses it from one thread,
 ``A_ref`` (9), lines of sight and boresight rows (``3 x size`` each),
 ``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), and for the
 truncated objective standard deviations (size) and ``tau`` (1), with epochs
-padded to the buckets of :mod:`solvers.snr.padding`.
+padded to the buckets of :mod:`attopt.solvers.snr.padding`.
 
 IPOPT options (:class:`IpoptOptions`).  ``print_level 0``, ``sb yes``, no
 timing print and no CasADi evaluation warnings: silent (IPOPT itself cuts
@@ -95,17 +95,16 @@ from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
+from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.snr_model import snr_function
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.snr.driver import EpochEstimate
+from attopt.solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
+from attopt.solvers.snr.initialisation import LocalResult
+from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
+from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.gain_patterns import GainPattern
-from formulations.snr_model import snr_function
-from formulations.snr_problem import SnrEpoch
-from solvers.snr.driver import EpochEstimate
-from solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
-from solvers.snr.initialisation import LocalResult
-from solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
-from solvers.snr.padding import PaddedEpoch, pad_epoch
 
 Array = NDArray[np.float64]
 
@@ -235,8 +234,8 @@ def solve_local(
 class NlpSolver(OneStepSolver):
     """Registry entries ``"nlp"`` and ``"nlp_truncated"``: the IPOPT NLP of :attr:`objective`.
 
-    Initialised by :mod:`solvers.snr.initialisation`; the loss and covariance
-    of the estimate are those of :attr:`objective` (:func:`solvers.snr.fit.fit_at`).
+    Initialised by :mod:`attopt.solvers.snr.initialisation`; the loss and covariance
+    of the estimate are those of :attr:`objective` (:func:`attopt.solvers.snr.fit.fit_at`).
     """
 
     options: IpoptOptions = field(default_factory=IpoptOptions)

@@ -5,10 +5,10 @@
 ``C`` of eq. 22; equal to eq. 19 for ``sigma = 1 dB``) by MINPACK's
 Levenberg-Marquardt (``scipy.optimize.least_squares(method="lm")``, eq. 21).
 Residuals ``(f_k(z) - y_k) / sigma_k`` and their Jacobian come from one call
-of the CasADi function :func:`formulations.snr_euler.snr_euler_jacobian_function`
+of the CasADi function :func:`attopt.formulations.snr_euler.snr_euler_jacobian_function`
 (the Jacobian by AD through the same model, eq. 13); MINPACK asks for the
 Jacobian at the point whose residuals it just evaluated, so that call is
-cached.  Epochs are padded to the buckets of :mod:`solvers.snr.padding`
+cached.  Epochs are padded to the buckets of :mod:`attopt.solvers.snr.padding`
 (zero residual rows), so the functions are built once per size class.
 
 Convergence: ``least_squares`` status ``> 0`` (``ftol``, ``xtol`` or ``gtol``
@@ -25,7 +25,7 @@ the IPOPT optimum (exact Hessian, quadratic convergence).
 Covariance: eq. 22 in the Euler angles is ``R_z = (J_z^T C J_z)^-1``; with
 ``J_z = J_b M`` (``J_b`` the Jacobian with respect to the body-frame error,
 ``M = d delta / d z``) the body-frame covariance is ``M R_z M^T = (J_b^T C J_b)^-1``,
-which :mod:`solvers.snr.fit` evaluates at the solution for every one-step
+which :mod:`attopt.solvers.snr.fit` evaluates at the solution for every one-step
 solver (``tests/test_snr_solvers.py`` checks the mapping).
 """
 
@@ -34,16 +34,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from attopt.formulations.conventions import attitude_from_euler321, euler321_from_attitude
+from attopt.formulations.snr_euler import snr_euler_jacobian_function
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.snr.initialisation import LocalResult
+from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
+from attopt.solvers.snr.padding import pad_epoch
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-
-from formulations.conventions import attitude_from_euler321, euler321_from_attitude
-from formulations.snr_euler import snr_euler_jacobian_function
-from formulations.snr_problem import SnrEpoch
-from solvers.snr.initialisation import LocalResult
-from solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
-from solvers.snr.padding import pad_epoch
 
 Array = NDArray[np.float64]
 
@@ -113,7 +112,9 @@ def solve_local(problem: SnrEpoch, start: Rotation, options: LmOptions) -> Local
 
 @dataclass(frozen=True)
 class NlseSolver(OneStepSolver):
-    """Registry entry ``"nlse"``: seed 000's NLSE, initialised by :mod:`solvers.snr.initialisation`.
+    """Registry entry ``"nlse"``: seed 000's NLSE.
+
+    Initialised by :mod:`attopt.solvers.snr.initialisation`.
 
     ``iterations`` in the diagnostics are MINPACK's residual evaluations.
     """

@@ -1,22 +1,21 @@
 """What the one-step SNR solvers (NLSE, NLP; seed 000 sec. 3.3) share.
 
 A one-step solver supplies a local solve (epoch, start attitude ->
-:class:`~solvers.snr.initialisation.LocalResult`).  This class starts it by
-:func:`~solvers.snr.initialisation.initialise`, flags a solve that does not
+:class:`~attopt.solvers.snr.initialisation.LocalResult`).  This class starts it by
+:func:`~attopt.solvers.snr.initialisation.initialise`, flags a solve that does not
 converge with the solver's status as reason, and scores a converged one with
-the shared loss and covariance (seed 000 eqs. 19, 22; :mod:`solvers.snr.fit`).
+the shared loss and covariance (seed 000 eqs. 19, 22; :mod:`attopt.solvers.snr.fit`).
 """
 
 from __future__ import annotations
 
 from abc import abstractmethod
 
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
+from attopt.solvers.snr.fit import fit_at
+from attopt.solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
 from scipy.spatial.transform import Rotation
-
-from formulations.snr_problem import SnrEpoch
-from solvers.snr.driver import EpochEstimate, SnrSolver
-from solvers.snr.fit import fit_at
-from solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
 
 ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe")
 """Initialisation diagnostics plus observations beyond the main lobe at the estimate."""

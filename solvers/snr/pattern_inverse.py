@@ -4,13 +4,13 @@ From a measured SNR, seed 000 eq. 4 gives the gain ``G = y - 10 lg P0 + 10 lg P_
 and, through the pattern's inverse, ``cos(alpha)`` (the cone of eq. 15 on which
 the boresight lies, ``l . b = cos(alpha)``).
 
-* :class:`~formulations.gain_patterns.CosinePowerPattern` (seed 000 eq. 63,
+* :class:`~attopt.formulations.gain_patterns.CosinePowerPattern` (seed 000 eq. 63,
   ``G = 10 lg g_max + 10 n lg cos(alpha)``): closed form
   ``cos(alpha) = 10^((G - 10 lg g_max) / (10 n))``, not clamped: a noisy gain
   above the peak gives ``cos(alpha) > 1``, the unbiased continuation of the
-  law, which the least squares of :mod:`solvers.snr.boresight` then weighs.
+  law, which the least squares of :mod:`attopt.solvers.snr.boresight` then weighs.
 * Any other pattern: bisection in ``s = 1 - cos(alpha)`` over the main lobe,
-  where every pattern decreases monotonically (``formulations.gain_patterns``).
+  where every pattern decreases monotonically (``attopt.formulations.gain_patterns``).
   Gains outside ``[G(lobe edge), G(boresight)]`` are clamped to the lobe and
   counted.
 
@@ -23,10 +23,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from attopt.formulations.gain_patterns import CosinePowerPattern, GainPattern
+from attopt.formulations.symbolic import NUMPY
 from numpy.typing import ArrayLike, NDArray
-
-from formulations.gain_patterns import CosinePowerPattern, GainPattern
-from formulations.symbolic import NUMPY
 
 Array = NDArray[np.float64]
 

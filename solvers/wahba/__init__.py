@@ -8,12 +8,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from attopt.formulations.vector_observations import PARALLEL_TOLERANCE, prepare_observations
+from attopt.solvers.result import AttitudeSolution, BatchSolution
+from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
+from attopt.solvers.wahba.driver import Estimator, solve_prepared
 from numpy.typing import ArrayLike
-
-from formulations.vector_observations import PARALLEL_TOLERANCE, prepare_observations
-from solvers.result import AttitudeSolution, BatchSolution
-from solvers.wahba import foam, qmethod, quest, sdp, svd, triad
-from solvers.wahba.driver import Estimator, solve_prepared
 
 
 @dataclass(frozen=True)
@@ -22,7 +21,7 @@ class WahbaSolver:
 
     Attributes:
         name: registry key, also the ``method`` column of results.
-        estimator: the method itself (see :mod:`solvers.wahba.driver`).
+        estimator: the method itself (see :mod:`attopt.solvers.wahba.driver`).
         optimal: whether it minimises Wahba's loss exactly (TRIAD does not).
         vectorised: whether a batch is solved without a Python loop per epoch.
         description: one line with the seed equations it implements.

@@ -1,9 +1,9 @@
 """The part every Wahba solver shares: validate, estimate, mask, score.
 
 A solver supplies only an *estimator*: a function from validated
-observations (:class:`formulations.vector_observations.ObservationBatch`) to an
+observations (:class:`attopt.formulations.vector_observations.ObservationBatch`) to an
 :class:`Estimate` for every epoch.  This module turns that into a
-:class:`solvers.result.BatchSolution` with Wahba's loss (seed 002 eq. 14), the
+:class:`attopt.solvers.result.BatchSolution` with Wahba's loss (seed 002 eq. 14), the
 validity mask and reasons.
 """
 
@@ -13,13 +13,12 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from attopt.formulations.errors import ConvergenceError
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba import wahba_loss
+from attopt.solvers.result import BatchSolution
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.errors import ConvergenceError
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba import wahba_loss
-from solvers.result import BatchSolution
 
 
 @dataclass(frozen=True)

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba import adjugate, det3, foam_characteristic
+from attopt.formulations.wahba_covariance import foam_covariance
+from attopt.solvers.newton import largest_root_newton
+from attopt.solvers.wahba.driver import Estimate
 from scipy.spatial.transform import Rotation
-
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba import adjugate, det3, foam_characteristic
-from formulations.wahba_covariance import foam_covariance
-from solvers.newton import largest_root_newton
-from solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:

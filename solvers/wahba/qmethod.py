@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-
-from formulations.conventions import attitude_from_shuster_quaternion
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba import davenport_matrix
-from formulations.wahba_covariance import svd_covariance
-from solvers.wahba.driver import Estimate
+from attopt.formulations.conventions import attitude_from_shuster_quaternion
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba import davenport_matrix
+from attopt.formulations.wahba_covariance import svd_covariance
+from attopt.solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:

@@ -1,4 +1,6 @@
-"""Wahba's problem as a semidefinite program (``formulations.wahba_sdp``), solved with Clarabel.
+"""Wahba's problem as a semidefinite program, solved with Clarabel.
+
+The program is ``attopt.formulations.wahba_sdp``.
 
 The quaternion is the top eigenvector of the optimal ``X``.  The certificate
 is reported per epoch: the duality gap ``|tr(K X) - nu|`` and the rank-one
@@ -18,13 +20,12 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-
-from formulations.conventions import attitude_from_shuster_quaternion
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba import davenport_matrix
-from formulations.wahba_covariance import quest_covariance
-from formulations.wahba_sdp import WahbaSDP
-from solvers.wahba.driver import Estimate
+from attopt.formulations.conventions import attitude_from_shuster_quaternion
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba import davenport_matrix
+from attopt.formulations.wahba_covariance import quest_covariance
+from attopt.formulations.wahba_sdp import WahbaSDP
+from attopt.solvers.wahba.driver import Estimate
 
 RANK_ONE_TOLERANCE = 1e-6
 GAP_TOLERANCE = 1e-8

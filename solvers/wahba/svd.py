@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba import proper_svd
+from attopt.formulations.wahba_covariance import svd_covariance
+from attopt.solvers.wahba.driver import Estimate
 from scipy.spatial.transform import Rotation
-
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba import proper_svd
-from formulations.wahba_covariance import svd_covariance
-from solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:

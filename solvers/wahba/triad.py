@@ -9,12 +9,11 @@ axis).  The seed's magnetometer + Sun case anchors on the Sun sensor.
 from __future__ import annotations
 
 import numpy as np
+from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.wahba_covariance import triad_covariance
+from attopt.solvers.wahba.driver import Estimate
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-
-from formulations.vector_observations import ObservationBatch
-from formulations.wahba_covariance import triad_covariance
-from solvers.wahba.driver import Estimate
 
 
 def _triad_frame(u: NDArray, v: NDArray) -> NDArray:
