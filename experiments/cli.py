@@ -156,7 +156,7 @@ def bench_runner(
     workers: Annotated[int, typer.Option(min=2, help="Workers of the parallel engines.")] = 2,
 ) -> None:
     """Overhead per trial of each engine against a serial loop of the same trials."""
-    from attopt.experiments.bench_runner import format_table, run_benchmark
+    from attopt.experiments.benchmarks.runner import format_table, run_benchmark
 
     rows = run_benchmark(
         noop_trials=noop_trials, sleep_trials=sleep_trials, sleep_s=sleep, workers=workers
@@ -170,7 +170,7 @@ def bench_wahba(
     calls: Annotated[int, typer.Option(min=100, help="Single-epoch calls per timing.")] = 2000,
 ) -> None:
     """Wahba solvers against scipy's align_vectors: per call and batched throughput."""
-    from attopt.experiments.bench_wahba import format_table, run
+    from attopt.experiments.benchmarks.wahba import format_table, run
 
     typer.echo(format_table(run(n_batch=epochs, calls=calls), epochs))
 

@@ -16,10 +16,10 @@ from attopt.experiments.experiment import Experiment
 
 EXPERIMENTS: dict[str, str] = {
     "noop": "attopt.experiments.sweep.toys:NOOP",
-    "wahba-mag-sun": "attopt.experiments.wahba_mag_sun:EXPERIMENT",
-    "adsb-snr": "attopt.experiments.adsb_snr:EXPERIMENT",
-    "doa-ground": "attopt.experiments.doa_ground:EXPERIMENT",
-    "geo-snr-stations": "attopt.experiments.geo_snr_stations:EXPERIMENT",
+    "wahba-mag-sun": "attopt.experiments.wahba_mag_sun.experiment:EXPERIMENT",
+    "adsb-snr": "attopt.experiments.adsb_snr.experiment:EXPERIMENT",
+    "doa-ground": "attopt.experiments.doa_ground.experiment:EXPERIMENT",
+    "geo-snr-stations": "attopt.experiments.geo_snr_stations.experiment:EXPERIMENT",
 }
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from attopt.experiments.adsb_filter_report import (
+from attopt.experiments.adsb_snr.filter_report import (
     BURN_IN_S,
     burn_in,
     filter_report,
@@ -138,7 +138,7 @@ def test_section_tables_targets_and_figures(tmp_path):
     nees = _line(lines, "- **(c) NEES consistency**")
     assert f"[{lo:.3f}, {hi:.3f}]" in nees
     assert nees.count("inside: **met**") == 4 and "**MISSED**" not in nees
-    assert "python -m attopt.experiments.bench_filters" in text
+    assert "python -m attopt.experiments.benchmarks.filters" in text
     for gyro in GYROS:
         for name in (f"filter_errors_{gyro}.png", f"gyro_bias_{gyro}.png"):
             assert (tmp_path / name).stat().st_size > 10_000
@@ -201,8 +201,8 @@ def test_bias_figure_uses_estimates_when_the_rows_have_them(tmp_path):
 def test_modules_import_in_either_order():
     root = Path(__file__).resolve().parents[1]
     for first, second in (
-        ("attopt.experiments.adsb_filter_report", "attopt.experiments.adsb_report"),
-        ("attopt.experiments.adsb_report", "attopt.experiments.adsb_filter_report"),
+        ("attopt.experiments.adsb_snr.filter_report", "attopt.experiments.adsb_snr.report"),
+        ("attopt.experiments.adsb_snr.report", "attopt.experiments.adsb_snr.filter_report"),
     ):
         code = f"import {first}, {second}; {second}.__name__"
         subprocess.run([sys.executable, "-c", code], cwd=root, check=True)

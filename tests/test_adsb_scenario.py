@@ -9,15 +9,7 @@ import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation, get_sun
 from astropy.time import Time
-from attopt.experiments.environment.traffic import (
-    MEAN_RADIUS_KM,
-    Traffic,
-    angle_from_origin,
-    geodetic_normal,
-    positions_ecef_km,
-    sample_traffic,
-)
-from attopt.experiments.scenarios.adsb_snr import (
+from attopt.experiments.adsb_snr.scenario import (
     BETA_OPT_DEG,
     BORESIGHTS_BODY,
     TLE_EPOCH_UTC,
@@ -28,6 +20,14 @@ from attopt.experiments.scenarios.adsb_snr import (
     satellite_tle,
     visible_counts,
     visible_observations,
+)
+from attopt.experiments.environment.traffic import (
+    MEAN_RADIUS_KM,
+    Traffic,
+    angle_from_origin,
+    geodetic_normal,
+    positions_ecef_km,
+    sample_traffic,
 )
 from attopt.formulations.conventions import euler321_from_attitude
 from sgp4.api import Satrec

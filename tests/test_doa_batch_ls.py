@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.experiments.scenarios.doa_ground import WHEEL_MOMENTUM
+from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from attopt.experiments.scenarios.doa_ground import (
+from attopt.experiments.doa_ground.scenario import (
     FILTER_INITIAL_EULER_DEG,
     FILTER_INITIAL_RATE_DEG_S,
     WHEEL_MOMENTUM,

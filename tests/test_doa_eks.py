@@ -8,7 +8,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
-from attopt.experiments.scenarios.doa_ground import WHEEL_MOMENTUM
+from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
 from attopt.formulations.conventions import attitude_error
 from attopt.solvers.doa.ekf import EkfPrior, EkfResult
 from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf

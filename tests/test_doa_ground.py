@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from attopt.experiments.doa_ground import EXPERIMENT, grid
-from attopt.experiments.scenarios.doa_ground import (
+from attopt.experiments.doa_ground.experiment import EXPERIMENT, grid
+from attopt.experiments.doa_ground.scenario import (
     DURATION_S,
     MIN_ELEVATION_DEG,
     WHEEL_MOMENTUM,

@@ -15,7 +15,7 @@ from attopt.experiments.environment.geomagnetic import (
 from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
 from attopt.experiments.environment.shadow import EARTH_RADIUS_KM, in_cylindrical_shadow
 from attopt.experiments.environment.sun import sun_direction_eci
-from attopt.experiments.scenarios.wahba_mag_sun import (
+from attopt.experiments.wahba_mag_sun.scenario import (
     MAG_SIGMA,
     START_UTC,
     SUN_SIGMA,

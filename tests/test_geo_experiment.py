@@ -1,4 +1,4 @@
-"""The ``geo-snr-stations`` experiment's trial (experiments/geo_snr_stations.py; seed 004).
+"""The ``geo-snr-stations`` experiment's trial (``experiments/geo_snr_stations/``; seed 004).
 
 One quick-setting trial with the manoeuvre (one hour, 60 s epochs), run twice
 with the same seed: the rows must be identical, complete and sane.
@@ -9,9 +9,14 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from attopt.experiments.geo_snr_stations import EXPERIMENT, PARAMETERS, summary_columns, trial
+from attopt.experiments.geo_snr_stations.experiment import (
+    EXPERIMENT,
+    PARAMETERS,
+    summary_columns,
+    trial,
+)
+from attopt.experiments.geo_snr_stations.scenario import MANOEUVRE_START_S
 from attopt.experiments.registry import get_experiment
-from attopt.experiments.scenarios.geo_snr_stations import MANOEUVRE_START_S
 
 SETTING = {**PARAMETERS, **EXPERIMENT.quick_parameters, "manoeuvre": True}
 METHODS = {"cone", "lsq", "nlp", "usque", "usque_detect", "fg_batch"}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.experiments.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations.experiment import (
     FILTER_OPTIONS,
     FILTER_STATIONS,
     PARAMETERS,
@@ -20,7 +20,7 @@ from attopt.experiments.geo_snr_stations import (
     pointing_error,
     rate_model,
 )
-from attopt.experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations.scenario import (
     MANOEUVRE_START_S,
     GeoSnrScenario,
     build_geo_snr_scenario,

@@ -6,7 +6,7 @@ import astropy.units as u
 import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation
-from attopt.experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations.scenario import (
     INITIAL_QUATERNION,
     MANOEUVRE_ANGLE_DEG,
     STATIONS,

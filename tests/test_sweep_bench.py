@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from attopt.experiments.bench_runner import BenchRow, format_table, serial_loop
+from attopt.experiments.benchmarks.runner import BenchRow, format_table, serial_loop
 
 
 def test_overheads_are_worker_time_beyond_the_serial_loop():

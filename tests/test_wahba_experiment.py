@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-from attopt.experiments.bench_wahba import run as run_bench
+from attopt.experiments.benchmarks.wahba import run as run_bench
 from attopt.experiments.registry import get_experiment
-from attopt.experiments.scenarios.wahba_mag_sun import build_geometry
 from attopt.experiments.sweep import run_sweep
-from attopt.experiments.wahba_mag_sun import EXPERIMENT, PARAMETERS, interval_labels
+from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT, PARAMETERS, interval_labels
+from attopt.experiments.wahba_mag_sun.scenario import build_geometry
 
 FILTERS = ["mekf", "usque", "rts", "fg_batch"]
 SHORT = {

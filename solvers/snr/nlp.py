@@ -72,7 +72,7 @@ loss change is below the rounding of the loss (~m/2 eps), the line search
 backtracks without progress, and with ``tol = 1e-8`` a noisy epoch took 8
 instead of 4 iterations; at 1e-9 and 1e-10, 1 of 300 noisy epochs ended at
 the acceptable level.  ``max_iter = 100``: a warm-started epoch takes a median
-4 iterations (``experiments/bench_snr.py``); converged multi-starts from
+4 iterations (``experiments/benchmarks/snr.py``); converged multi-starts from
 45-90 deg away took a median 9 and at most 15 in a 40-epoch trial.
 ``hessian_approximation = exact`` (CasADi AD of the 3 x 3 Hessian): on the
 benchmark's 20-observation epochs L-BFGS needed a median 8 iterations

@@ -16,7 +16,7 @@ met) converges; status 0 (evaluation limit) or non-finite residuals flag the
 epoch with the message.  Tolerances are ``1e-12`` (noise-free epochs are
 solved to better than 1e-8 rad, ``tests/test_snr_solvers.py``) and
 ``max_nfev = 200``; a warm-started 20-observation epoch takes a median 8
-evaluations (``experiments/bench_snr.py``).  With 1 dB noise the residuals
+evaluations (``experiments/benchmarks/snr.py``).  With 1 dB noise the residuals
 do not vanish at the optimum, so Levenberg-Marquardt (a Gauss-Newton method)
 converges only linearly there and stops on ``ftol`` when the loss no longer
 changes in double precision: in a 150-epoch trial it ended within 5e-7 rad of

@@ -1,9 +1,9 @@
 """Scaling benchmark of the batch factor-graph smoother on ``adsb-snr`` (issue 6 sec. 4).
 
 For each pass length (default 15 min, 1 h, 4 h) on the ``adsb-snr``
-scenario (:mod:`attopt.experiments.adsb_snr`: seed 000's noise and 6 dB threshold,
+scenario (:mod:`attopt.experiments.adsb_snr.experiment`: seed 000's noise and 6 dB threshold,
 10,000 aircraft, 1 s epochs), with the measurements the SNR filters use
-(:func:`attopt.experiments.adsb_filters.snr_measurements`, threshold-truncated
+(:func:`attopt.experiments.adsb_snr.filters.snr_measurements`, threshold-truncated
 model, wrapped for the inertial attitude by
 :func:`attopt.experiments.filtering.referenced`) and the ``mems`` gyro at 10 Hz
 (:func:`attopt.experiments.filtering.simulate_filter_inputs`, 10 deg initial
@@ -31,7 +31,7 @@ per doubling of the pass (target: at most 2.5).  One trial: the errors of a
 pass are strongly correlated in time, so its RMS can differ from the bound
 by tens of per cent either way; the RMS-to-bound ratio needs Monte Carlo.
 
-Run with ``python -m attopt.experiments.bench_smoother`` (``--durations 900 1800
+Run with ``python -m attopt.experiments.benchmarks.smoother`` (``--durations 900 1800
 3600`` for other lengths; building the 4 h scenario takes about a minute;
 ``--online`` adds the online smoother).
 """
@@ -43,8 +43,8 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from attopt.experiments.adsb_filters import adsb_gyro_truth, snr_measurements
-from attopt.experiments.adsb_snr import PARAMETERS, noise_free_pass, simulate_pass
+from attopt.experiments.adsb_snr.experiment import PARAMETERS, noise_free_pass, simulate_pass
+from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
 from attopt.experiments.filtering import (
     child_rng,
     posterior_bound,

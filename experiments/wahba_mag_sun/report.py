@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from attopt.experiments.experiment import ReportContext
-from attopt.experiments.scenarios.wahba_mag_sun import START_UTC, build_geometry
+from attopt.experiments.wahba_mag_sun.scenario import START_UTC, build_geometry
 from attopt.formulations.gyro import GYRO_MODELS, GyroModel
 
 # Seed 002 Table 1 (RMS error, deg; "nd" = no data): method -> interval -> (roll, pitch, yaw).

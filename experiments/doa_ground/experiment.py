@@ -2,7 +2,7 @@
 
 Settings are seed 003's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
-once).  One trial is one pass of :mod:`attopt.experiments.scenarios.doa_ground`
+once).  One trial is one pass of :mod:`attopt.experiments.doa_ground.scenario`
 (geometry and truth are the same in every trial, as in the seed; only the
 noise is drawn), and every estimator sees the same DOAs:
 
@@ -18,7 +18,7 @@ noise is drawn), and every estimator sees the same DOAs:
    from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
 2. ``ekf_seed003_q<Q>``: the EKF of seed 003 (:mod:`attopt.solvers.doa.ekf`, rigid-body
    dynamics, no gyro) over all epochs from the paper's initial condition (50
-   deg Euler angles, 0.5 deg/s rates; :mod:`attopt.experiments.scenarios.doa_ground`
+   deg Euler angles, 0.5 deg/s rates; :mod:`attopt.experiments.doa_ground.scenario`
    explains that reading) with prior sigmas ``initial_sigma_deg`` and
    ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
    the seed's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
@@ -35,7 +35,7 @@ noise is drawn), and every estimator sees the same DOAs:
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (:data:`attopt.solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``bls_seed003`` (:data:`~attopt.experiments.doa_report.BATCH_LS`), in the first
+5. ``bls_seed003`` (:data:`~attopt.experiments.doa_ground.report.BATCH_LS`), in the first
    ``filter_trials`` trials of each setting
    (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
    least squares over the seed's deterministic dynamics
@@ -74,7 +74,22 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from attopt.experiments.doa_report import BATCH_LS, GYRO_FILTERS, ekf_method, report, rts_method
+from attopt.experiments.doa_ground.report import (
+    BATCH_LS,
+    GYRO_FILTERS,
+    ekf_method,
+    report,
+    rts_method,
+)
+from attopt.experiments.doa_ground.scenario import (
+    DURATION_S,
+    FILTER_INITIAL_EULER_DEG,
+    FILTER_INITIAL_RATE_DEG_S,
+    STEP_S,
+    WHEEL_MOMENTUM,
+    DoaGroundGeometry,
+    build_geometry,
+)
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.filtering import (
     GYRO_STREAM,
@@ -87,15 +102,6 @@ from attopt.experiments.filtering import (
     simulate_filter_inputs,
 )
 from attopt.experiments.metrics import error_columns
-from attopt.experiments.scenarios.doa_ground import (
-    DURATION_S,
-    FILTER_INITIAL_EULER_DEG,
-    FILTER_INITIAL_RATE_DEG_S,
-    STEP_S,
-    WHEEL_MOMENTUM,
-    DoaGroundGeometry,
-    build_geometry,
-)
 from attopt.experiments.sweep.seeding import trial_index
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_from_euler321

@@ -1,17 +1,17 @@
 """Report section of ``adsb-snr`` for the gyro-aided filters.
 
-The rows come from :mod:`attopt.experiments.adsb_filters`.
+The rows come from :mod:`attopt.experiments.adsb_snr.filters`.
 
 Everything is computed from the stored rows (the filter rows carry ``gyro``
 != ``"none"``; their columns are those of :mod:`attopt.experiments.metrics` and
 :func:`attopt.experiments.filtering.filter_columns`); the only numbers typed in are
 seed 000's (Table 2's MEKF row, sec. 5.1's gyro statement, both through
-:mod:`attopt.experiments.adsb_report`) and issue 5's targets.  Accuracy and
+:mod:`attopt.experiments.adsb_snr.report`) and issue 5's targets.  Accuracy and
 consistency are taken over the epochs after :func:`burn_in` (the filters
 start from a prior with ``initial_sigma_deg`` per axis); Table 2's
 comparison also shows the whole pass.
 
-:mod:`attopt.experiments.adsb_report` imports :func:`filter_report` at module
+:mod:`attopt.experiments.adsb_snr.report` imports :func:`filter_report` at module
 level, so its helpers are imported here inside the functions that use them
 (:func:`_shared`), never at module level, which would be a circular import.
 """
@@ -54,7 +54,7 @@ FILTER_RUNTIME_TARGET_S = 10.0
 """Issue 5 sec. 4: the hour-long pass through any filter in under 10 s."""
 NEES_PROBABILITY = 0.95
 """Issue 5 sec. 4: two-sided chi-square interval of the run-averaged NEES."""
-NEES_BENCHMARK = "python -m attopt.experiments.bench_filters"
+NEES_BENCHMARK = "python -m attopt.experiments.benchmarks.filters"
 """The benchmark that runs the 100-trial NEES check."""
 SEED000_GYRO_STATEMENT = "sigma_v = 0.05 deg/s, sigma_u = 0.05 deg/s"
 """Seed 000 sec. 5.1's gyro noise, as printed (no time units)."""
@@ -65,10 +65,10 @@ COLOURS = {"mekf_paper": "0.55", "mekf_snr": "tab:blue", "usque_snr": "tab:green
 
 
 def _shared() -> ModuleType:
-    """:mod:`attopt.experiments.adsb_report` (imported late: it imports this module)."""
-    from attopt.experiments import adsb_report
+    """:mod:`attopt.experiments.adsb_snr.report` (imported late: it imports this module)."""
+    from attopt.experiments.adsb_snr import report
 
-    return adsb_report
+    return report
 
 
 # ------------------------------------------------------------------ rows ---
@@ -190,7 +190,7 @@ def _setup(ctx: ReportContext, gyros: Sequence[str], filters: Sequence[str]) -> 
         else "eq. 19's Gaussian model, which ignores the reception threshold"
     )
     return (
-        f"Filters {', '.join(f'`{m}`' for m in filters)} (experiments/adsb_filters.py) run on "
+        f"Filters {', '.join(f'`{m}`' for m in filters)} (experiments/adsb_snr/filters.py) run on "
         "the same received SNRs as the single-frame methods above, with a simulated "
         "rate-integrating gyro (formulations/gyro.py; spectral densities, attitude and rates "
         f"in ECI, errors reported in the orbit frame) per gyro model: "

@@ -1,6 +1,6 @@
 """Benchmark of MUSIC with peak refinement against the CRB and pyroomacoustics.
 
-``python -m attopt.experiments.bench_music [--trials 200] [--seed 0]`` prints, in one
+``python -m attopt.experiments.benchmarks.music [--trials 200] [--seed 0]`` prints, in one
 run:
 
 * DOA RMSE of theta and phi against the stochastic CRB
@@ -21,7 +21,7 @@ run:
   (:func:`attopt.formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
   8-10) and :meth:`MusicEstimator.estimate_covariance`, against simulating the
   snapshots and :meth:`MusicEstimator.estimate` in chunks of
-  ``CHUNK_ELEMENTS`` samples (``experiments/doa_ground.py`` uses the direct
+  ``CHUNK_ELEMENTS`` samples (``experiments/doa_ground/experiment.py`` uses the direct
   draw); both measured in the same run, with their ratio.
 """
 

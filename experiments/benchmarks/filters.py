@@ -18,7 +18,7 @@ model, then reports per filter:
 * the RMS attitude error and the mean pass time, with the ratio of each
   filter's time to ``mekf_snr``'s measured in the same run.
 
-Run with ``python -m attopt.experiments.bench_filters`` (defaults: 100 trials of the
+Run with ``python -m attopt.experiments.benchmarks.filters`` (defaults: 100 trials of the
 hour, both gyro models, all CPUs).
 """
 
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from attopt.experiments.adsb_snr import EXPERIMENT
+from attopt.experiments.adsb_snr.experiment import EXPERIMENT
 from attopt.experiments.sweep import run_sweep
 from scipy.stats import chi2
 

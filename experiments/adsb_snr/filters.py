@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, true_attitude
 from attopt.experiments.filtering import (
     FilterInputs,
     GyroTruth,
@@ -64,7 +65,6 @@ from attopt.experiments.filtering import (
     simulate_filter_inputs,
 )
 from attopt.experiments.metrics import error_columns
-from attopt.experiments.scenarios.adsb_snr import build_adsb_geometry, true_attitude
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
 from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
 from attopt.formulations.gyro import GYRO_MODELS

@@ -1,6 +1,6 @@
 """Experiment ``wahba-mag-sun``: every Wahba solver on seed 002's scenario.
 
-One trial is one pass of :mod:`attopt.experiments.scenarios.wahba_mag_sun` (6000 s
+One trial is one pass of :mod:`attopt.experiments.wahba_mag_sun.scenario` (6000 s
 at 1 Hz) with fresh sensor noise; every solver sees the same measurements.
 Rows are per method and epoch: the body-axis attitude error, the Cramer-Rao
 bound of that epoch (``sqrt`` of the diagonal of ``[sum a_i (I - b_i b_i^T)]^-1``
@@ -52,7 +52,8 @@ from attopt.experiments.filtering import (
     simulate_filter_inputs,
 )
 from attopt.experiments.metrics import error_columns
-from attopt.experiments.scenarios.wahba_mag_sun import (
+from attopt.experiments.wahba_mag_sun.report import report
+from attopt.experiments.wahba_mag_sun.scenario import (
     MAG_SIGMA,
     SUN_SIGMA,
     VectorGeometry,
@@ -60,7 +61,6 @@ from attopt.experiments.scenarios.wahba_mag_sun import (
     simulate_measurements,
     true_attitude,
 )
-from attopt.experiments.wahba_report import report
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import orbit_frame_attitude
 from attopt.formulations.gyro import GYRO_MODELS

@@ -1,6 +1,6 @@
 """Report of ``adsb-snr``: our rows beside seed 000 Table 2, the targets, figures 8-10.
 
-Everything below is computed from the stored rows (:mod:`attopt.experiments.adsb_snr`
+Everything below is computed from the stored rows (:mod:`attopt.experiments.adsb_snr.experiment`
 documents their columns); the only numbers typed in are seed 000's published
 values (Table 2, sec. 5.2) and the issue's targets.  The metric helpers
 (:func:`crlb_ratio`, :func:`bounded_valid_rows`, :func:`signed_max`) are shared
@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt
 import matplotlib.ticker as ticker
 import numpy as np
 import pandas as pd
-from attopt.experiments.adsb_filter_report import filter_report
+from attopt.experiments.adsb_snr.filter_report import filter_report
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.metrics import AXES
 from attopt.experiments.sweep.aggregate import valid_mask
@@ -832,7 +832,7 @@ def single_frame_context(ctx: ReportContext) -> ReportContext:
 
 def report(ctx: ReportContext) -> str:
     """Markdown: Table 2 beside ours, targets, accuracy by count, consistency, discussion,
-    then the gyro-aided filters (:mod:`attopt.experiments.adsb_filter_report`)."""
+    then the gyro-aided filters (:mod:`attopt.experiments.adsb_snr.filter_report`)."""
     full = ctx
     ctx = single_frame_context(ctx)
     if ctx.rows.empty:  # filters only (e.g. the filter benchmark)

@@ -1,6 +1,6 @@
 """Experiment ``geo-snr-stations``: Garuda-1's boresight from ground-station SNRs (seed 004).
 
-One trial simulates the hour of :mod:`attopt.experiments.scenarios.geo_snr_stations`
+One trial simulates the hour of :mod:`attopt.experiments.geo_snr_stations.scenario`
 (SNR noise from the trial's seed) and solves it with, per epoch:
 
 * ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12);
@@ -56,8 +56,8 @@ import numpy as np
 import pandas as pd
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.filtering import GYRO_STREAM, child_rng
-from attopt.experiments.geo_report import report
-from attopt.experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations.report import report
+from attopt.experiments.geo_snr_stations.scenario import (
     MANOEUVRE_START_S,
     SNR_SIGMA_DB,
     GeoSnrScenario,

@@ -1,6 +1,6 @@
 """Experiment ``adsb-snr``: the SNR attitude solvers over seed 000's one-hour pass.
 
-Scenario (seed 000 sec. 5.1): :mod:`attopt.experiments.scenarios.adsb_snr` gives the
+Scenario (seed 000 sec. 5.1): :mod:`attopt.experiments.adsb_snr.scenario` gives the
 orbit, the true attitude, the two tilted helices and a modelled global aircraft
 population (``n_aircraft`` great-circle flights of ``traffic_seed``).  The
 geometry and the noise-free SNRs are deterministic scenario inputs, computed
@@ -94,19 +94,24 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from attopt.experiments.adsb_filters import (
+from attopt.experiments.adsb_snr.filters import (
     DEFAULT_FILTERS,
     PAPER_SOURCE,
     check_parameters,
     filter_rows,
 )
-from attopt.experiments.adsb_report import (
+from attopt.experiments.adsb_snr.report import (
     AXES,
     MANY_OBSERVATIONS,
     bounded_valid_rows,
     crlb_ratio_by_group,
     report,
     signed_max,
+)
+from attopt.experiments.adsb_snr.scenario import (
+    BORESIGHTS_BODY,
+    build_adsb_geometry,
+    observation_chunks,
 )
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.filtering import (
@@ -115,11 +120,6 @@ from attopt.experiments.filtering import (
     child_rng,
 )
 from attopt.experiments.metrics import error_columns
-from attopt.experiments.scenarios.adsb_snr import (
-    BORESIGHTS_BODY,
-    build_adsb_geometry,
-    observation_chunks,
-)
 from attopt.experiments.sweep.aggregate import valid_mask
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
@@ -180,7 +180,7 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
 class NoiseFreePass:
     """Visible (epoch, antenna, aircraft) rows of a pass with their noise-free SNRs.
 
-    Rows are in the order of :func:`attopt.experiments.scenarios.adsb_snr.observation_chunks`
+    Rows are in the order of :func:`attopt.experiments.adsb_snr.scenario.observation_chunks`
     (epoch, antenna, aircraft).  Shared per process: do not modify in place.
     """
 
@@ -428,7 +428,7 @@ def _method_rows(
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One noisy pass solved by every method in ``setting["methods"]`` and every
-    filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_filters`)."""
+    filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_snr.filters`)."""
     scenario = noise_free_pass(
         setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
     )

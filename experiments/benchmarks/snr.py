@@ -1,6 +1,6 @@
 """Benchmark of the SNR attitude solvers (seed 000 secs. 3.2-3.3) at 20 observations.
 
-Epochs come from the ``adsb-snr`` scenario (:mod:`attopt.experiments.scenarios.adsb_snr`):
+Epochs come from the ``adsb-snr`` scenario (:mod:`attopt.experiments.adsb_snr.scenario`):
 real satellite-to-aircraft geometry, true attitude wandering by a few degrees,
 SNR from the seed-000 helix (eq. 63) and the link budget plus 1 dB Gaussian
 noise (sec. 5.1).  Messages below the 6 dB threshold are not received; of
@@ -11,7 +11,7 @@ timed (validation, solve, covariance and result assembly included).  The
 table gives the median milliseconds per epoch, the ratio to the NLSE
 (warm-started) measured in the same run, median iterations (IPOPT
 iterations, MINPACK residual evaluations, QUEST Newton steps), failed epochs,
-and the RMS attitude error.  Run with ``python -m attopt.experiments.bench_snr``.
+and the RMS attitude error.  Run with ``python -m attopt.experiments.benchmarks.snr``.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from attopt.experiments.scenarios.adsb_snr import (
+from attopt.experiments.adsb_snr.scenario import (
     BORESIGHTS_BODY,
     build_adsb_geometry,
     observation_table,

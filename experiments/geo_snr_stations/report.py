@@ -5,7 +5,7 @@ seed's values; the boresight error with exact and perturbed RF parameters
 (Fig. 6, :func:`attopt.solvers.geo.boresight.rf_sensitivity`); each method's
 roll/pitch RMS with its bound and the yaw (unobservable) line; the manoeuvre
 detection result; the filters' errors with 3-sigma bounds (Figs. 9-10,
-``usque_3sigma.png``).  Column meanings: :mod:`attopt.experiments.geo_snr_stations`.
+``usque_3sigma.png``).  Column meanings: :mod:`attopt.experiments.geo_snr_stations.experiment`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from attopt.experiments.experiment import ReportContext
-from attopt.experiments.scenarios.geo_snr_stations import (
+from attopt.experiments.geo_snr_stations.scenario import (
     MANOEUVRE_START_S,
     START_UTC,
     build_geo_snr_scenario,

@@ -1,0 +1,1 @@
+"""The `adsb-snr` experiment: scenario, trial and report."""

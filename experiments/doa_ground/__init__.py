@@ -1,0 +1,1 @@
+"""The `doa-ground` experiment: scenario, trial and report."""

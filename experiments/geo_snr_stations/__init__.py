@@ -1,0 +1,1 @@
+"""The `geo-snr-stations` experiment: scenario, trial and report."""

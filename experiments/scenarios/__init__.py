@@ -1,1 +1,0 @@
-"""Simulation scenarios: true geometry and simulated sensor measurements."""

@@ -1,0 +1,1 @@
+"""The `wahba-mag-sun` experiment: scenario, trial and report."""
