@@ -12,16 +12,14 @@ from typing import TYPE_CHECKING, Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy.spatial.transform import Rotation  # noqa: E402
-
-from attopt.solvers.results import AXES, attitude_errors  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from attopt.solvers.results import AXES, attitude_errors
+from scipy.spatial.transform import Rotation
 
 if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
     from attopt.solvers.results import Track
+    from matplotlib.figure import Figure
 
 AXIS_NAMES = ("roll (x)", "pitch (y)", "yaw (z)")
 
