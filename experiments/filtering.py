@@ -29,13 +29,14 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
 from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, rts_smooth, usque
 from attopt.solvers.result import BatchSolution
 from attopt.solvers.smoother import SmootherOptions, SmootherResult, smooth, smooth_online
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation, Slerp
 
 Array = NDArray[np.float64]
 

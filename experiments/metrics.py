@@ -12,9 +12,10 @@ which the seeds' tables report.  Invalid epochs are NaN throughout.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_error, euler321_from_attitude
 from attopt.solvers.result import BatchSolution
-from scipy.spatial.transform import Rotation
 
 AXES = ("x", "y", "z")
 

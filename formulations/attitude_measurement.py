@@ -30,12 +30,13 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
 from attopt.formulations.conventions import euler321_from_attitude
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.symbolic import CASADI
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

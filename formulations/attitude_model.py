@@ -17,8 +17,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from attopt.formulations.symbolic import namespace_of
 from numpy.typing import ArrayLike, NDArray
+
+from attopt.formulations.symbolic import namespace_of
 
 Array = NDArray[np.float64]
 

@@ -35,10 +35,11 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.attitude_model import bucket
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.symbolic import CASADI, namespace_of
-from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]

@@ -30,6 +30,8 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
+
 from attopt.formulations.doa_array import (
     SEED003_UCA,
     Array,
@@ -37,7 +39,6 @@ from attopt.formulations.doa_array import (
     doa_unit_vector,
     evaluate_mapped,
 )
-from numpy.typing import ArrayLike
 
 _SINGULAR = 1e-12
 """Relative determinant below which the information matrix is singular."""

@@ -39,13 +39,14 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
+from scipy.linalg import block_diag
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
 from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
 from attopt.formulations.doa_array import doa_from_unit_vector, doa_jacobian, doa_unit_vector
 from attopt.formulations.errors import InvalidObservationError
-from numpy.typing import ArrayLike
-from scipy.linalg import block_diag
-from scipy.spatial.transform import Rotation
 
 AXIS_THRESHOLD = float(np.radians(5.0))
 """Measured polar angle below which a station is measured by direction cosines (rad)."""

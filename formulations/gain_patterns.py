@@ -30,9 +30,10 @@ from typing import Any, Protocol
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.symbolic import NUMPY, ArrayNamespace
-from numpy.typing import ArrayLike, NDArray
 
 
 class GainPattern(Protocol):

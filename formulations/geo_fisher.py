@@ -22,6 +22,9 @@ eigenvalue, ``|H|^2 / sigma^2``, is the "information magnitude" of Fig. 8.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
     GARUDA1,
@@ -30,8 +33,6 @@ from attopt.formulations.geo_link import (
     station_terms,
 )
 from attopt.formulations.snr_model import fisher_information, predict_snr
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

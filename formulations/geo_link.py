@@ -47,14 +47,15 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import ParabolicPattern
 from attopt.formulations.link_budget import SPEED_OF_LIGHT_M_PER_S, noise_power_dbw
 from attopt.formulations.snr_model import snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.symbolic import NUMPY, ArrayNamespace, namespace_of
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import casadi as ca
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.snr_model import snr_db

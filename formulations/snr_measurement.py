@@ -35,6 +35,8 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import GainPattern
@@ -42,7 +44,6 @@ from attopt.formulations.snr_model import observation_mask, predict_snr, snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
 from attopt.formulations.symbolic import CASADI
-from scipy.spatial.transform import Rotation
 
 
 @lru_cache(maxsize=16)

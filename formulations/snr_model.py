@@ -35,6 +35,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_model import (
     attitude_model_function,
     evaluate_at_attitudes,
@@ -43,8 +46,6 @@ from attopt.formulations.attitude_model import (
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.symbolic import NUMPY, namespace_of
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

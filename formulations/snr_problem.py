@@ -46,11 +46,12 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
 from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snr_model import SNR_SIGMA_DB
-from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 

@@ -60,9 +60,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.snr_model import fisher_information
 from attopt.formulations.symbolic import ArrayNamespace, namespace_of
-from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 

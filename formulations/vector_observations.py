@@ -27,9 +27,10 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
 from attopt.formulations.wahba import attitude_profile_matrix
-from numpy.typing import ArrayLike, NDArray
 
 MIN_NORM = 1e-12
 PARALLEL_TOLERANCE = 1e-3

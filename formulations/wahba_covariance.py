@@ -9,8 +9,9 @@ The error they describe is the body-frame rotation vector of
 from __future__ import annotations
 
 import numpy as np
-from attopt.formulations.wahba import det3
 from numpy.typing import NDArray
+
+from attopt.formulations.wahba import det3
 
 Array = NDArray[np.float64]
 

@@ -14,12 +14,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from attopt.solvers.results import AXES, attitude_errors
 from scipy.spatial.transform import Rotation
 
+from attopt.solvers.results import AXES, attitude_errors
+
 if TYPE_CHECKING:
-    from attopt.solvers.results import Track
     from matplotlib.figure import Figure
+
+    from attopt.solvers.results import Track
 
 AXIS_NAMES = ("roll (x)", "pitch (y)", "yaw (z)")
 

@@ -34,9 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
-from attopt.formulations.errors import AttoptError
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
+
+from attopt.formulations.errors import AttoptError
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

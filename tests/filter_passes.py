@@ -5,10 +5,11 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.gyro import MEMS_GYRO, GyroModel, GyroSamples, simulate_gyro
 from attopt.solvers.filters import FilterPrior
-from scipy.spatial.transform import Rotation
 
 GYRO = dataclasses.replace(MEMS_GYRO, name="mems-2hz", rate_hz=2.0)
 RATE = np.array([0.01, -0.02, 0.015])

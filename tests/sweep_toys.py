@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.experiment import Experiment, ReportContext, Row, Setting
 
 

@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+
 from attopt.experiments.adsb_snr.experiment import (
     EXPERIMENT,
     NO_GYRO,

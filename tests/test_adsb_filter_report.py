@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.stats import chi2
+
 from attopt.experiments.adsb_snr.filter_report import (
     BURN_IN_S,
     burn_in,
@@ -17,7 +19,6 @@ from attopt.experiments.adsb_snr.filter_report import (
     run_averaged_nees,
 )
 from attopt.experiments.experiment import ReportContext
-from scipy.stats import chi2
 
 FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr"]
 GYROS = ["seed000", "mems"]

@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation, get_sun
 from astropy.time import Time
+from sgp4.api import Satrec
+from sgp4.io import verify_checksum
+
 from attopt.experiments.adsb_snr.scenario import (
     BETA_OPT_DEG,
     BORESIGHTS_BODY,
@@ -30,8 +33,6 @@ from attopt.experiments.environment.traffic import (
     sample_traffic,
 )
 from attopt.formulations.conventions import euler321_from_attitude
-from sgp4.api import Satrec
-from sgp4.io import verify_checksum
 
 MAIN_LOBE_DEG = 41.67  # cos^6(a) = 10**0.4 / 14.4598: G >= 4 dBi (seed 000 eq. 63)
 SIDEREAL_NODE_RATE_DEG_DAY = 0.9856473598  # 360 deg per tropical year

@@ -13,6 +13,10 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import (
     AttitudeMeasurement,
     EulerAngleMeasurement,
@@ -25,10 +29,6 @@ from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import observation_mask
 from attopt.formulations.snr_problem import SnrEpoch
-from hypothesis import assume, given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
-
 from tests.strategies import attitudes
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _epoch, _geometry
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+
 from attopt.solvers.smoother.chain_marginals import sequential_marginals
 from attopt.solvers.smoother.conventions import attitude_key, bias_key, offset_key
 

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import (
     attitude_error,
     attitude_from_euler321,
@@ -11,10 +15,6 @@ from attopt.formulations.conventions import (
     orbit_frame_attitude,
     shuster_quaternion,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
-
 from tests.strategies import attitudes
 
 angles = st.floats(-np.pi + 1e-3, np.pi - 1e-3)

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import ks_2samp
+
 from attopt.formulations.doa_array import (
     SEED003_UCA,
     doa_from_unit_vector,
@@ -19,9 +23,6 @@ from attopt.formulations.doa_array import (
 )
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.errors import InvalidObservationError
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.stats import ks_2samp
 
 M = SEED003_UCA.n_elements
 KR = 2.0 * np.pi  # k r with r = lambda = 150 mm

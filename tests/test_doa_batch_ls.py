@@ -6,16 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
-from attopt.formulations.conventions import attitude_error
-from attopt.formulations.errors import ConvergenceError, UnobservableError
-from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
-from attopt.solvers.filters.common import apply_error, error_vector
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
+from attopt.solvers.filters.common import apply_error, error_vector
 from tests.test_doa_ekf import DT, VectorPass, relative_covariance_difference, simulate_vectors
 from tests.test_doa_eks import bound
 

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.doa_ground.scenario import (
     FILTER_INITIAL_EULER_DEG,
     FILTER_INITIAL_RATE_DEG_S,
@@ -27,7 +29,6 @@ from attopt.solvers.doa.ekf import (
     update_function,
 )
 from attopt.solvers.filters.common import apply_error
-from scipy.spatial.transform import Rotation
 
 PASS_S = 1200.0
 STEP_S = 1.0

@@ -8,6 +8,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
 from attopt.formulations.conventions import attitude_error
 from attopt.solvers.doa.ekf import EkfPrior, EkfResult
@@ -15,9 +18,6 @@ from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from attopt.solvers.filters import mekf, rts_smooth
 from attopt.solvers.filters.common import apply_error, error_vector
 from attopt.solvers.filters.rts import composed_error
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
-
 from tests.filter_passes import GYRO, prior_covariance, simulate_pass
 from tests.filter_passes import drawn_prior as drawn_gyro_prior
 from tests.test_doa_ekf import (

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.doa_ground.experiment import EXPERIMENT, grid
 from attopt.experiments.doa_ground.scenario import (
     DURATION_S,

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.formulations.doa_array import doa_jacobian, doa_unit_vector
-from attopt.formulations.doa_measurement import DoaMeasurement
-from attopt.formulations.errors import InvalidObservationError
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.doa_array import doa_jacobian, doa_unit_vector
+from attopt.formulations.doa_measurement import DoaMeasurement
+from attopt.formulations.errors import InvalidObservationError
 from tests.strategies import attitudes
 from tests.test_attitude_measurement import central_differences
 

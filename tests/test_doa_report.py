@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+
 from attopt.experiments.doa_ground.report import (
     attitude_methods,
     attitude_table,

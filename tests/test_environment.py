@@ -7,6 +7,7 @@ import pytest
 from astropy import units as u
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
+
 from attopt.experiments.environment.geomagnetic import (
     enu_to_ecef_matrices,
     geomagnetic_field_eci,

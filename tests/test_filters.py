@@ -20,6 +20,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from attopt.formulations.attitude_measurement import (
     AttitudeMeasurement,
     EulerAngleMeasurement,
@@ -32,9 +35,6 @@ from attopt.formulations.gyro import GyroModel, GyroSamples, simulate_gyro
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth, usque
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
-
 from tests.filter_passes import (
     GYRO,
     RATE,

@@ -7,6 +7,9 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import (
     SEED000_HELIX,
@@ -17,8 +20,6 @@ from attopt.formulations.gain_patterns import (
     off_boresight_angle_squared,
 )
 from attopt.formulations.symbolic import CASADI, NUMPY
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 PARABOLIC = ParabolicPattern(peak_gain_dbi=11.6, theta_3db_rad=math.radians(50.0), min_gain_dbi=4.0)
 TABLE_ANGLES = np.radians(np.linspace(0.0, 41.0, 15))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+
 from attopt.experiments.geo_snr_stations.scenario import (
     SNR_SIGMA_DB,
     build_geo_snr_scenario,

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.geo_fisher import (
     information_magnitude,
     information_map,
@@ -12,9 +16,6 @@ from attopt.formulations.geo_fisher import (
 )
 from attopt.formulations.geo_link import attitude_pointing
 from attopt.solvers.geo.los import belt_position
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
 
 EARTH_KM = 6_378.0
 

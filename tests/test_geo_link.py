@@ -7,10 +7,11 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_fisher import snr_attitude_jacobian
 from attopt.formulations.geo_link import GARUDA1, GeoLink, attitude_pointing, geo_snr_db
-from scipy.spatial.transform import Rotation
 
 SATELLITE = np.array([42_164.0, 0.0, 0.0])
 BELOW = np.array([[6_378.0, 0.0, 0.0]])  # station directly below: d = h = 35,786 km

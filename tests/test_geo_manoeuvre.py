@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.geo_snr_stations.experiment import (
     FILTER_OPTIONS,
     FILTER_STATIONS,
@@ -34,7 +36,6 @@ from attopt.solvers.geo.manoeuvre import (
     detect_and_reinitialise,
     windowed_nis_test,
 )
-from scipy.spatial.transform import Rotation
 
 MAX_DELAY_S = 120.0
 """Stated delay after the manoeuvre's start (it lasts 120 s)."""

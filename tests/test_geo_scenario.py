@@ -6,6 +6,8 @@ import astropy.units as u
 import numpy as np
 import pytest
 from astropy.coordinates import EarthLocation
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.geo_snr_stations.scenario import (
     INITIAL_QUATERNION,
     MANOEUVRE_ANGLE_DEG,
@@ -17,7 +19,6 @@ from attopt.experiments.geo_snr_stations.scenario import (
 )
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
-from scipy.spatial.transform import Rotation
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+from scipy.linalg import expm
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.gyro import (
     GYRO_MODELS,
     MEMS_GYRO,
@@ -23,10 +28,6 @@ from attopt.formulations.gyro import (
     mean_rates,
     simulate_gyro,
 )
-from hypothesis import example, given, settings
-from hypothesis import strategies as st
-from scipy.linalg import expm
-from scipy.spatial.transform import Rotation
 
 TEST_GYRO = GyroModel("test", sigma_v=3e-4, sigma_u=2e-5, initial_bias_sigma=1e-3, rate_hz=10.0)
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import (
     LinkBudget,

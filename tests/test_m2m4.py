@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.geo.m2m4 import (
     NEGATIVE_DISCRIMINANT,

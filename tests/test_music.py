@@ -7,6 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pyroomacoustics as pra
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from attopt.formulations.doa_array import (
     SEED003_UCA,
     doa_unit_vector,
@@ -17,8 +20,6 @@ from attopt.formulations.doa_array import (
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.solvers.doa import MusicEstimator
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 MUSIC = MusicEstimator()
 M = SEED003_UCA.n_elements

@@ -19,6 +19,14 @@ import math
 import gtsam
 import numpy as np
 import pytest
+from gtsam.utils.numerical_derivative import (
+    numericalDerivative11,
+    numericalDerivative21,
+    numericalDerivative22,
+)
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
@@ -39,14 +47,6 @@ from attopt.solvers.smoother.conventions import (
 )
 from attopt.solvers.smoother.gyro_factors import JointPrior, gyro_graph, gyro_intervals
 from attopt.solvers.smoother.measurement_factors import prepare_factor
-from gtsam.utils.numerical_derivative import (
-    numericalDerivative11,
-    numericalDerivative21,
-    numericalDerivative22,
-)
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
-
 from tests.filter_passes import (
     GYRO,
     RATE,

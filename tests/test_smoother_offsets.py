@@ -14,6 +14,8 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import ReferencedMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import SEED000_HELIX
@@ -23,8 +25,6 @@ from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.smoother import SmootherOptions, smooth
 from attopt.solvers.smoother.measurement_factors import prepare_factor
-from scipy.spatial.transform import Rotation
-
 from tests.filter_passes import GYRO, RATE, Pass, drawn_prior, prior_covariance
 from tests.test_smoother import TIGHT, rms_deg, state_errors
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry

@@ -14,16 +14,6 @@ import math
 import gtsam
 import numpy as np
 import pytest
-from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
-from attopt.formulations.conventions import attitude_error
-from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gyro import GyroModel
-from attopt.solvers.filters import FilterOptions, FilterPrior, mekf
-from attopt.solvers.smoother import OnlineOptions, smooth, smooth_online
-from attopt.solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
-from attopt.solvers.smoother.gyro_factors import JointPrior
-from attopt.solvers.smoother.measurement_factors import prepare_factor
-from attopt.solvers.smoother.online import MeasurementCallback, prior_factor
 from gtsam.utils.numerical_derivative import (
     numericalDerivative11,
     numericalDerivative21,
@@ -34,6 +24,16 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
+from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gyro import GyroModel
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf
+from attopt.solvers.smoother import OnlineOptions, smooth, smooth_online
+from attopt.solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
+from attopt.solvers.smoother.gyro_factors import JointPrior
+from attopt.solvers.smoother.measurement_factors import prepare_factor
+from attopt.solvers.smoother.online import MeasurementCallback, prior_factor
 from tests.filter_passes import (
     GYRO,
     REFERENCES,

@@ -7,6 +7,10 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import SEED000_HELIX
@@ -21,10 +25,6 @@ from attopt.formulations.snr_model import (
     snr_function,
     snr_jacobian_function,
 )
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.spatial.transform import Rotation
-
 from tests.strategies import attitudes
 from tests.test_gain_patterns import PATTERNS
 

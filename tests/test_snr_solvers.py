@@ -15,6 +15,8 @@ import re
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
 from attopt.formulations.gain_patterns import SEED000_HELIX
@@ -37,8 +39,6 @@ from attopt.solvers.snr.initialisation import START_ATTITUDES, StartSource
 from attopt.solvers.snr.nlp import nlp_solver, parameter_vector
 from attopt.solvers.snr.padding import BUCKETS, bucket_size, pad_epoch
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
-from scipy.spatial.transform import Rotation
-
 from tests.test_gain_patterns import PATTERNS
 from tests.test_snr_model import _directions_at
 

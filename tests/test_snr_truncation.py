@@ -15,6 +15,9 @@ import casadi as ca
 import numpy as np
 import pytest
 import scipy.special
+from scipy.spatial.transform import Rotation
+from scipy.stats import truncnorm
+
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.snr_model import cramer_rao_bound
@@ -30,9 +33,6 @@ from attopt.solvers.snr import SNR_SOLVERS
 from attopt.solvers.snr.fit import fit_at, model_at
 from attopt.solvers.snr.nlp import IpoptOptions, nlp_solver, parameter_vector
 from attopt.solvers.snr.padding import pad_epoch
-from scipy.spatial.transform import Rotation
-from scipy.stats import truncnorm
-
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
 TAU = RECEPTION_THRESHOLD_DB

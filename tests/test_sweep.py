@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from pandas.testing import assert_frame_equal
+
 from attopt.experiments.sweep import EngineSetupError, ManifestMismatchError, run_sweep
 from attopt.experiments.sweep.engines import DaskEngine
 from attopt.experiments.sweep.seeding import trial_index, trial_seed
 from attopt.experiments.sweep.store import UNRECORDED, code_version
 from attopt.experiments.sweep.tasks import ChunkSpec
 from attopt.experiments.sweep.toys import NOOP
-from pandas.testing import assert_frame_equal
-
 from tests.sweep_toys import PROBE, TOY, TOY_WITH_REPORT
 
 

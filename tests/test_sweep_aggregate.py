@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+
 from attopt.experiments.sweep import summarise
 from attopt.experiments.sweep.aggregate import invalid_reasons
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from attopt.experiments.benchmarks.runner import BenchRow, format_table, serial_loop
 
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
+from typer.testing import CliRunner
+
 from attopt.experiments import registry
 from attopt.experiments.cli import app
 from attopt.experiments.registry import UnknownExperimentError, get_experiment, reference_of
-from typer.testing import CliRunner
-
 from tests.sweep_toys import TOY
 
 runner = CliRunner()

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import pytest
-from attopt.experiments.sweep import ConfigError, resolve_parameters, run_sweep
 
+from attopt.experiments.sweep import ConfigError, resolve_parameters, run_sweep
 from tests.sweep_toys import TOY
 
 

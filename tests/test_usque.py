@@ -11,13 +11,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
 from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, usque
 from attopt.solvers.filters.common import NON_FINITE, propagate_attitude
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 REFERENCES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 RATE = np.array([0.01, -0.02, 0.015])

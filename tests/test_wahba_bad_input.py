@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
 from attopt.solvers.wahba import WAHBA_SOLVERS
-from scipy.spatial.transform import Rotation
 
 SOLVERS = list(WAHBA_SOLVERS.values())
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.formulations.conventions import attitude_error
-from attopt.solvers.wahba import WAHBA_SOLVERS
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.conventions import attitude_error
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from tests.strategies import noisy_body
 
 TRUTH = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)

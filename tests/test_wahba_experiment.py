@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+
 from attopt.experiments.benchmarks.wahba import run as run_bench
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import run_sweep

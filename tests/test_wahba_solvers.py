@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from attopt.formulations.conventions import attitude_error
-from attopt.formulations.wahba import attitude_profile_matrix, davenport_matrix
-from attopt.formulations.wahba_sdp import WahbaSDP
-from attopt.solvers.wahba import WAHBA_SOLVERS
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.wahba import attitude_profile_matrix, davenport_matrix
+from attopt.formulations.wahba_sdp import WahbaSDP
+from attopt.solvers.wahba import WAHBA_SOLVERS
 from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
 SOLVERS = list(WAHBA_SOLVERS.values())

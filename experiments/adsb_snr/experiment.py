@@ -94,6 +94,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.adsb_snr.filters import (
     DEFAULT_FILTERS,
     PAPER_SOURCE,
@@ -131,8 +134,6 @@ from attopt.solvers.snr import SNR_SOLVERS
 from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.initialisation import StartSource
 from attopt.solvers.snr.padding import bucket_size
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 PATTERN = SEED000_HELIX
 """The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi``."""

@@ -27,11 +27,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2, norm
+
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.metrics import AXES
 from attopt.experiments.sweep.aggregate import valid_mask
 from attopt.formulations.gyro import GYRO_MODELS
-from scipy.stats import chi2, norm
 
 BURN_IN_S = 300.0
 """Accuracy and NEES use the epochs at least this long after the first epoch of the pass."""

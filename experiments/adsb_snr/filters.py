@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, true_attitude
 from attopt.experiments.filtering import (
     FilterInputs,

@@ -19,11 +19,12 @@ import matplotlib.pyplot as plt
 import matplotlib.ticker as ticker
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2, norm
+
 from attopt.experiments.adsb_snr.filter_report import filter_report
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.metrics import AXES
 from attopt.experiments.sweep.aggregate import valid_mask
-from scipy.stats import chi2, norm
 
 AXIS_NAMES = {"x": "roll (x)", "y": "pitch (y)", "z": "yaw (z)"}
 TABLE2_ORDER = (("yaw", "z"), ("pitch", "y"), ("roll", "x"))

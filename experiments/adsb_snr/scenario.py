@@ -57,6 +57,9 @@ from dataclasses import dataclass
 import astropy.units as u
 import numpy as np
 from astropy.time import Time
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.environment.orbit import (
     circular_orbit_tle,
     ecef_to_eci_matrices,
@@ -74,8 +77,6 @@ from attopt.experiments.environment.traffic import (
     sample_traffic,
 )
 from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 TLE_EPOCH_UTC = "2025-06-01T00:00:00"
 SATELLITE_NUMBER = 99999

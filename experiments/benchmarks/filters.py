@@ -31,9 +31,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2
+
 from attopt.experiments.adsb_snr.experiment import EXPERIMENT
 from attopt.experiments.sweep import run_sweep
-from scipy.stats import chi2
 
 FILTERS = ["mekf_snr", "usque_snr", "rts_snr"]
 REFERENCE = "mekf_snr"

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyroomacoustics as pra
+
 from attopt.formulations.doa_array import (
     SEED003_UCA,
     simulate_sample_covariance,

@@ -43,6 +43,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
 from attopt.experiments.adsb_snr.experiment import PARAMETERS, noise_free_pass, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
 from attopt.experiments.filtering import (

@@ -20,6 +20,8 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.adsb_snr.scenario import (
     BORESIGHTS_BODY,
     build_adsb_geometry,
@@ -34,7 +36,6 @@ from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
 from attopt.solvers.result import AttitudeSolution
 from attopt.solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
 from attopt.solvers.snr.driver import SnrSolver
-from scipy.spatial.transform import Rotation
 
 OBSERVATIONS = 20
 PER_ANTENNA = 10

@@ -16,9 +16,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_error
 from attopt.solvers.wahba import WAHBA_SOLVERS
-from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)

@@ -74,6 +74,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.doa_ground.report import (
     BATCH_LS,
     GYRO_FILTERS,
@@ -122,7 +124,6 @@ from attopt.solvers.filters.common import FilterPrior
 from attopt.solvers.result import BatchSolution
 from attopt.solvers.smoother.batch import single_frame_initial
 from attopt.solvers.wahba import WAHBA_SOLVERS
-from scipy.spatial.transform import Rotation
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)

@@ -35,9 +35,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from scipy.stats import chi2
+
 from attopt.experiments.experiment import ReportContext
 from attopt.solvers.doa.ekf import PROCESS_NOISE
-from scipy.stats import chi2
 
 # Seed 003 Tables 1-2: (snr_db, L) -> RMSE theta, phi, yaw, roll, pitch (deg).
 SEED003_TABLES: dict[tuple[float, int], tuple[float, float, float, float, float]] = {

@@ -54,6 +54,10 @@ import astropy.units as u
 import numpy as np
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.environment.orbit import (
     circular_orbit_tle,
     ecef_to_eci_matrices,
@@ -64,9 +68,6 @@ from attopt.experiments.environment.traffic import geodetic_normal
 from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
 from attopt.formulations.doa_array import doa_from_unit_vector
 from attopt.solvers.doa.ekf import INERTIA_SEED003, angular_acceleration
-from numpy.typing import NDArray
-from scipy.integrate import solve_ivp
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 import ppigrf
 from astropy.time import Time
-from attopt.experiments.environment.orbit import ecef_to_eci_matrices
 from numpy.typing import ArrayLike, NDArray
+
+from attopt.experiments.environment.orbit import ecef_to_eci_matrices
 
 
 def igrf_enu(

@@ -54,6 +54,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.filtering import GYRO_STREAM, child_rng
 from attopt.experiments.geo_snr_stations.report import report
@@ -78,8 +81,6 @@ from attopt.solvers.geo.boresight import (
 from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
 from attopt.solvers.smoother import SmootherOptions, smooth
 from attopt.solvers.snr.nlp import NlpSolver
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

@@ -19,6 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.geo_snr_stations.scenario import (
     MANOEUVRE_START_S,

@@ -53,6 +53,9 @@ import astropy.units as u
 import numpy as np
 from astropy.coordinates import EarthLocation
 from astropy.time import Time
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
 from attopt.experiments.environment.traffic import MEAN_RADIUS_KM as MEAN_EARTH_RADIUS_KM
 from attopt.experiments.environment.traffic import geodetic_normal
@@ -69,8 +72,6 @@ from attopt.formulations.geo_link import (
 )
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.geo.los import belt_position, line_of_sight_errors, locate_on_geo_belt
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

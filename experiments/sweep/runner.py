@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
+from tqdm import tqdm
+
 from attopt.experiments.experiment import Experiment, ReportContext, Setting
 from attopt.experiments.registry import display_name, reference_of
 from attopt.experiments.sweep.aggregate import invalid_reasons, summarise
@@ -24,7 +26,6 @@ from attopt.experiments.sweep.tasks import (
     plan_chunks,
     scalar_setting_items,
 )
-from tqdm import tqdm
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ from typing import Any
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+
 from attopt.experiments.experiment import Setting
 from attopt.experiments.sweep.tasks import ChunkResult, Task, scalar_setting_items
 

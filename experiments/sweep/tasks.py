@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.experiment import Experiment, Row, Setting
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep.seeding import describe_seed, trial_seed

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+
 from attopt.experiments.experiment import Experiment, Row, Setting
 
 

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.filtering import (
     GYRO_STREAM,

@@ -9,6 +9,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.wahba_mag_sun.scenario import START_UTC, build_geometry
 from attopt.formulations.gyro import GYRO_MODELS, GyroModel

@@ -33,13 +33,14 @@ from dataclasses import dataclass
 import astropy.units as u
 import numpy as np
 from astropy.time import Time
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.experiments.environment.geomagnetic import geomagnetic_field_eci
 from attopt.experiments.environment.orbit import propagate, satellite_from_tle
 from attopt.experiments.environment.shadow import in_cylindrical_shadow
 from attopt.experiments.environment.sun import sun_direction_eci
 from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 # TIMED (NORAD 26998), epoch 26130.94162250 = 2026-05-10 22:35:56.184 UTC.
 TLE_LINE1 = "1 26998U 01055B   26130.94162250  .00000829  00000+0  79016-4 0  9991"

@@ -48,6 +48,9 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_model import increment_matrix
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.solvers.doa.ekf import (
@@ -60,8 +63,6 @@ from attopt.solvers.doa.ekf import (
     vector_information_function,
 )
 from attopt.solvers.filters.casadi_pass import accumulate
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

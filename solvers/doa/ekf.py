@@ -80,14 +80,15 @@ from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, body_vectors_model
 from attopt.formulations.attitude_model import attitude_model_function, increment_matrix
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
 from attopt.formulations.symbolic import CASADI, namespace_of
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
 from attopt.solvers.filters.common import noise_subset, solve_noise
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

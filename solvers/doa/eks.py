@@ -44,6 +44,9 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.doa.ekf import (
     INERTIA_SEED003,
@@ -59,8 +62,6 @@ from attopt.solvers.doa.ekf import (
 from attopt.solvers.filters.casadi_pass import accumulate
 from attopt.solvers.filters.common import apply_error, error_vector
 from attopt.solvers.filters.rts import rts_backward
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

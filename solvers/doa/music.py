@@ -54,6 +54,8 @@ from functools import cached_property, lru_cache
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.doa_array import (
     SEED003_UCA,
     Array,
@@ -68,7 +70,6 @@ from attopt.formulations.errors import (
     InvalidObservationError,
     UnobservableError,
 )
-from numpy.typing import ArrayLike, NDArray
 
 SPECTRUM_BLOCK = 1024
 """Sets per block of the grid spectrum: about 30 MB of ``e^H a``, in few large BLAS calls."""

@@ -44,6 +44,10 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.attitude_model import increment_matrix
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
@@ -54,9 +58,6 @@ from attopt.formulations.gyro import (
     error_state_transition,
 )
 from attopt.solvers.result import BatchSolution
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 Array = NDArray[np.float64]
 

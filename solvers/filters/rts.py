@@ -37,6 +37,9 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
 from attopt.solvers.filters.common import (
@@ -47,8 +50,6 @@ from attopt.solvers.filters.common import (
     error_vector,
     filter_result,
 )
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

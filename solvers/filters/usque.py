@@ -125,6 +125,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel, GyroSamples
 from attopt.solvers.filters.common import (
@@ -152,7 +154,6 @@ from attopt.solvers.filters.common import (
     usable_rows,
     validate_inputs,
 )
-from scipy.spatial.transform import Rotation
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""

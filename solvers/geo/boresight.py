@@ -39,6 +39,9 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
@@ -50,8 +53,6 @@ from attopt.formulations.geo_link import (
 )
 from attopt.solvers.snr.boresight import estimate_boresight
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

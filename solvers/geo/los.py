@@ -23,12 +23,13 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
-from attopt.formulations.geo_link import BORESIGHT_BODY, GARUDA1, GeoLink, elevation_rad, geo_snr_db
-from attopt.formulations.snr_model import observation_mask
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+
+from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
+from attopt.formulations.geo_link import BORESIGHT_BODY, GARUDA1, GeoLink, elevation_rad, geo_snr_db
+from attopt.formulations.snr_model import observation_mask
 
 Array = NDArray[np.float64]
 

@@ -24,8 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from attopt.formulations.errors import InvalidObservationError
 from numpy.typing import ArrayLike, NDArray
+
+from attopt.formulations.errors import InvalidObservationError
 
 Array = NDArray[np.float64]
 

@@ -41,15 +41,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_link import BORESIGHT_BODY
 from attopt.formulations.gyro import GyroModel, GyroSamples
 from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
 from attopt.solvers.filters.common import epoch_samples, propagate_attitude
-from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 Array = NDArray[np.float64]
 

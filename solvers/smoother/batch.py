@@ -77,6 +77,9 @@ from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
 from attopt.formulations.gyro import GyroModel, GyroSamples
@@ -111,8 +114,6 @@ from attopt.solvers.smoother.conventions import (
 )
 from attopt.solvers.smoother.gyro_factors import JointPrior, check_model, gyro_graph, gyro_intervals
 from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 INITIALISATIONS = ("mekf", "gyro")
 UNDETERMINED_SIGMA = np.pi

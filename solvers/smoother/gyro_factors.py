@@ -44,12 +44,13 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
+
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gyro import GyroModel
 from attopt.solvers.filters.common import FilterPrior, PreparedGyro
 from attopt.solvers.smoother.conventions import SIGN, Array, attitude_key, bias_key, rot3
-from numpy.typing import NDArray
-from scipy.linalg import solve_triangular
 
 UNIT3 = gtsam.noiseModel.Unit.Create(3)
 

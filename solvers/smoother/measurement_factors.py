@@ -56,13 +56,14 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+from numpy.typing import NDArray
+from scipy.linalg import solve_triangular
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import gate, noise_subset, usable_rows
 from attopt.solvers.smoother.conventions import Array, attitude_key, offset_key
-from numpy.typing import NDArray
-from scipy.linalg import solve_triangular
-from scipy.spatial.transform import Rotation
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
 UNIT1 = gtsam.noiseModel.Unit.Create(1)

@@ -71,6 +71,8 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel, GyroSamples
 from attopt.solvers.filters.common import (
@@ -107,7 +109,6 @@ from attopt.solvers.smoother.gyro_factors import (
     gyro_intervals,
 )
 from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
-from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)

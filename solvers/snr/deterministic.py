@@ -40,6 +40,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import AttoptError, ConvergenceError, UnobservableError
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snr.boresight import BoresightEstimate, estimate_boresight
@@ -47,8 +50,6 @@ from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
 from attopt.solvers.wahba import WAHBA_SOLVERS
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

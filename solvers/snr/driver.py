@@ -27,11 +27,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import AttoptError, ConvergenceError
 from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
 from attopt.solvers.result import AttitudeSolution, BatchSolution
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 DEFAULT_MAX_PRIOR_AGE = 10
 """Epochs a valid estimate stays usable as the next epochs' warm start."""

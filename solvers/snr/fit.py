@@ -34,6 +34,9 @@ from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.snr_model import (
     cramer_rao_bound,
     fisher_information,
@@ -43,8 +46,6 @@ from attopt.formulations.snr_model import (
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_fisher_information, truncated_nll
 from attopt.solvers.snr.padding import pad_epoch
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

@@ -26,10 +26,11 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snr.deterministic import two_step
-from scipy.spatial.transform import Rotation
 
 START_YAWS_DEG = tuple(range(0, 360, 45))
 """Yaw of the multi-start attitudes (deg)."""

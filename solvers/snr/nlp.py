@@ -95,6 +95,9 @@ from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.snr_model import snr_function
 from attopt.formulations.snr_problem import SnrEpoch
@@ -103,8 +106,6 @@ from attopt.solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
 from attopt.solvers.snr.initialisation import LocalResult
 from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
 from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

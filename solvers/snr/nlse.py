@@ -34,15 +34,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.conventions import attitude_from_euler321, euler321_from_attitude
 from attopt.formulations.snr_euler import snr_euler_jacobian_function
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snr.initialisation import LocalResult
 from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
 from attopt.solvers.snr.padding import pad_epoch
-from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 

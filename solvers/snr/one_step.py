@@ -11,11 +11,12 @@ from __future__ import annotations
 
 from abc import abstractmethod
 
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
-from scipy.spatial.transform import Rotation
 
 ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe")
 """Initialisation diagnostics plus observations beyond the main lobe at the estimate."""

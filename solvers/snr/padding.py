@@ -16,8 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from attopt.formulations.snr_problem import SnrEpoch
 from numpy.typing import NDArray
+
+from attopt.formulations.snr_problem import SnrEpoch
 
 Array = NDArray[np.float64]
 

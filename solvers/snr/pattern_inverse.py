@@ -23,9 +23,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from attopt.formulations.gain_patterns import CosinePowerPattern, GainPattern
 from attopt.formulations.symbolic import NUMPY
-from numpy.typing import ArrayLike, NDArray
 
 Array = NDArray[np.float64]
 

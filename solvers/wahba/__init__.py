@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from numpy.typing import ArrayLike
+
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE, prepare_observations
 from attopt.solvers.result import AttitudeSolution, BatchSolution
 from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
 from attopt.solvers.wahba.driver import Estimator, solve_prepared
-from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True)

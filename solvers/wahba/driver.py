@@ -13,12 +13,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.errors import ConvergenceError
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import wahba_loss
 from attopt.solvers.result import BatchSolution
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)

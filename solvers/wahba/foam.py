@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import adjugate, det3, foam_characteristic
 from attopt.formulations.wahba_covariance import foam_covariance
 from attopt.solvers.newton import largest_root_newton
 from attopt.solvers.wahba.driver import Estimate
-from scipy.spatial.transform import Rotation
 
 
 def estimate(obs: ObservationBatch) -> Estimate:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from attopt.formulations.conventions import attitude_from_shuster_quaternion
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import davenport_matrix

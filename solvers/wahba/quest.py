@@ -17,6 +17,8 @@ the first solution refines ``lambda_max`` before the final eqs. 27-31.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import (
     davenport_characteristic,
@@ -28,7 +30,6 @@ from attopt.formulations.wahba import (
 from attopt.formulations.wahba_covariance import quest_covariance
 from attopt.solvers.newton import largest_root_newton
 from attopt.solvers.wahba.driver import Estimate
-from scipy.spatial.transform import Rotation
 
 # Reference-frame turns of the sequential rotations: identity, 180 deg about x, y, z.
 _TURN_SIGNS = np.array([(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)], float)

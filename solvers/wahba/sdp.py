@@ -20,6 +20,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+
 from attopt.formulations.conventions import attitude_from_shuster_quaternion
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import davenport_matrix

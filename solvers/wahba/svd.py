@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import proper_svd
 from attopt.formulations.wahba_covariance import svd_covariance
 from attopt.solvers.wahba.driver import Estimate
-from scipy.spatial.transform import Rotation
 
 
 def estimate(obs: ObservationBatch) -> Estimate:

@@ -9,11 +9,12 @@ axis).  The seed's magnetometer + Sun case anchors on the Sun sensor.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba_covariance import triad_covariance
 from attopt.solvers.wahba.driver import Estimate
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 
 def _triad_frame(u: NDArray, v: NDArray) -> NDArray:
