@@ -31,6 +31,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
@@ -148,9 +149,17 @@ def body_vectors_model(attitude: Any, reference: Any) -> Any:
 class VectorMeasurement(AttitudeMeasurement):
     """Measured body-frame unit vectors ``b_i = A r_i + noise`` (seed 002 eqs. 2-4).
 
-    ``z`` is the ``k`` measured vectors stacked (``3 k`` rows), ``R`` block
-    diagonal ``sigma_i^2 I3`` (the QUEST measurement model of seed 002 sec.
-    2.3); each vector is a gating block.  Rows with a NaN vector are dropped.
+    ``z`` is the ``k`` measured vectors stacked (``3 k`` rows); each vector is a
+    gating block and rows with a NaN vector are dropped.  The noise is given
+    per vector either as a standard deviation ``sigma_i`` (rad), ``R_i =
+    sigma_i^2 I3``, the QUEST measurement model of seed 002 sec. 2.3, or as a
+    positive-definite ``3 x 3`` covariance ``C_i`` (rad^2), then ``R`` is block
+    diagonal with the ``C_i``.  :attr:`sigma` is each vector's isotropic
+    equivalent, ``sigma_i^2 = tr(P_i C_i P_i) / 2`` with ``P_i = I - b_i
+    b_i^T`` (the mean variance perpendicular to the measured direction; the
+    component along it does not move the attitude to first order), which is
+    ``sigma_i`` itself for ``C_i = sigma_i^2 I3``: the weight ``1 / sigma_i^2``
+    of Wahba's problem (seed 002 eq. 14).
 
     The innovation of each vector is its geodesic difference in the plane
     perpendicular to the prediction ``h_i``: ``theta p / |p|`` with ``p`` the
@@ -164,22 +173,49 @@ class VectorMeasurement(AttitudeMeasurement):
     per vector, so the gate (chi-square with three) is slightly lenient.
     """
 
-    def __init__(self, body: ArrayLike, reference: ArrayLike, sigma: ArrayLike) -> None:
+    def __init__(
+        self,
+        body: ArrayLike,
+        reference: ArrayLike,
+        sigma: ArrayLike | None = None,
+        covariance: ArrayLike | None = None,
+    ) -> None:
+        if (sigma is None) == (covariance is None):
+            raise InvalidObservationError("give the vectors' noise as sigma or as covariance")
         try:
             b = np.array(body, dtype=float).reshape(-1, 3)
             r = np.array(reference, dtype=float).reshape(-1, 3)
-            s = np.broadcast_to(np.asarray(sigma, dtype=float), (b.shape[0],))
+            if covariance is None:
+                s = np.broadcast_to(np.asarray(sigma, dtype=float), (b.shape[0],))
+            else:
+                c = np.broadcast_to(np.asarray(covariance, dtype=float), (b.shape[0], 3, 3))
         except ValueError as exc:
-            raise InvalidObservationError(f"vectors must be (k, 3) with k sigmas: {exc}") from None
+            raise InvalidObservationError(
+                f"vectors must be (k, 3) with k sigmas or (k, 3, 3) covariances: {exc}"
+            ) from None
         if r.shape != b.shape:
             raise InvalidObservationError(f"body {b.shape} and reference {r.shape} differ")
         keep = np.isfinite(b).all(axis=1) & np.isfinite(r).all(axis=1)
-        if not (np.all(np.isfinite(s[keep])) and np.all(s[keep] > 0)):
-            raise InvalidObservationError("vector standard deviations must be finite and positive")
         self.reference = r[keep]
         self.z = b[keep].ravel()
-        self.noise_covariance = np.repeat(s[keep] ** 2, 3)
         self.blocks = np.repeat(np.arange(int(keep.sum())), 3)
+        if covariance is None:
+            if not (np.all(np.isfinite(s[keep])) and np.all(s[keep] > 0)):
+                raise InvalidObservationError(
+                    "vector standard deviations must be finite and positive"
+                )
+            self.sigma = s[keep].copy()
+            self.noise_covariance = np.repeat(s[keep] ** 2, 3)
+            return
+        c = c[keep]
+        if not np.all(np.isfinite(c)) or not np.allclose(c, c.transpose(0, 2, 1)):
+            raise InvalidObservationError("vector covariances must be finite and symmetric")
+        if c.shape[0] and np.linalg.eigvalsh(c).min() <= 0:
+            raise InvalidObservationError("vector covariances must be positive definite")
+        unit = b[keep] / np.linalg.norm(b[keep], axis=1, keepdims=True)
+        perpendicular = np.eye(3) - unit[:, :, None] * unit[:, None, :]
+        self.sigma = np.sqrt(np.einsum("kij,kjl,kli->k", perpendicular, c, perpendicular) / 2.0)
+        self.noise_covariance = block_diag(*c) if c.shape[0] else np.zeros((0, 0))
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         k = self.reference.shape[0]

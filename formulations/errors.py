@@ -23,3 +23,11 @@ class UnobservableError(AttoptError):
 
 class ConvergenceError(AttoptError):
     """An iterative or convex solver did not reach its optimum."""
+
+
+class GyroRateMismatchError(InvalidObservationError):
+    """A gyro record's sample spacing differs from the rate its model declares."""
+
+
+class UnsupportedMeasurementError(AttoptError, TypeError):
+    """An estimator was given a measurement type it does not accept (see its ``accepts``)."""
