@@ -34,9 +34,9 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
-from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, rts_smooth, usque
-from attopt.solvers.result import BatchSolution
-from attopt.solvers.smoother import SmootherOptions, SmootherResult, smooth, smooth_online
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth, usque
+from attopt.solvers.results import Track
+from attopt.solvers.smoother import SmootherOptions, smooth, smooth_online
 
 Array = NDArray[np.float64]
 
@@ -148,7 +148,7 @@ def run_filter(
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
     method: str,
-) -> tuple[FilterResult, float]:
+) -> tuple[Track, float]:
     """Run filter ``kind`` on orbit-frame ``measurements``; the result and its wall time (s).
 
     ``rts`` runs the MEKF and smooths it.
@@ -177,8 +177,8 @@ def run_filters(
     measurements: Sequence[AttitudeMeasurement | None],
     suffix: str = "",
     offset_sigma: float = OFFSET_PRIOR_SIGMA_DB,
-    initial: tuple[FilterResult, float] | None = None,
-) -> dict[str, tuple[FilterResult, float]]:
+    initial: tuple[Track, float] | None = None,
+) -> dict[str, tuple[Track, float]]:
     """Each filter kind's result and wall time (s), methods named ``kind + suffix``
     (smoother kinds keep their names).
 
@@ -196,7 +196,7 @@ def run_filters(
     wanted = set(kinds)
     batch = {"fg_batch", "fg_batch_offsets"} & wanted
     from_rts = bool(batch) and initial is None and "fg_online" not in wanted
-    out: dict[str, tuple[FilterResult, float]] = {}
+    out: dict[str, tuple[Track, float]] = {}
     if {"mekf", "rts"} & wanted or from_rts:
         out["mekf"] = run_filter("mekf", inputs, truth, measurements, method_name("mekf", suffix))
     if "rts" in wanted or from_rts:
@@ -224,8 +224,8 @@ def run_smoother(
     measurements: Sequence[AttitudeMeasurement | None],
     method: str,
     options: SmootherOptions,
-    initial: FilterResult,
-) -> tuple[SmootherResult, float]:
+    initial: Track,
+) -> tuple[Track, float]:
     """The batch smoother on orbit-frame ``measurements`` from ``initial``; its wall time (s)."""
     inertial = referenced(measurements, truth.epoch_frames)
     t_epochs = truth.t[truth.epoch_samples]
@@ -244,7 +244,7 @@ def run_smoother(
 
 
 def bound_columns(
-    runs: Mapping[str, tuple[FilterResult, float]],
+    runs: Mapping[str, tuple[Track, float]],
     inputs: FilterInputs,
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
@@ -262,7 +262,7 @@ def posterior_bound(
     inputs: FilterInputs,
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
-    template: FilterResult,
+    template: Track,
 ) -> Array:
     """Per-epoch posterior Cramer-Rao bound of the attitude (rad, ``(N, 3)`` body axes).
 
@@ -274,9 +274,7 @@ def posterior_bound(
     """
     at_truth = replace(
         template,
-        solution=replace(
-            template.solution, quaternion=truth.attitude[truth.epoch_samples].as_quat()
-        ),
+        quaternion=truth.attitude[truth.epoch_samples].as_quat(),
         bias=inputs.gyro.bias[truth.epoch_samples],
         history=None,
     )
@@ -287,47 +285,46 @@ def posterior_bound(
         filter=FilterOptions(gate_probability=1.0),
     )
     bound, _ = run_smoother(inputs, truth, measurements, "bound", options, at_truth)
-    return np.sqrt(np.diagonal(bound.covariance[:, :3, :3], axis1=1, axis2=2))
+    return np.sqrt(np.diagonal(bound.state_covariance[:, :3, :3], axis1=1, axis2=2))
 
 
-def in_orbit_frame(solution: BatchSolution, eci_to_orbit: Rotation) -> BatchSolution:
-    """``A_bo = A_bi A_oi^T`` of a filter's solution (covariance unchanged: body frame)."""
-    quaternion = solution.quaternion.copy()
-    valid = solution.valid
+def in_orbit_frame(track: Track, eci_to_orbit: Rotation) -> Track:
+    """``A_bo = A_bi A_oi^T`` of a filter's track (covariance unchanged: body frame)."""
+    quaternion = track.quaternion.copy()
+    valid = track.valid
     if valid.any():
-        quaternion[valid] = (solution.attitude() * eci_to_orbit[valid].inv()).as_quat()
-    return replace(solution, quaternion=quaternion)
+        quaternion[valid] = (track.attitude() * eci_to_orbit[valid].inv()).as_quat()
+    return replace(track, quaternion=quaternion)
 
 
-def filter_columns(
-    result: FilterResult, inputs: FilterInputs, truth: GyroTruth
-) -> dict[str, Array]:
+def filter_columns(result: Track, inputs: FilterInputs, truth: GyroTruth) -> dict[str, Array]:
     """Bias estimate, error and sigma (deg/h, per axis), the 6-state NEES ``nees_full``
     and the update counts, per epoch.
 
     The attitude columns come from :func:`attopt.experiments.metrics.error_columns`
-    applied to :func:`in_orbit_frame` of the solution.
+    applied to :func:`in_orbit_frame` of the track.
     """
     true_bias = inputs.gyro.bias[truth.epoch_samples]
     bias_error = result.bias - true_bias
     attitude_error = (
-        Rotation.from_quat(
-            np.where(result.solution.valid[:, None], result.solution.quaternion, [0, 0, 0, 1])
-        )
+        Rotation.from_quat(np.where(result.valid[:, None], result.quaternion, [0, 0, 0, 1]))
         * truth.attitude[truth.epoch_samples].inv()
     ).as_rotvec()
     error = np.concatenate([attitude_error, bias_error], axis=1)
-    valid = result.solution.valid
+    valid = result.valid
     nees = np.full(valid.size, np.nan)
     if valid.any():
         nees[valid] = np.einsum(
-            "ei,eij,ej->e", error[valid], np.linalg.inv(result.covariance[valid]), error[valid]
+            "ei,eij,ej->e",
+            error[valid],
+            np.linalg.inv(result.state_covariance[valid]),
+            error[valid],
         )
-    sigma = np.sqrt(np.diagonal(result.covariance[:, 3:, 3:], axis1=1, axis2=2))
+    sigma = np.sqrt(np.diagonal(result.state_covariance[:, 3:, 3:], axis1=1, axis2=2))
     columns = {f"bias_{a}_deg_h": TO_DEG_H * result.bias[:, i] for i, a in enumerate("xyz")}
     columns |= {f"bias_err_{a}_deg_h": TO_DEG_H * bias_error[:, i] for i, a in enumerate("xyz")}
     columns |= {f"bias_sigma_{a}_deg_h": TO_DEG_H * sigma[:, i] for i, a in enumerate("xyz")}
     columns["nees_full"] = nees
     for name in ("n_used", "n_gated", "n_unpredictable", "update_iterations"):
-        columns[name] = result.solution.diagnostics[name]
+        columns[name] = result.diagnostics[name]
     return columns

@@ -15,12 +15,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error, euler321_from_attitude
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 
 AXES = ("x", "y", "z")
 
 
-def error_columns(solution: BatchSolution, truth: Rotation) -> dict[str, np.ndarray]:
+def error_columns(solution: Track, truth: Rotation) -> dict[str, np.ndarray]:
     """Error, own-sigma, NEES and Euler-difference columns for every epoch (deg)."""
     n = len(solution)
     valid = solution.valid

@@ -98,7 +98,7 @@ def mekf_smoother() -> tuple[tuple, tuple, Rotation]:
         history.transition[1:],
         slice(0, 3),
     )
-    return (smoothed.solution.attitude(), smoothed.bias, smoothed.covariance), expected, after
+    return (smoothed.attitude(), smoothed.bias, smoothed.state_covariance), expected, after
 
 
 def ekf_smoother() -> tuple[tuple, tuple, Rotation]:

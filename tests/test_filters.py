@@ -52,9 +52,9 @@ NON_FINITE = "filter state became non-finite"
 
 def state_errors(result, run: Pass) -> np.ndarray:
     """``(N, 6)`` filter-convention errors ``[delta, beta - beta_hat]`` at the epochs."""
-    valid = result.solution.valid
+    valid = result.valid
     assert valid.all()
-    delta = -attitude_error(result.solution.attitude(), run.truth_at_epochs)
+    delta = -attitude_error(result.attitude(), run.truth_at_epochs)
     return np.concatenate([delta, run.bias_at_epochs - result.bias], axis=1)
 
 
@@ -63,10 +63,9 @@ def nees(errors: np.ndarray, covariance: np.ndarray) -> np.ndarray:
 
 
 def assert_valid_and_finite(result) -> None:
-    solution = result.solution
-    assert solution.valid.all(), set(solution.reason)
-    assert np.all(np.isfinite(solution.quaternion))
-    assert np.all(np.isfinite(result.covariance)) and np.all(np.isfinite(result.bias))
+    assert result.valid.all(), set(result.reason)
+    assert np.all(np.isfinite(result.quaternion))
+    assert np.all(np.isfinite(result.state_covariance)) and np.all(np.isfinite(result.bias))
 
 
 # --- convergence -------------------------------------------------------------------------------
@@ -117,7 +116,7 @@ def test_mekf_converges_from_20_degrees_with_precise_sensors():
     result = mekf(run.gyro, run.t, run.measurements, prior, quiet)
     error = np.linalg.norm(state_errors(result, run)[:, :3], axis=1)
     assert error[-10:].max() < 1e-7
-    assert result.solution.diagnostics["n_gated"].sum() == 0
+    assert result.diagnostics["n_gated"].sum() == 0
 
 
 # --- Monte Carlo consistency ---------------------------------------------------------------------
@@ -145,7 +144,7 @@ def monte_carlo():
         smoothed = rts_smooth(filtered)
         for name, result in (("filter", filtered), ("smoother", smoothed)):
             out[name][0].append(state_errors(result, run))
-            out[name][1].append(result.covariance)
+            out[name][1].append(result.state_covariance)
     return {name: (np.array(e), np.array(p)) for name, (e, p) in out.items()}
 
 
@@ -267,18 +266,18 @@ def test_gated_vector_outlier_leaves_the_estimate_unchanged():
 
     outlier, reference = _vector_outlier_runs(perpendicular)
     k = 30
-    assert np.array_equal(outlier.solution.quaternion, reference.solution.quaternion)
-    assert np.array_equal(outlier.covariance, reference.covariance)
-    diagnostics = outlier.solution.diagnostics
+    assert np.array_equal(outlier.quaternion, reference.quaternion)
+    assert np.array_equal(outlier.state_covariance, reference.state_covariance)
+    diagnostics = outlier.diagnostics
     assert diagnostics["n_gated"][k] == 1 and diagnostics["n_used"][k] == 1
     assert diagnostics["n_gated"].sum() == 1
-    assert reference.solution.diagnostics["n_gated"].sum() == 0
+    assert reference.diagnostics["n_gated"].sum() == 0
 
 
 def test_reversed_vector_is_gated():
     outlier, reference = _vector_outlier_runs(lambda body: -body[1])
-    assert outlier.solution.diagnostics["n_gated"][30] == 1
-    assert np.array_equal(outlier.solution.quaternion, reference.solution.quaternion)
+    assert outlier.diagnostics["n_gated"][30] == 1
+    assert np.array_equal(outlier.quaternion, reference.quaternion)
 
 
 def _snr_pass(extra=None, replace=None, drop: int | None = None, epochs: int = 20):
@@ -328,10 +327,10 @@ def test_gated_snr_outlier_leaves_the_estimate_unchanged():
     outlier = _snr_pass(replace=off_by_20_db)
     reference = _snr_pass(drop=3)
     assert_valid_and_finite(outlier)
-    assert np.array_equal(outlier.solution.quaternion, reference.solution.quaternion)
-    assert outlier.solution.diagnostics["n_gated"][10] == 1
-    assert outlier.solution.diagnostics["n_used"][10] == 11
-    assert outlier.solution.diagnostics["n_gated"].sum() == 1
+    assert np.array_equal(outlier.quaternion, reference.quaternion)
+    assert outlier.diagnostics["n_gated"][10] == 1
+    assert outlier.diagnostics["n_used"][10] == 11
+    assert outlier.diagnostics["n_gated"].sum() == 1
 
 
 def test_unpredictable_snr_is_left_out_and_counted():
@@ -342,10 +341,10 @@ def test_unpredictable_snr_is_left_out_and_counted():
     with_it = _snr_pass(extra=backwards)
     reference = _snr_pass()
     assert_valid_and_finite(with_it)
-    diagnostics = with_it.solution.diagnostics
+    diagnostics = with_it.diagnostics
     assert diagnostics["n_unpredictable"][10] == 1 and diagnostics["n_unpredictable"].sum() == 1
     assert diagnostics["n_used"][10] == 12 and diagnostics["n_nan"].sum() == 0
-    assert np.array_equal(with_it.solution.quaternion, reference.solution.quaternion)
+    assert np.array_equal(with_it.quaternion, reference.quaternion)
 
 
 def test_nan_measured_values_are_left_out_and_counted():
@@ -357,10 +356,10 @@ def test_nan_measured_values_are_left_out_and_counted():
 
     with_nan = _snr_pass(replace=nan_at_10)
     reference = _snr_pass(drop=3)
-    diagnostics = with_nan.solution.diagnostics
+    diagnostics = with_nan.diagnostics
     assert diagnostics["n_nan"][10] == 1 and diagnostics["n_nan"].sum() == 1
     assert diagnostics["n_used"][10] == 11 and diagnostics["n_unpredictable"].sum() == 0
-    assert np.array_equal(with_nan.solution.quaternion, reference.solution.quaternion)
+    assert np.array_equal(with_nan.quaternion, reference.quaternion)
 
 
 def test_all_nan_euler_measurement_is_a_propagation():
@@ -370,10 +369,10 @@ def test_all_nan_euler_measurement_is_a_propagation():
     with_nan = mekf(run.gyro, run.t, measurements, prior, GYRO)
     measurements[5] = None
     reference = mekf(run.gyro, run.t, measurements, prior, GYRO)
-    assert with_nan.solution.diagnostics["n_nan"][5] == 1
-    assert with_nan.solution.diagnostics["n_used"][5] == 0
-    assert np.array_equal(with_nan.solution.quaternion, reference.solution.quaternion)
-    assert np.isnan(with_nan.solution.loss[5])
+    assert with_nan.diagnostics["n_nan"][5] == 1
+    assert with_nan.diagnostics["n_used"][5] == 0
+    assert np.array_equal(with_nan.quaternion, reference.quaternion)
+    assert np.isnan(with_nan.loss[5])
 
 
 # --- gyro gaps and measurement outages ------------------------------------------------------------
@@ -403,14 +402,26 @@ def test_short_gyro_gap_grows_the_attitude_covariance_by_the_hold_variance():
     assert_valid_and_finite(gapped)
     end = int(start + length)
     hold = (FilterOptions().hold_rate_sigma * length) ** 2
-    np.testing.assert_allclose(gapped.solution.diagnostics["gyro_gap_s"][end], length)
-    assert gapped.solution.diagnostics["gyro_gap_s"][end + 1] == 0.0
-    extra = gapped.covariance[end, :3, :3] - reference.covariance[end, :3, :3]
+    np.testing.assert_allclose(gapped.diagnostics["gyro_gap_s"][end], length)
+    assert gapped.diagnostics["gyro_gap_s"][end + 1] == 0.0
+    extra = gapped.state_covariance[end, :3, :3] - reference.state_covariance[end, :3, :3]
     assert np.linalg.eigvalsh(extra).min() > 0.99 * hold
-    growth = np.diag(gapped.covariance[end, :3, :3]) - np.diag(
-        gapped.covariance[int(start), :3, :3]
+    growth = np.diag(gapped.state_covariance[end, :3, :3]) - np.diag(
+        gapped.state_covariance[int(start), :3, :3]
     )
     assert np.all(growth >= hold)
+
+
+def test_filter_tracks_carry_the_epochs_and_the_error_state():
+    """MEKF, RTS and USQUE tracks: the epoch times, the ``[attitude, bias]`` error state
+    and its ``6 x 6`` covariance, whose attitude block is the ``3 x 3`` covariance."""
+    run, prior = _short_vector_pass(duration=10.0)
+    filtered = mekf(run.gyro, run.t, run.measurements, prior, GYRO)
+    unscented = usque(run.gyro, run.t, run.measurements, prior, GYRO)
+    for track in (filtered, rts_smooth(filtered), unscented):
+        np.testing.assert_array_equal(track.t, run.t)
+        assert track.state == ("attitude", "bias") and track.block("bias") == slice(3, 6)
+        np.testing.assert_array_equal(track.state_covariance[:, :3, :3], track.covariance)
 
 
 def test_long_gyro_gap_flags_its_epochs():
@@ -418,15 +429,14 @@ def test_long_gyro_gap_flags_its_epochs():
     options = FilterOptions(max_gyro_gap_s=5.0)
     gyro = _with_gyro_gap(run, 20.0, 10.0)
     result = mekf(gyro, run.t, run.measurements, prior, GYRO, options)
-    solution = result.solution
-    invalid = np.flatnonzero(~solution.valid)
+    invalid = np.flatnonzero(~result.valid)
     np.testing.assert_array_equal(invalid, np.arange(26, 31))  # 6..10 s into the gap
-    assert set(solution.reason[invalid]) == {"gyro gap longer than 5 s"}
-    assert np.all(np.isnan(solution.quaternion[invalid]))
-    assert np.all(np.isfinite(solution.quaternion[solution.valid]))
-    assert solution.epoch(25).covariance.shape == (3, 3)
+    assert set(result.reason[invalid]) == {"gyro gap longer than 5 s"}
+    assert np.all(np.isnan(result.quaternion[invalid]))
+    assert np.all(np.isfinite(result.quaternion[result.valid]))
+    assert result.epoch(25).covariance.shape == (3, 3)
     with pytest.raises(ConvergenceError, match="gyro gap"):
-        solution.epoch(26)
+        result.epoch(26).raise_if_invalid()
     errors = np.linalg.norm(state_errors_valid(result, run)[31:, :3], axis=1)
     assert errors.max() < np.radians(0.2)  # recovered after the gap
 
@@ -434,8 +444,8 @@ def test_long_gyro_gap_flags_its_epochs():
 def state_errors_valid(result, run: Pass) -> np.ndarray:
     """Errors at every epoch, NaN where invalid."""
     out = np.full((run.t.size, 3), np.nan)
-    valid = result.solution.valid
-    out[valid] = -attitude_error(result.solution.attitude(), run.truth_at_epochs[valid])
+    valid = result.valid
+    out[valid] = -attitude_error(result.attitude(), run.truth_at_epochs[valid])
     return out
 
 
@@ -448,11 +458,11 @@ def test_minutes_without_measurements():
     measurements = [m if t <= 60 else None for t, m in zip(run.t, run.measurements, strict=True)]
     result = mekf(run.gyro, run.t, measurements, prior, GYRO)
     assert_valid_and_finite(result)
-    trace = np.trace(result.covariance[:, :3, :3], axis1=1, axis2=2)
+    trace = np.trace(result.state_covariance[:, :3, :3], axis1=1, axis2=2)
     assert np.all(np.diff(trace[60:]) > 0)
     assert trace[-1] > 10 * trace[60]
     errors = state_errors(result, run)
-    assert nees(errors[-1, :3], result.covariance[-1, :3, :3]) < chi2.ppf(0.999, 3)
+    assert nees(errors[-1, :3], result.state_covariance[-1, :3, :3]) < chi2.ppf(0.999, 3)
 
 
 def _missing_start(rate: np.ndarray):
@@ -469,16 +479,15 @@ def test_pass_starting_with_missing_gyro_samples_runs():
     """Estimates finite and valid, the gap reported at the epochs it covers."""
     _, result = _missing_start(RATE)
     assert_valid_and_finite(result)
-    np.testing.assert_allclose(result.solution.diagnostics["gyro_gap_s"][:5], [0, 1, 2, 3, 0])
+    np.testing.assert_allclose(result.diagnostics["gyro_gap_s"][:5], [0, 1, 2, 3, 0])
 
 
 @pytest.mark.parametrize("rate", [np.zeros(3), RATE], ids=["static", "turning"])
 def test_pass_starting_with_missing_gyro_samples_converges(rate):
     run, result = _missing_start(rate)
-    solution = result.solution
     errors = np.linalg.norm(state_errors_valid(result, run)[-20:], axis=1)
     # either the filter recovers or it stops reporting the epochs as valid
-    assert np.all(~solution.valid[-20:] | (errors < np.radians(0.1)))
+    assert np.all(~result.valid[-20:] | (errors < np.radians(0.1)))
 
 
 # --- bad input and divergence ----------------------------------------
@@ -575,8 +584,8 @@ def test_infinite_predictions_are_unpredictable():
     _, result = _run_with(Pathological(prediction=np.inf))
     _, reference = _run_with(None)
     assert_valid_and_finite(result)
-    assert result.solution.diagnostics["n_unpredictable"][5] == 1
-    assert np.array_equal(result.solution.quaternion, reference.solution.quaternion)
+    assert result.diagnostics["n_unpredictable"][5] == 1
+    assert np.array_equal(result.quaternion, reference.quaternion)
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered")
@@ -584,8 +593,8 @@ def test_infinite_jacobian_is_gated():
     _, result = _run_with(Pathological(jacobian=np.inf))
     _, reference = _run_with(None)
     assert_valid_and_finite(result)
-    assert result.solution.diagnostics["n_gated"][5] == 1
-    assert np.array_equal(result.solution.quaternion, reference.solution.quaternion)
+    assert result.diagnostics["n_gated"][5] == 1
+    assert np.array_equal(result.quaternion, reference.quaternion)
 
 
 def test_covariance_overflow_is_flagged_not_reported():
@@ -598,13 +607,13 @@ def test_covariance_overflow_is_flagged_not_reported():
     with np.errstate(over="ignore", invalid="ignore"):
         result = mekf(run.gyro, run.t, run.measurements, prior, wild)
         smoothed = rts_smooth(result)
-    for solution in (result.solution, smoothed.solution):
-        assert solution.valid[0] and not solution.valid[1:].any()
-        assert set(solution.reason[1:]) == {NON_FINITE}
-        assert np.all(np.isfinite(solution.quaternion[solution.valid]))
-        assert np.all(np.isnan(solution.quaternion[~solution.valid]))
+    for track in (result, smoothed):
+        assert track.valid[0] and not track.valid[1:].any()
+        assert set(track.reason[1:]) == {NON_FINITE}
+        assert np.all(np.isfinite(track.quaternion[track.valid]))
+        assert np.all(np.isnan(track.quaternion[~track.valid]))
         with pytest.raises(ConvergenceError):
-            solution.epoch(3)
+            track.epoch(3).raise_if_invalid()
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered")
@@ -614,10 +623,9 @@ def test_non_finite_update_is_flagged_not_raised():
     the state become NaN.  Documented behaviour (``solvers/filters/common.py``):
     the epoch and all later ones flagged."""
     _, result = _run_with(Pathological(jacobian=np.inf), FilterOptions(gate_probability=1.0))
-    solution = result.solution
-    assert solution.valid[:5].all() and not solution.valid[5:].any()
-    assert set(solution.reason[5:]) == {NON_FINITE}
-    assert np.all(np.isfinite(solution.quaternion[:5]))
+    assert result.valid[:5].all() and not result.valid[5:].any()
+    assert set(result.reason[5:]) == {NON_FINITE}
+    assert np.all(np.isfinite(result.quaternion[:5]))
 
 
 @pytest.mark.parametrize("run_filter", [mekf, usque], ids=["mekf", "usque"])
@@ -635,14 +643,13 @@ def test_lost_track_is_flagged_and_recovered(run_filter):
     )
     options = FilterOptions()
     result = run_filter(run.gyro, run.t, run.measurements, prior, GYRO, options)
-    solution = result.solution
-    lost = np.char.startswith(solution.reason.astype(str), "lost track")
+    lost = np.char.startswith(result.reason.astype(str), "lost track")
     first = options.max_rejected_epochs - 1
     assert lost[first] and not lost[:first].any()
-    assert solution.diagnostics["recoveries"].sum() >= 1
-    assert solution.valid[-60:].all()
+    assert result.diagnostics["recoveries"].sum() >= 1
+    assert result.valid[-60:].all()
     error = np.linalg.norm(
-        attitude_error(solution.attitude()[-60:], run.truth_at_epochs[-60:]), axis=1
+        attitude_error(result.attitude()[-60:], run.truth_at_epochs[-60:]), axis=1
     )
     assert error.max() < 5.0 * SIGMA
 
@@ -671,11 +678,10 @@ def test_lost_track_recovery_reacquires_the_bias(run_filter):
     prior = FilterPrior(run.truth[0], run.bias[0], prior_covariance(np.radians(1.0)))
     options = FilterOptions()
     result = run_filter(run.gyro, run.t, measurements, prior, GYRO, options)
-    solution = result.solution
-    assert solution.diagnostics["recoveries"][switch:].sum() >= 1
-    assert solution.valid[-60:].all()
+    assert result.diagnostics["recoveries"][switch:].sum() >= 1
+    assert result.valid[-60:].all()
     error = np.linalg.norm(
-        attitude_error(solution.attitude()[-60:], run.truth_at_epochs[-60:]), axis=1
+        attitude_error(result.attitude()[-60:], run.truth_at_epochs[-60:]), axis=1
     )
     assert error.max() < 5.0 * SIGMA
     bias_error = np.linalg.norm(result.bias[-1] - run.bias_at_epochs[-1])

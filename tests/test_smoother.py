@@ -36,7 +36,7 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
 from attopt.solvers.filters.common import prepare_gyro
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 from attopt.solvers.smoother import SmootherOptions, single_frame_initial, smooth
 from attopt.solvers.smoother.conventions import (
     attitude_key,
@@ -67,13 +67,13 @@ TIGHT = SmootherOptions(relative_tolerance=1e-15, absolute_tolerance=1e-14)
 
 def state_errors(result, run: Pass) -> np.ndarray:
     """``(N, 6)`` errors ``[delta, beta - beta_hat]`` at the epochs."""
-    assert result.solution.valid.all(), set(result.solution.reason)
-    delta = -attitude_error(result.solution.attitude(), run.truth_at_epochs)
+    assert result.valid.all(), set(result.reason)
+    delta = -attitude_error(result.attitude(), run.truth_at_epochs)
     return np.concatenate([delta, run.bias_at_epochs - result.bias], axis=1)
 
 
 def rms_deg(result, run: Pass, skip: int = 0) -> float:
-    error = attitude_error(result.solution.attitude(), run.truth_at_epochs)[skip:]
+    error = attitude_error(result.attitude(), run.truth_at_epochs)[skip:]
     return float(np.degrees(np.sqrt(np.mean(np.sum(error**2, axis=1)))))
 
 
@@ -340,7 +340,7 @@ def test_marginal_covariance_matches_monte_carlo_scatter():
         result = smooth(run.gyro, run.t, run.measurements, prior, NOISY)
         assert result.report.converged, result.report.message
         errors.append(state_errors(result, run))
-        covariances.append(result.covariance)
+        covariances.append(result.state_covariance)
     errors, covariances = np.array(errors), np.array(covariances)
     variance = np.diagonal(covariances[..., :3, :3], axis1=-2, axis2=-1).mean(axis=(0, 1))
     ratio = (errors[..., :3] ** 2).mean(axis=(0, 1)) / variance
@@ -361,12 +361,12 @@ def test_marginal_covariance_equals_rts_covariance_on_a_near_linear_pass():
     prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0)))
     rts = rts_smooth(mekf(run.gyro, run.t, run.measurements, prior, GYRO))
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, initial=rts)
-    sigma = np.sqrt(np.einsum("kii->ki", rts.covariance))
+    sigma = np.sqrt(np.einsum("kii->ki", rts.state_covariance))
     scale = sigma[:, :, None] * sigma[:, None, :]
-    correlation = rts.covariance / scale
+    correlation = rts.state_covariance / scale
     assert np.abs(correlation[:, :3, 3:]).max() > 0.8
-    assert np.abs(result.covariance / scale - correlation).max() < 0.01
-    ratio = np.einsum("kii->ki", result.covariance) / sigma**2
+    assert np.abs(result.state_covariance / scale - correlation).max() < 0.01
+    ratio = np.einsum("kii->ki", result.state_covariance) / sigma**2
     assert np.abs(ratio - 1.0).max() < 0.01
 
 
@@ -450,10 +450,10 @@ def test_nan_measurement_is_counted_and_left_out():
     run.measurements[5] = EulerAngleMeasurement([0.1, np.nan, 0.2], 1e-4 * np.eye(3))
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO)
-    diagnostics = result.solution.diagnostics
+    diagnostics = result.diagnostics
     assert diagnostics["n_nan"][5] == 1 and diagnostics["n_used"][5] == 0
     assert result.report.n_nan == 1
-    assert np.isnan(result.solution.loss[5]) and result.solution.valid.all()
+    assert np.isnan(result.loss[5]) and result.valid.all()
     assert np.degrees(np.abs(state_errors(result, run)[5, :3])).max() < 0.5
 
 
@@ -477,9 +477,9 @@ def test_outlier_is_gated_once_and_counted():
     run, prior, clean = _outlier_pass()
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
     reference = smooth(run.gyro, run.t, clean, prior, GYRO, TIGHT)
-    assert result.solution.diagnostics["n_gated"][10] == 1 and result.report.n_gated == 1
-    assert result.solution.diagnostics["n_used"][10] == 1
-    difference = attitude_error(result.solution.attitude(), reference.solution.attitude())
+    assert result.diagnostics["n_gated"][10] == 1 and result.report.n_gated == 1
+    assert result.diagnostics["n_used"][10] == 1
+    difference = attitude_error(result.attitude(), reference.attitude())
     assert np.abs(difference).max() < 1e-9
 
 
@@ -500,7 +500,7 @@ def test_huber_loss_downweights_an_ungated_outlier():
     )
     reference = smooth(run.gyro, run.t, clean, prior, GYRO)
     assert plain.report.n_gated == 0 and plain.report.n_downweighted == 0
-    assert robust.solution.diagnostics["n_downweighted"][10] == 1
+    assert robust.diagnostics["n_downweighted"][10] == 1
     assert robust.report.converged, robust.report.message
 
     def error_deg(result) -> float:
@@ -528,12 +528,12 @@ def test_non_convergence_is_reported_not_silent():
     assert not report.converged and report.iterations == 1
     assert "did not converge" in report.message and "after 1 iterations" in report.message
     assert np.isfinite(report.final_cost) and report.final_cost < report.initial_cost
-    assert not result.solution.valid.any()
-    assert all("did not converge" in reason for reason in result.solution.reason)
+    assert not result.valid.any()
+    assert all("did not converge" in reason for reason in result.reason)
     assert np.all(np.isfinite(report.quaternion)) and np.all(np.isfinite(report.bias))
     enough = dataclasses.replace(options, max_iterations=30)
     converged = smooth(run.gyro, run.t, run.measurements, prior, GYRO, enough)
-    assert converged.report.converged and converged.solution.valid.all()
+    assert converged.report.converged and converged.valid.all()
 
 
 def _gap_pass(seed: int = 31):
@@ -555,12 +555,12 @@ def test_gyro_gap_is_bridged_below_the_limit():
     10 s), errors stay within 4 sigma, every epoch valid."""
     run, gyro, prior = _gap_pass()
     result = smooth(gyro, run.t, run.measurements, prior, GYRO)
-    assert result.report.converged and result.solution.valid.all()
+    assert result.report.converged and result.valid.all()
     errors = state_errors(result, run)[:, :3]
-    sigma = np.sqrt(np.einsum("kii->ki", result.solution.covariance))
+    sigma = np.sqrt(np.einsum("kii->ki", result.covariance))
     assert np.all(np.abs(errors) < 4.0 * sigma)
     assert sigma[30].min() > 2.0 * sigma[10].max()
-    assert result.solution.diagnostics["gyro_gap_s"].max() == pytest.approx(20.0)
+    assert result.diagnostics["gyro_gap_s"].max() == pytest.approx(20.0)
 
 
 def test_long_gyro_gap_splits_the_pass_into_segments():
@@ -582,16 +582,14 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     assert len(ahrs) == run.t.size - 1 - 20
     blind = np.zeros(run.t.size, dtype=bool)
     blind[25:36] = True
-    assert np.array_equal(~result.solution.valid, blind)
-    assert set(result.solution.reason[blind]) == {"attitude not determined: 1-sigma above 30 deg"}
-    valid = result.solution.valid
-    delta = attitude_error(
-        Rotation.from_quat(result.solution.quaternion[valid]), run.truth_at_epochs[valid]
-    )
-    sigma = np.sqrt(np.einsum("kii->ki", result.solution.covariance[valid]))
+    assert np.array_equal(~result.valid, blind)
+    assert set(result.reason[blind]) == {"attitude not determined: 1-sigma above 30 deg"}
+    valid = result.valid
+    delta = attitude_error(Rotation.from_quat(result.quaternion[valid]), run.truth_at_epochs[valid])
+    sigma = np.sqrt(np.einsum("kii->ki", result.covariance[valid]))
     assert np.all(np.abs(delta) < 4.0 * sigma)
     # inside the gap with measurements: one epoch's vectors only (no gyro link)
-    covariance = result.solution.covariance
+    covariance = result.covariance
     assert np.trace(covariance[22]) > 4.0 * np.trace(covariance[10])
 
 
@@ -606,7 +604,7 @@ def test_single_frame_initialisation_reaches_the_same_optimum():
     sigma = np.radians(1.0)
     noisy = Rotation.from_rotvec(sigma * rng.standard_normal((n, 3))) * run.truth_at_epochs
     valid = rng.uniform(size=n) > 1.0 / 3.0
-    snapshots = BatchSolution(
+    snapshots = Track(
         method="snapshot",
         quaternion=np.where(valid[:, None], noisy.as_quat(), np.nan),
         covariance=np.where(valid[:, None, None], sigma**2 * np.eye(3), np.nan),
@@ -621,7 +619,7 @@ def test_single_frame_initialisation_reaches_the_same_optimum():
     from_rts = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
     assert from_snapshots.report.converged, from_snapshots.report.message
     assert from_snapshots.report.initialisation == "given"
-    difference = attitude_error(from_snapshots.solution.attitude(), from_rts.solution.attitude())
+    difference = attitude_error(from_snapshots.attitude(), from_rts.attitude())
     assert np.abs(difference).max() < 1e-8
     np.testing.assert_allclose(from_snapshots.bias, from_rts.bias, atol=1e-10)
 
@@ -637,8 +635,8 @@ def test_first_epoch_after_the_gyro_start_gets_a_prior_node():
     without_zero[0] = None
     reference = smooth(run.gyro, run.t, without_zero, prior, GYRO, TIGHT)
     later = smooth(run.gyro, run.t[1:], run.measurements[1:], prior, GYRO, TIGHT)
-    assert len(later.solution) == len(run.t) - 1 and later.report.problem.offset == 1
-    difference = attitude_error(later.solution.attitude(), reference.solution.attitude()[1:])
+    assert len(later) == len(run.t) - 1 and later.report.problem.offset == 1
+    difference = attitude_error(later.attitude(), reference.attitude()[1:])
     assert np.abs(difference).max() < 1e-9
-    assert np.allclose(later.covariance, reference.covariance[1:], rtol=1e-6)
-    assert full.solution.valid.all()
+    assert np.allclose(later.state_covariance, reference.state_covariance[1:], rtol=1e-6)
+    assert full.valid.all()

@@ -97,15 +97,15 @@ def test_estimates_are_causal():
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
     changed = _turned_at(run, 10, 0.2)
     online = [smooth_online(run.gyro, run.t, m, prior, GYRO) for m in (run.measurements, changed)]
-    assert online[1].solution.diagnostics["n_gated"][10] == 0
+    assert online[1].diagnostics["n_gated"][10] == 0
     for name in ("quaternion", "covariance"):
-        before = [getattr(r.solution, name)[:10] for r in online]
+        before = [getattr(r, name)[:10] for r in online]
         assert np.array_equal(before[0], before[1])
     assert np.array_equal(online[0].bias[:10], online[1].bias[:10])
-    assert np.array_equal(online[0].covariance[:10], online[1].covariance[:10])
-    assert np.abs(attitude_error(*(r.solution.attitude()[10] for r in online))).max() > 1e-5
+    assert np.array_equal(online[0].state_covariance[:10], online[1].state_covariance[:10])
+    assert np.abs(attitude_error(*(r.attitude()[10] for r in online))).max() > 1e-5
     batch = [smooth(run.gyro, run.t, m, prior, GYRO) for m in (run.measurements, changed)]
-    assert np.abs(attitude_error(*(r.solution.attitude()[:10] for r in batch))).max() > 1e-6
+    assert np.abs(attitude_error(*(r.attitude()[:10] for r in batch))).max() > 1e-6
 
 
 def _whitened_error(factor: gtsam.NonlinearFactor, key: int, rotation: gtsam.Rot3) -> np.ndarray:
@@ -194,7 +194,7 @@ def _compare_with_mekf_and_batch(run, prior, model, options=None):
     online = smooth_online(run.gyro, run.t, run.measurements, prior, model)
     forward = mekf(run.gyro, run.t, run.measurements, prior, model)
     batch = smooth(run.gyro, run.t, run.measurements, prior, model, options, initial=online)
-    assert online.solution.valid.all() and batch.report.converged, batch.report.message
+    assert online.valid.all() and batch.report.converged, batch.report.message
     assert batch.report.initialisation == "given"
     assert batch.report.final_cost <= batch.report.initial_cost
     return rms_deg(online, run), rms_deg(forward, run), rms_deg(batch, run)
@@ -240,7 +240,9 @@ def test_nees_of_the_online_estimates_is_consistent():
         prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
         result = smooth_online(run.gyro, run.t, run.measurements, prior, GYRO)
         errors = state_errors(result, run)
-        values.append(np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariance), errors))
+        values.append(
+            np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.state_covariance), errors)
+        )
     nees = np.mean(values, axis=0)[10:].mean()
     low, high = chi2.ppf([0.005, 0.995], 6 * len(values)) / len(values)
     assert low < nees < high, (nees, low, high)
@@ -276,11 +278,11 @@ def test_nan_block_counted_and_long_gyro_gap_flagged_as_the_filters_do():
     strict = FilterOptions(max_gyro_gap_s=5.0)
     result = smooth_online(gyro, run.t, run.measurements, prior, GYRO, OnlineOptions(filter=strict))
     forward = mekf(gyro, run.t, run.measurements, prior, GYRO, strict)
-    diagnostics = result.solution.diagnostics
+    diagnostics = result.diagnostics
     assert diagnostics["n_nan"][5] == 1 and diagnostics["n_used"][5] == 0
-    assert result.report.n_nan == 1 and np.isnan(result.solution.loss[5])
-    assert np.array_equal(result.solution.valid, forward.solution.valid)
-    assert not result.solution.valid.all()
-    valid = result.solution.valid
-    assert np.all(np.isfinite(result.solution.quaternion[valid]))
-    assert np.all(np.isnan(result.solution.quaternion[~valid]))
+    assert result.report.n_nan == 1 and np.isnan(result.loss[5])
+    assert np.array_equal(result.valid, forward.valid)
+    assert not result.valid.all()
+    valid = result.valid
+    assert np.all(np.isfinite(result.quaternion[valid]))
+    assert np.all(np.isnan(result.quaternion[~valid]))

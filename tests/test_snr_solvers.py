@@ -25,7 +25,7 @@ from attopt.formulations.snr_euler import euler321_matrix_function, snr_euler_ja
 from attopt.formulations.snr_model import cramer_rao_bound, fisher_information, predict_snr, snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.symbolic import NUMPY
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 from attopt.solvers.snr import (
     SNR_SOLVERS,
     DeterministicSolver,
@@ -517,7 +517,7 @@ def test_bad_input_raises_single_and_flags_in_a_sequence(case, name):
     assert text in batch.reason[1] and batch.error[1] is error
     assert np.isnan(batch.quaternion[1]).all() and np.isnan(batch.loss[1])
     with pytest.raises(error):
-        batch.epoch(1)
+        batch.epoch(1).raise_if_invalid()
 
 
 def test_malformed_input_raises_on_construction():
@@ -564,7 +564,7 @@ def test_registry_contract():
     problems = [_epoch(geometry, geometry[3] + rng.normal(size=14)) for _ in range(3)]
     for name, solver in SNR_SOLVERS.items():
         batch = solver.solve_sequence(problems)
-        assert isinstance(batch, BatchSolution) and batch.method == name == solver.name
+        assert isinstance(batch, Track) and batch.method == name == solver.name
         assert batch.valid.all() and len(batch) == 3
         assert set(batch.diagnostics) == {*solver.diagnostic_names, "warm_started"}
         for i in range(3):

@@ -17,8 +17,9 @@ from scipy.stats import chi2
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
-from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, mekf, usque
+from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, usque
 from attopt.solvers.filters.common import NON_FINITE, propagate_attitude
+from attopt.solvers.results import Track
 
 REFERENCES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 RATE = np.array([0.01, -0.02, 0.015])
@@ -47,9 +48,9 @@ class Pass:
     def measurements(self) -> list[AttitudeMeasurement | None]:
         return [VectorMeasurement(b, REFERENCES, VECTOR_SIGMA) for b in self.bodies]
 
-    def errors(self, result: FilterResult) -> np.ndarray:
+    def errors(self, result: Track) -> np.ndarray:
         """``(N, 3)`` attitude errors (rad)."""
-        return attitude_error(result.solution.attitude(), self.truth[self.epochs])
+        return attitude_error(result.attitude(), self.truth[self.epochs])
 
 
 def simulate(
@@ -94,7 +95,7 @@ def run(
     options: FilterOptions | None = None,
     model: GyroModel = MODEL,
     filter_=usque,
-) -> FilterResult:
+) -> Track:
     measurements = data.measurements() if measurements is None else measurements
     return filter_(data.gyro.samples, data.t, measurements, prior, model, options)
 
@@ -112,8 +113,8 @@ def test_noise_free_data_converge_to_the_truth_from_20_degrees() -> None:
     rng = np.random.default_rng(np.random.SeedSequence(101))
     data = simulate(rng, 400.0, noise_free=True)
     result = run(data, prior_at(data, np.radians([20.0, 0.0, 0.0]), wide_covariance(20.0)))
-    assert result.solution.valid.all()
-    diagnostics = result.solution.diagnostics
+    assert result.valid.all()
+    diagnostics = result.diagnostics
     assert diagnostics["n_gated"].sum() == 0
     assert diagnostics["update_iterations"][0] > 1  # the first update iterates from 20 deg
     assert np.all(diagnostics["update_iterations"][1:] >= 1)
@@ -130,18 +131,18 @@ def test_agrees_with_the_mekf_on_noisy_data() -> None:
     data = simulate(rng, 300.0)
     prior = prior_at(data, np.radians([5.0, -3.0, 2.0]), wide_covariance(5.0))
     unscented, extended = run(data, prior), run(data, prior, filter_=mekf)
-    assert unscented.solution.valid.all() and extended.solution.valid.all()
+    assert unscented.valid.all() and extended.valid.all()
     steady = slice(50, None)
-    sigma = np.sqrt(np.diagonal(unscented.solution.covariance, axis1=1, axis2=2))[steady]
-    difference = attitude_error(unscented.solution.attitude(), extended.solution.attitude())
+    sigma = np.sqrt(np.diagonal(unscented.covariance, axis1=1, axis2=2))[steady]
+    difference = attitude_error(unscented.attitude(), extended.attitude())
     assert np.sqrt(np.mean((difference[steady] / sigma) ** 2, axis=0)).max() < 0.02
     assert np.abs(difference[steady] / sigma).max() < 0.1
-    bias_sigma = np.sqrt(np.diagonal(unscented.covariance[steady, 3:, 3:], axis1=1, axis2=2))
+    bias_sigma = np.sqrt(np.diagonal(unscented.state_covariance[steady, 3:, 3:], axis1=1, axis2=2))
     bias_difference = (unscented.bias - extended.bias)[steady] / bias_sigma
     assert np.abs(bias_difference).max() < 0.1
     # covariances: difference in units of the standard deviations, (P1 - P2)_ij / (s_i s_j)
-    scale = np.sqrt(np.diagonal(extended.covariance[steady], axis1=1, axis2=2))
-    normalised = (unscented.covariance - extended.covariance)[steady] / (
+    scale = np.sqrt(np.diagonal(extended.state_covariance[steady], axis1=1, axis2=2))
+    normalised = (unscented.state_covariance - extended.state_covariance)[steady] / (
         scale[:, :, None] * scale[:, None, :]
     )
     assert np.abs(normalised).max() < 0.01
@@ -176,13 +177,13 @@ def test_nees_is_consistent_over_a_monte_carlo() -> None:
         start = Rotation.from_rotvec(-draw[:3]) * data.truth[0]
         prior = FilterPrior(start, data.gyro.bias[0] - draw[3:], covariance)
         result = run(data, prior, model=model)
-        assert result.solution.valid.all()
+        assert result.valid.all()
         errors = data.errors(result)
         attitude_nees.append(
-            np.einsum("ni,nij,nj->n", errors, np.linalg.inv(result.solution.covariance), errors)
+            np.einsum("ni,nij,nj->n", errors, np.linalg.inv(result.covariance), errors)
         )
         errors = np.concatenate([errors, result.bias - data.gyro.bias[data.epochs]], axis=1)
-        inverse = np.linalg.inv(result.covariance)
+        inverse = np.linalg.inv(result.state_covariance)
         full_nees.append(np.einsum("ni,nij,nj->n", errors, inverse, errors))
     for nees, size in ((attitude_nees, 3), (full_nees, 6)):
         statistic = np.mean(nees)
@@ -206,13 +207,15 @@ def test_gated_outlier_leaves_the_estimate_as_without_it() -> None:
     without = list(measurements)
     without[k] = VectorMeasurement(data.bodies[k][:1], REFERENCES[:1], VECTOR_SIGMA)
     gated, reference = run(data, prior, with_outlier), run(data, prior, without)
-    diagnostics = gated.solution.diagnostics
+    diagnostics = gated.diagnostics
     assert diagnostics["n_gated"][k] == 1 and diagnostics["n_used"][k] == 1
     assert diagnostics["n_gated"].sum() == 1
-    np.testing.assert_allclose(gated.solution.quaternion, reference.solution.quaternion, atol=1e-13)
+    np.testing.assert_allclose(gated.quaternion, reference.quaternion, atol=1e-13)
     np.testing.assert_allclose(gated.bias, reference.bias, rtol=0, atol=1e-16)
-    np.testing.assert_allclose(gated.covariance, reference.covariance, rtol=1e-10, atol=0)
-    np.testing.assert_allclose(diagnostics["nis"], reference.solution.diagnostics["nis"])
+    np.testing.assert_allclose(
+        gated.state_covariance, reference.state_covariance, rtol=1e-10, atol=0
+    )
+    np.testing.assert_allclose(diagnostics["nis"], reference.diagnostics["nis"])
     ungated = run(data, prior, with_outlier, FilterOptions(gate_probability=1.0))
     assert np.degrees(np.abs(data.errors(ungated)[k])).max() > 1.0  # the outlier does harm
 
@@ -243,15 +246,13 @@ def test_gyro_gap_grows_the_covariance_and_is_flagged_only_when_long() -> None:
     options = FilterOptions()
     result = run(gapped, prior, measurements, options)
     no_gap = run(data, prior, measurements, options)
-    assert result.solution.valid.all()
-    assert np.all(np.isfinite(result.solution.quaternion)) and np.all(
-        np.isfinite(result.covariance)
-    )
-    gap_s = result.solution.diagnostics["gyro_gap_s"]
+    assert result.valid.all()
+    assert np.all(np.isfinite(result.quaternion)) and np.all(np.isfinite(result.state_covariance))
+    gap_s = result.diagnostics["gyro_gap_s"]
     np.testing.assert_allclose(gap_s[61:66], [1.0, 2.0, 3.0, 4.0, 5.0], atol=1e-9)
     assert gap_s[:61].max() == 0 and gap_s[66:].max() == 0
-    variance = np.trace(result.covariance[:, :3, :3], axis1=1, axis2=2)
-    baseline = np.trace(no_gap.covariance[:, :3, :3], axis1=1, axis2=2)
+    variance = np.trace(result.state_covariance[:, :3, :3], axis1=1, axis2=2)
+    baseline = np.trace(no_gap.state_covariance[:, :3, :3], axis1=1, axis2=2)
     growth = 3.0 * (options.hold_rate_sigma * 5.0) ** 2
     assert np.all(np.diff(variance[58:68]) > 0)
     np.testing.assert_allclose(variance[67] - baseline[67], growth, rtol=0.05)
@@ -259,13 +260,11 @@ def test_gyro_gap_grows_the_covariance_and_is_flagged_only_when_long() -> None:
 
     short = FilterOptions(max_gyro_gap_s=2.5)
     flagged = run(gapped, prior, measurements, short)
-    invalid = np.flatnonzero(~flagged.solution.valid)
+    invalid = np.flatnonzero(~flagged.valid)
     np.testing.assert_array_equal(invalid, [63, 64, 65])
-    assert all("gyro gap" in reason for reason in flagged.solution.reason[invalid])
-    valid = flagged.solution.valid
-    np.testing.assert_array_equal(
-        flagged.solution.quaternion[valid], result.solution.quaternion[valid]
-    )
+    assert all("gyro gap" in reason for reason in flagged.reason[invalid])
+    valid = flagged.valid
+    np.testing.assert_array_equal(flagged.quaternion[valid], result.quaternion[valid])
 
 
 def test_epoch_without_measurement_only_propagates() -> None:
@@ -279,16 +278,16 @@ def test_epoch_without_measurement_only_propagates() -> None:
     measurements = data.measurements()
     measurements[k] = None
     result = run(data, prior, measurements)
-    assert result.solution.valid.all()
-    diagnostics = result.solution.diagnostics
-    assert np.isnan(diagnostics["nis"][k]) and np.isnan(result.solution.loss[k])
+    assert result.valid.all()
+    diagnostics = result.diagnostics
+    assert np.isnan(diagnostics["nis"][k]) and np.isnan(result.loss[k])
     assert diagnostics["n_used"][k] == 0 and diagnostics["update_iterations"][k] == 0
     assert diagnostics["n_used"][k - 1] == 2 and diagnostics["n_used"][k + 1] == 2
     np.testing.assert_allclose(result.bias[k], result.bias[k - 1], rtol=0, atol=1e-18)
     rates = data.gyro.samples.rates[data.epochs[k - 1] : data.epochs[k]] - result.bias[k - 1]
-    carried = propagate_attitude(result.solution.attitude()[k - 1], rates, MODEL.dt)
-    assert np.abs(attitude_error(result.solution.attitude()[k], carried)).max() < 1e-9
-    p = result.covariance
+    carried = propagate_attitude(result.attitude()[k - 1], rates, MODEL.dt)
+    assert np.abs(attitude_error(result.attitude()[k], carried)).max() < 1e-9
+    p = result.state_covariance
     assert np.trace(p[k, :3, :3]) > np.trace(p[k - 1, :3, :3])
     assert np.trace(p[k + 1, :3, :3]) < np.trace(p[k, :3, :3])
 
@@ -302,7 +301,7 @@ def test_first_epoch_at_or_after_the_first_gyro_sample(steps: int) -> None:
     data.epochs = data.epochs[data.epochs < len(data.truth)]
     data.bodies = np.stack([data.truth[i].apply(REFERENCES) for i in data.epochs])
     result = run(data, prior_at(data, np.zeros(3), wide_covariance(1.0)))
-    assert result.solution.valid.all()
+    assert result.valid.all()
     assert np.degrees(np.abs(data.errors(result)[-1]).max()) < 0.05
 
 
@@ -322,8 +321,8 @@ def test_needs_no_jacobian() -> None:
     measurements = [WithoutJacobian(b, REFERENCES, VECTOR_SIGMA) for b in data.bodies]
     result = run(data, prior, measurements)
     reference = run(data, prior)
-    assert result.solution.valid.all()
-    np.testing.assert_array_equal(result.solution.quaternion, reference.solution.quaternion)
+    assert result.valid.all()
+    np.testing.assert_array_equal(result.quaternion, reference.quaternion)
 
 
 def test_covariance_overflow_is_flagged_not_raised() -> None:
@@ -337,7 +336,6 @@ def test_covariance_overflow_is_flagged_not_raised() -> None:
     wild = GyroModel("wild", MODEL.sigma_v, huge, MODEL.initial_bias_sigma, MODEL.rate_hz)
     with np.errstate(over="ignore", invalid="ignore"):
         result = run(data, prior, model=wild)
-    solution = result.solution
-    assert solution.valid[0] and not solution.valid[1:].any()
-    assert set(solution.reason[1:]) == {NON_FINITE}
-    assert np.all(np.isnan(solution.quaternion[1:]))
+    assert result.valid[0] and not result.valid[1:].any()
+    assert set(result.reason[1:]) == {NON_FINITE}
+    assert np.all(np.isnan(result.quaternion[1:]))

@@ -92,7 +92,7 @@ def test_batch_flags_bad_epochs_and_solves_the_rest(solver):
     assert np.isnan(batch.quaternion[1:]).all() and np.isnan(batch.covariance[1:]).all()
     assert np.linalg.norm((batch.epoch(0).attitude * TRUTH.inv()).as_rotvec()) < 1e-10
     with pytest.raises(UnobservableError):
-        batch.epoch(3)
+        batch.epoch(3).raise_if_invalid()
 
 
 @pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)

@@ -129,7 +129,7 @@ from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 from attopt.solvers.snr import SNR_SOLVERS
 from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.initialisation import StartSource
@@ -372,7 +372,7 @@ def warm_up(solver: SnrSolver, epochs: list[SnrEpoch]) -> None:
             solver.solve_sequence([problem])
 
 
-def timed_pass(solver: SnrSolver, epochs: list[SnrEpoch]) -> tuple[BatchSolution, float]:
+def timed_pass(solver: SnrSolver, epochs: list[SnrEpoch]) -> tuple[Track, float]:
     """The method's warm-started pass and its wall time (s)."""
     warm_up(solver, epochs)
     start = time.perf_counter()
@@ -381,7 +381,7 @@ def timed_pass(solver: SnrSolver, epochs: list[SnrEpoch]) -> tuple[BatchSolution
 
 
 def wrong_minima(
-    solver: SnrSolver, epochs: list[SnrEpoch], solution: BatchSolution, truth: Rotation, every: int
+    solver: SnrSolver, epochs: list[SnrEpoch], solution: Track, truth: Rotation, every: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``wrong_minimum`` (1/0/NaN) and ``loss_from_truth`` per epoch (module docstring)."""
     n = len(epochs)
@@ -406,7 +406,7 @@ def _method_rows(
     truth: Rotation,
     common: Mapping[str, np.ndarray],
     every: int,
-) -> tuple[pd.DataFrame, BatchSolution]:
+) -> tuple[pd.DataFrame, Track]:
     solver = SNR_SOLVERS[name]
     solution, seconds = timed_pass(solver, noisy.epochs)
     wrong, loss_from_truth = wrong_minima(solver, noisy.epochs, solution, truth, every)

@@ -71,8 +71,7 @@ from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_
 from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.filters import FilterResult
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 
 SNR_SUFFIX = "_snr"
 FILTER_METHODS = {
@@ -115,9 +114,7 @@ def adsb_gyro_truth(
     return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
 
 
-def paper_measurements(
-    solution: BatchSolution, sigma_deg: float
-) -> list[AttitudeMeasurement | None]:
+def paper_measurements(solution: Track, sigma_deg: float) -> list[AttitudeMeasurement | None]:
     """Euler angles of the valid single-frame solutions (seed 000 eqs. 41-46)."""
     covariance = np.radians(sigma_deg) ** 2 * np.eye(3)
     out: list[AttitudeMeasurement | None] = [None] * len(solution)
@@ -137,14 +134,14 @@ def snr_measurements(epochs: list[SnrEpoch], model: str) -> list[AttitudeMeasure
 def _rows(
     method: str,
     gyro: str,
-    result: FilterResult,
+    result: Track,
     seconds: float,
     inputs: FilterInputs,
     truth: GyroTruth,
     common: Mapping[str, np.ndarray],
     true_attitude_orbit: Any,
 ) -> pd.DataFrame:
-    solution = in_orbit_frame(result.solution, truth.epoch_frames)
+    solution = in_orbit_frame(result, truth.epoch_frames)
     return pd.DataFrame(
         {
             "method": method,
@@ -166,7 +163,7 @@ def filter_rows(
     setting: Mapping[str, Any],
     seed: np.random.SeedSequence,
     epochs: list[SnrEpoch],
-    nlse: BatchSolution | None,
+    nlse: Track | None,
     common: Mapping[str, np.ndarray],
     true_attitude_orbit: Any,
 ) -> list[pd.DataFrame]:
@@ -190,7 +187,7 @@ def filter_rows(
             raise ValueError("every gyro of a setting must have the same rate")
         rng = child_rng(seed, 1 + index)
         inputs = simulate_filter_inputs(truth, model, rng, setting["initial_sigma_deg"])
-        runs: dict[str, tuple[FilterResult, float]] = {}
+        runs: dict[str, tuple[Track, float]] = {}
         if "mekf_paper" in wanted:
             if paper is None:
                 raise ValueError(f"mekf_paper needs the {PAPER_SOURCE} solution")

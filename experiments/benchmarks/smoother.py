@@ -146,10 +146,10 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
         online_s = time.perf_counter() - start
     rms, rms_late = {}, {}
     for name, estimate in solutions.items():
-        rms[name], rms_late[name] = _rms(estimate.solution, true_attitude, late)
-    valid = result.solution.valid
-    error = attitude_error(result.solution.attitude(), true_attitude[valid])
-    nees = np.einsum("ki,kij,kj->k", error, np.linalg.inv(result.solution.covariance[valid]), error)
+        rms[name], rms_late[name] = _rms(estimate, true_attitude, late)
+    valid = result.valid
+    error = attitude_error(result.attitude(), true_attitude[valid])
+    nees = np.einsum("ki,kij,kj->k", error, np.linalg.inv(result.covariance[valid]), error)
     return Row(
         duration_s=duration_s,
         epochs=t.size,
@@ -169,7 +169,7 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
         rms_late_deg=rms_late,
         bound_deg=float(np.degrees(np.sqrt(np.nanmean(trace)))),
         sigma_deg=float(
-            np.degrees(np.sqrt(np.nanmean(np.trace(result.solution.covariance, axis1=1, axis2=2))))
+            np.degrees(np.sqrt(np.nanmean(np.trace(result.covariance, axis1=1, axis2=2))))
         ),
         nees=float(np.mean(nees)),
         online_s=online_s,

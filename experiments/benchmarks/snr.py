@@ -33,7 +33,7 @@ from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snr_model import SNR_SIGMA_DB, predict_snr
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
-from attopt.solvers.result import AttitudeSolution
+from attopt.solvers.results import Solution
 from attopt.solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
 from attopt.solvers.snr.driver import SnrSolver
 
@@ -104,7 +104,7 @@ def _pick(rng: np.random.Generator, antenna: np.ndarray, received: np.ndarray) -
 
 def _measure(
     solver: SnrSolver, epochs: list[SnrEpoch], warm: bool
-) -> tuple[list[float], list[AttitudeSolution | None]]:
+) -> tuple[list[float], list[Solution | None]]:
     """Seconds per epoch and solutions, epochs in order (failures are None)."""
     seconds, solutions = [], []
     previous: Rotation | None = None
@@ -150,7 +150,7 @@ def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
 
 
 def _row(
-    name: str, median_s: float, solutions: list[AttitudeSolution | None], truths: Rotation
+    name: str, median_s: float, solutions: list[Solution | None], truths: Rotation
 ) -> BenchRow:
     ok = [i for i, s in enumerate(solutions) if s is not None]
     errors = np.array([attitude_error(solutions[i].attitude, truths[i]) for i in ok])

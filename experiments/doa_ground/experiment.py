@@ -121,7 +121,7 @@ from attopt.solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_v
 from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
 from attopt.solvers.filters.common import FilterPrior
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 from attopt.solvers.smoother.batch import single_frame_initial
 from attopt.solvers.wahba import WAHBA_SOLVERS
 
@@ -412,7 +412,7 @@ def _gyro_rows(
     bound = {k: v[rows] for k, v in bound_columns(runs, inputs, truth, measurements).items()}
     frames = []
     for method, (result, seconds) in runs.items():
-        solution = in_orbit_frame(result.solution, truth.epoch_frames)
+        solution = in_orbit_frame(result, truth.epoch_frames)
         errors = error_columns(solution, geometry.truth)
         frames.append(
             pd.DataFrame(
@@ -472,9 +472,9 @@ def _prior(setting: Setting) -> EkfPrior:
     )
 
 
-def _solution(method: str, attitude: Rotation, covariance: np.ndarray) -> BatchSolution:
+def _solution(method: str, attitude: Rotation, covariance: np.ndarray) -> Track:
     n = len(attitude)
-    return BatchSolution(
+    return Track(
         method=method,
         quaternion=attitude.as_quat(),
         covariance=covariance,

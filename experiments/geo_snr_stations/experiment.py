@@ -71,7 +71,7 @@ from attopt.formulations.errors import AttoptError
 from attopt.formulations.geo_fisher import snr_fisher_information
 from attopt.formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
 from attopt.formulations.gyro import GyroModel, GyroSamples, mean_rates
-from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
+from attopt.solvers.filters import FilterOptions, FilterPrior, usque
 from attopt.solvers.geo.boresight import (
     StationCones,
     cone_intersection,
@@ -79,6 +79,7 @@ from attopt.solvers.geo.boresight import (
     station_cones,
 )
 from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
+from attopt.solvers.results import Track
 from attopt.solvers.smoother import SmootherOptions, smooth
 from attopt.solvers.snr.nlp import NlpSolver
 
@@ -248,18 +249,17 @@ def epoch_cones(
     )
 
 
-def _filter_rows(method: str, scenario: GeoSnrScenario, result: FilterResult) -> _Rows:
+def _filter_rows(method: str, scenario: GeoSnrScenario, result: Track) -> _Rows:
     rows = _Rows(method, scenario)
-    solution = result.solution
-    valid = solution.valid
-    rows.reason[~valid] = solution.reason[~valid]
+    valid = result.valid
+    rows.reason[~valid] = result.reason[~valid]
     if valid.any():
-        estimate = solution.attitude()
+        estimate = result.attitude()
         rows.boresight[valid] = estimate.inv().apply(BORESIGHT_BODY)
         rows.yaw[valid] = (estimate * scenario.truth[valid].inv()).as_rotvec()[:, 2]
-    rows.sigma = np.sqrt(np.diagonal(solution.covariance, axis1=1, axis2=2))
+    rows.sigma = np.sqrt(np.diagonal(result.covariance, axis1=1, axis2=2))
     rows.bound = rows.sigma[:, :2]
-    rows.extra["nis"] = solution.loss
+    rows.extra["nis"] = result.loss
     return rows
 
 

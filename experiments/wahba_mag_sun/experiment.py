@@ -200,7 +200,7 @@ def _filter_rows(
     runs = run_filters(setting["filters"], inputs, truth, measurements)
     bound = bound_columns(runs, inputs, truth, measurements)
     for name, (result, seconds) in runs.items():
-        solution = in_orbit_frame(result.solution, truth.epoch_frames)
+        solution = in_orbit_frame(result, truth.epoch_frames)
         frames.append(
             pd.DataFrame(
                 {

@@ -1,11 +1,6 @@
 """Recursive filter baselines: MEKF, USQUE and the multiplicative RTS smoother."""
 
-from attopt.solvers.filters.common import (
-    FilterHistory,
-    FilterOptions,
-    FilterPrior,
-    FilterResult,
-)
+from attopt.solvers.filters.common import FilterHistory, FilterOptions, FilterPrior
 from attopt.solvers.filters.mekf import mekf
 from attopt.solvers.filters.rts import rts_smooth
 from attopt.solvers.filters.usque import usque
@@ -14,7 +9,6 @@ __all__ = [
     "FilterHistory",
     "FilterOptions",
     "FilterPrior",
-    "FilterResult",
     "mekf",
     "rts_smooth",
     "usque",

@@ -57,7 +57,7 @@ from attopt.formulations.gyro import (
     attitude_increment,
     error_state_transition,
 )
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 
 Array = NDArray[np.float64]
 
@@ -449,9 +449,21 @@ def filter_result(
     method: str,
     record: EpochRecord,
     options: FilterOptions,
+    t: Array,
     history: FilterHistory | None = None,
-) -> FilterResult:
-    """Assemble a :class:`FilterResult`, flagging epochs by the module's rules."""
+) -> Track:
+    """Assemble a filter's (or smoother's) :class:`~attopt.solvers.results.Track` at the
+    epochs ``t``, flagging epochs by the module's rules.
+
+    The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
+    normalised innovation squared of the epoch's update (NaN without one);
+    diagnostics ``nis``, ``n_used``, ``n_gated``, ``n_nan``,
+    ``n_unpredictable`` (observation blocks), ``gyro_gap_s`` and
+    ``covariance_repairs``; ``bias`` the gyro bias estimates (rad/s),
+    ``state_covariance`` the ``(N, 6, 6)`` covariance of the error state
+    ``[delta, delta_beta]`` and ``history`` the inputs of a backward pass
+    (MEKF only).
+    """
     sigma = np.sqrt(np.max(np.diagonal(record.covariance[:, :3, :3], axis1=1, axis2=2), axis=1))
     reason = record.reason.copy()
     long_gap = (record.diagnostics["gyro_gap_s"] > options.max_gyro_gap_s) & (reason == "")
@@ -470,7 +482,7 @@ def filter_result(
     error[~valid] = ConvergenceError
     quaternion = np.where(valid[:, None], record.quaternion, np.nan)
     covariance = np.where(valid[:, None, None], record.covariance, np.nan)
-    solution = BatchSolution(
+    return Track(
         method=method,
         quaternion=quaternion,
         covariance=covariance[:, :3, :3],
@@ -479,11 +491,10 @@ def filter_result(
         reason=reason,
         error=error,
         diagnostics=record.diagnostics,
-    )
-    return FilterResult(
-        solution=solution,
+        t=np.array(t, dtype=float),
         bias=np.where(valid[:, None], record.bias, np.nan),
-        covariance=covariance,
+        state_covariance=covariance,
+        state=("attitude", "bias"),
         history=history,
     )
 
@@ -504,27 +515,6 @@ class FilterHistory:
     filtered_quaternion: Array
     filtered_bias: Array
     filtered_covariance: Array
-
-
-@dataclass(frozen=True)
-class FilterResult:
-    """A filter's (or smoother's) estimates at the output epochs.
-
-    Attributes:
-        solution: attitudes (reference -> body) with the ``3 x 3`` attitude
-            covariance; ``loss`` is the normalised innovation squared of the
-            epoch's update (NaN without one); diagnostics ``nis``, ``n_used``,
-            ``n_gated``, ``n_nan``, ``n_unpredictable`` (observation blocks),
-            ``gyro_gap_s`` and ``covariance_repairs``.
-        bias: ``(N, 3)`` gyro bias estimates (rad/s).
-        covariance: ``(N, 6, 6)`` error-state covariance.
-        history: inputs of a backward pass (MEKF only).
-    """
-
-    solution: BatchSolution
-    bias: Array
-    covariance: Array
-    history: FilterHistory | None = None
 
 
 def validate_inputs(

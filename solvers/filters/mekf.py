@@ -35,7 +35,6 @@ from attopt.solvers.filters.common import (
     FilterHistory,
     FilterOptions,
     FilterPrior,
-    FilterResult,
     PreparedGyro,
     TrackMonitor,
     apply_error,
@@ -55,6 +54,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
     validate_inputs,
 )
+from attopt.solvers.results import Track
 
 
 def propagate(
@@ -194,7 +194,7 @@ def mekf(
     model: GyroModel,
     options: FilterOptions | None = None,
     method: str = "mekf",
-) -> FilterResult:
+) -> Track:
     """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
     its measurement (``None``: propagation only).  The result keeps a
     :class:`~attopt.solvers.filters.common.FilterHistory` for
@@ -239,4 +239,4 @@ def mekf(
         filtered_bias=record.bias,
         filtered_covariance=record.covariance,
     )
-    return filter_result(method, record, options, history)
+    return filter_result(method, record, options, t, history)

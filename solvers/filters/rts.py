@@ -45,11 +45,11 @@ from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
 from attopt.solvers.filters.common import (
     EpochRecord,
     FilterOptions,
-    FilterResult,
     apply_error,
     error_vector,
     filter_result,
 )
+from attopt.solvers.results import Track
 
 Array = NDArray[np.float64]
 
@@ -156,20 +156,18 @@ def rts_backward(
     )
 
 
-def rts_smooth(
-    filtered: FilterResult, options: FilterOptions | None = None, method: str = "rts"
-) -> FilterResult:
+def rts_smooth(filtered: Track, options: FilterOptions | None = None, method: str = "rts") -> Track:
     """Smoothed estimates at the filter's epochs: :func:`rts_backward` up to the last
     finite epoch (epochs after a divergence stay invalid)."""
     history = filtered.history
     if history is None:
         raise ValueError("the RTS pass needs a filter result with its history (an MEKF's)")
     record = EpochRecord(history.filtered_quaternion.shape[0])
-    record.diagnostics = dict(filtered.solution.diagnostics)
-    record.reason = np.where(filtered.solution.valid, "", filtered.solution.reason)
+    record.diagnostics = dict(filtered.diagnostics)
+    record.reason = np.where(filtered.valid, "", filtered.reason)
     finite = np.flatnonzero(np.isfinite(history.filtered_quaternion).all(axis=1))
     if finite.size == 0:
-        return filter_result(method, record, options or FilterOptions())
+        return filter_result(method, record, options or FilterOptions(), filtered.t)
     end = finite[-1] + 1
     after = Rotation.from_quat(history.filtered_quaternion[:end])
     correction = np.concatenate(
@@ -192,4 +190,4 @@ def rts_smooth(
     record.bias[:end] += offset[:, 3:]
     record.covariance = history.filtered_covariance.copy()
     record.covariance[:end] = covariance
-    return filter_result(method, record, options or FilterOptions())
+    return filter_result(method, record, options or FilterOptions(), filtered.t)

@@ -135,7 +135,6 @@ from attopt.solvers.filters.common import (
     EpochRecord,
     FilterOptions,
     FilterPrior,
-    FilterResult,
     PreparedGyro,
     TrackMonitor,
     apply_error,
@@ -154,6 +153,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
     validate_inputs,
 )
+from attopt.solvers.results import Track
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -352,7 +352,7 @@ def usque(
     model: GyroModel,
     options: FilterOptions | None = None,
     method: str = "usque",
-) -> FilterResult:
+) -> Track:
     """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
     its measurement (``None``: propagation only).  Same result as
     :func:`~attopt.solvers.filters.mekf.mekf` without the history (no RTS pass)."""
@@ -380,4 +380,4 @@ def usque(
         if not record_epoch(record, k, attitude, bias, covariance, counts):
             break
         start = stop
-    return filter_result(method, record, options)
+    return filter_result(method, record, options, t)

@@ -6,7 +6,7 @@ the filter "breaks", which the seed proposes as a way to sense the manoeuvre,
 leaving the restart to the user.  Here both steps are automatic.
 
 Detection: a windowed chi-square test on the normalised innovation squared
-(NIS) the filters record per epoch (``solution.loss`` = diagnostic ``nis``,
+(NIS) the filters record per epoch (the track's ``loss`` = diagnostic ``nis``,
 ``nu^T P_nunu^-1 nu`` over the epoch's used rows, :mod:`attopt.solvers.filters.usque`).
 For a consistent filter the NIS of epoch ``k`` is chi-square with ``n_k``
 degrees of freedom (``n_k`` = ``n_used``: one per SNR, whose blocks are
@@ -49,8 +49,9 @@ from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_link import BORESIGHT_BODY
 from attopt.formulations.gyro import GyroModel, GyroSamples
-from attopt.solvers.filters import FilterOptions, FilterPrior, FilterResult, usque
+from attopt.solvers.filters import FilterOptions, FilterPrior, usque
 from attopt.solvers.filters.common import epoch_samples, propagate_attitude
+from attopt.solvers.results import Track
 
 Array = NDArray[np.float64]
 
@@ -95,9 +96,9 @@ def windowed_nis_test(nis: ArrayLike, dof: ArrayLike, window: int, false_alarm: 
     return p
 
 
-def first_detection(result: FilterResult, options: DetectionOptions, start: int = 0) -> int | None:
+def first_detection(result: Track, options: DetectionOptions, start: int = 0) -> int | None:
     """First epoch ``k >= start + W - 1`` whose window fails the test, else ``None``."""
-    diagnostics = result.solution.diagnostics
+    diagnostics = result.diagnostics
     p = windowed_nis_test(
         diagnostics["nis"], diagnostics["n_used"], options.window, options.false_alarm
     )
@@ -142,7 +143,7 @@ class ManoeuvreRun:
         p_value: the windowed test's ``P(chi2 >= S_k)`` per epoch of the spliced pass.
     """
 
-    result: FilterResult
+    result: Track
     detections: tuple[int, ...]
     p_value: Array
 
@@ -152,27 +153,26 @@ def _tail(samples: GyroSamples, index: int) -> GyroSamples:
     return GyroSamples(samples.t[index:], samples.rates[index:], samples.dt)
 
 
-def _splice(head: FilterResult, tail: FilterResult, k: int) -> FilterResult:
+def _splice(head: Track, tail: Track, k: int) -> Track:
     """Epochs ``< k`` of ``head`` followed by ``tail`` (whose epoch 0 is ``k``)."""
 
     def join(a: Array, b: Array) -> Array:
         return np.concatenate([a[:k], b])
 
-    h, t = head.solution, tail.solution
-    solution = dataclasses.replace(
-        h,
-        quaternion=join(h.quaternion, t.quaternion),
-        covariance=join(h.covariance, t.covariance),
-        loss=join(h.loss, t.loss),
-        valid=join(h.valid, t.valid),
-        reason=join(h.reason, t.reason),
-        error=join(h.error, t.error),
+    return dataclasses.replace(
+        head,
+        quaternion=join(head.quaternion, tail.quaternion),
+        covariance=join(head.covariance, tail.covariance),
+        loss=join(head.loss, tail.loss),
+        valid=join(head.valid, tail.valid),
+        reason=join(head.reason, tail.reason),
+        error=join(head.error, tail.error),
         diagnostics={
-            name: join(h.diagnostics[name], t.diagnostics[name]) for name in h.diagnostics
+            name: join(head.diagnostics[name], tail.diagnostics[name]) for name in head.diagnostics
         },
-    )
-    return FilterResult(
-        solution, join(head.bias, tail.bias), join(head.covariance, tail.covariance)
+        t=join(head.t, tail.t),
+        bias=join(head.bias, tail.bias),
+        state_covariance=join(head.state_covariance, tail.state_covariance),
     )
 
 
@@ -205,11 +205,11 @@ def detect_and_reinitialise(
         if k is None:
             break
         before = max(k - options.window, start)
-        if not result.solution.valid[before]:
+        if not result.valid[before]:
             break
         bias = result.bias[before]
         reference = propagate_attitude(
-            Rotation.from_quat(result.solution.quaternion[before]),
+            Rotation.from_quat(result.quaternion[before]),
             samples.rates[index[before] : index[k]] - bias,
             samples.dt,
         )
@@ -226,7 +226,7 @@ def detect_and_reinitialise(
         result = _splice(result, tail, k)
         detections.append(k)
         start = k
-    diagnostics = result.solution.diagnostics
+    diagnostics = result.diagnostics
     p = windowed_nis_test(
         diagnostics["nis"], diagnostics["n_used"], options.window, options.false_alarm
     )

@@ -88,7 +88,6 @@ from attopt.solvers.filters.common import (
     EpochRecord,
     FilterOptions,
     FilterPrior,
-    FilterResult,
     PreparedGyro,
     filter_result,
     prepare_gyro,
@@ -98,7 +97,7 @@ from attopt.solvers.filters.common import (
 )
 from attopt.solvers.filters.mekf import mekf
 from attopt.solvers.filters.rts import rts_smooth
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 from attopt.solvers.smoother.chain_marginals import sequential_marginals
 from attopt.solvers.smoother.conventions import (
     Array,
@@ -258,20 +257,6 @@ class SmootherReport:
     problem: SmootherProblem
 
 
-@dataclass(frozen=True)
-class SmootherResult(FilterResult):
-    """A :class:`~attopt.solvers.filters.common.FilterResult` with the optimiser's report.
-
-    ``solution.loss`` (diagnostic ``nis``) is the epoch's normalised residual
-    squared at the solution, ``nu^T R^-1 nu`` over its used rows;
-    diagnostics ``n_used``, ``n_gated``, ``n_nan``, ``n_unpredictable`` count
-    observation blocks, ``n_downweighted`` the blocks the Huber loss
-    down-weights, ``update_iterations`` the pass's iterations.
-    """
-
-    report: SmootherReport | None = None
-
-
 def _initial_estimate(
     samples: GyroSamples,
     t: Array,
@@ -279,7 +264,7 @@ def _initial_estimate(
     prior: FilterPrior,
     model: GyroModel,
     options: SmootherOptions,
-    initial: FilterResult | None,
+    initial: Track | None,
 ) -> tuple[Array, Array, Array, str]:
     """Quaternions, biases and ``6 x 6`` covariances at the epochs (NaN where undetermined)."""
     if initial is None:
@@ -293,14 +278,14 @@ def _initial_estimate(
             label = "gyro"
         history = forward.history
     else:
-        if len(initial.solution) != len(measurements):
+        if len(initial) != len(measurements):
             raise InvalidObservationError(
-                f"initial estimate has {len(initial.solution)} epochs, not {len(measurements)}"
+                f"initial estimate has {len(initial)} epochs, not {len(measurements)}"
             )
         history, label = initial.history, "given"
-    q = np.array(initial.solution.quaternion, dtype=float)
+    q = np.array(initial.quaternion, dtype=float)
     b = np.array(initial.bias, dtype=float)
-    p = np.array(initial.covariance, dtype=float)
+    p = np.array(initial.state_covariance, dtype=float)
     if history is not None:  # epochs the result flags keep the filter's raw estimate
         missing = ~np.isfinite(q).all(axis=1)
         q[missing] = history.filtered_quaternion[missing]
@@ -309,7 +294,7 @@ def _initial_estimate(
     return q, b, p, label
 
 
-def single_frame_initial(solution: BatchSolution, prior: FilterPrior) -> FilterResult:
+def single_frame_initial(solution: Track, prior: FilterPrior) -> Track:
     """A starting estimate for :func:`smooth` from single-epoch solutions (issue 6
     sec. 1): their attitudes (same reference frame as the smoother's) where valid,
     the prior's bias everywhere; :func:`smooth` fills the other epochs by gyro
@@ -322,10 +307,12 @@ def single_frame_initial(solution: BatchSolution, prior: FilterPrior) -> FilterR
     covariance[:, :3, 3:] = covariance[:, 3:, :3] = 0.0
     covariance[:, 3:, 3:] = np.asarray(prior.covariance)[3:, 3:]
     quaternion = np.where(solution.valid[:, None], solution.quaternion, np.nan)
-    return FilterResult(
-        solution=replace(solution, quaternion=quaternion),
+    return replace(
+        solution,
+        quaternion=quaternion,
         bias=np.tile(np.asarray(prior.bias, dtype=float), (n, 1)),
-        covariance=covariance,
+        state_covariance=covariance,
+        state=("attitude", "bias"),
     )
 
 
@@ -607,9 +594,9 @@ def smooth(
     prior: FilterPrior,
     model: GyroModel,
     options: SmootherOptions | None = None,
-    initial: FilterResult | None = None,
+    initial: Track | None = None,
     method: str = "fg_batch",
-) -> SmootherResult:
+) -> Track:
     """Smoothed attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
 
     Inputs as for :func:`attopt.solvers.filters.mekf.mekf`: gyro record, epochs
@@ -617,6 +604,15 @@ def smooth(
     prior at the first gyro sample and the gyro model.  ``initial``: a
     filter's result on the same epochs to start from (else
     ``options.initialisation``).  See the module docstring.
+
+    The result is a filter's :class:`~attopt.solvers.results.Track`
+    (:func:`~attopt.solvers.filters.common.filter_result`) with the
+    optimiser's :class:`SmootherReport` as ``report``.  Its ``loss``
+    (diagnostic ``nis``) is the epoch's normalised residual squared at the
+    solution, ``nu^T R^-1 nu`` over its used rows; diagnostics ``n_used``,
+    ``n_gated``, ``n_nan``, ``n_unpredictable`` count observation blocks,
+    ``n_downweighted`` the blocks the Huber loss down-weights,
+    ``update_iterations`` the pass's iterations.
     """
     options = options or SmootherOptions()
     begin = time.perf_counter()
@@ -752,8 +748,7 @@ def smooth(
     own_rules = replace(
         options.filter, max_rejected_epochs=np.iinfo(np.int64).max, max_gyro_gap_s=np.inf
     )
-    result = filter_result(method, record, own_rules)
-    solution = result.solution
+    result = filter_result(method, record, own_rules, t)
     message = outcome.message
     if not outcome.converged:
         message = (
@@ -761,14 +756,14 @@ def smooth(
             f"after {iterations} iterations"
         )
         if options.flag_unconverged:
-            reason = np.where(solution.valid, message, solution.reason)
-            error = np.where(solution.valid, ConvergenceError, solution.error)
-            valid = np.zeros_like(solution.valid)
-            solution = replace(
-                solution,
-                quaternion=np.full_like(solution.quaternion, np.nan),
-                covariance=np.full_like(solution.covariance, np.nan),
-                loss=np.full_like(solution.loss, np.nan),
+            reason = np.where(result.valid, message, result.reason)
+            error = np.where(result.valid, ConvergenceError, result.error)
+            valid = np.zeros_like(result.valid)
+            result = replace(
+                result,
+                quaternion=np.full_like(result.quaternion, np.nan),
+                covariance=np.full_like(result.covariance, np.nan),
+                loss=np.full_like(result.loss, np.nan),
                 valid=valid,
                 reason=reason,
                 error=error,
@@ -799,10 +794,10 @@ def smooth(
         offset_sigmas=np.sqrt(offset_variances),
         problem=problem,
     )
-    valid = solution.valid
-    return SmootherResult(
-        solution=solution,
+    valid = result.valid
+    return replace(
+        result,
         bias=np.where(valid[:, None], result.bias, np.nan),
-        covariance=np.where(valid[:, None, None], result.covariance, np.nan),
+        state_covariance=np.where(valid[:, None, None], result.state_covariance, np.nan),
         report=report,
     )

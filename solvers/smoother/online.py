@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -80,7 +80,6 @@ from attopt.solvers.filters.common import (
     EpochRecord,
     FilterOptions,
     FilterPrior,
-    FilterResult,
     PreparedGyro,
     filter_result,
     kalman_gain,
@@ -92,6 +91,7 @@ from attopt.solvers.filters.common import (
     validate_inputs,
 )
 from attopt.solvers.filters.mekf import propagate
+from attopt.solvers.results import Track
 from attopt.solvers.smoother.conventions import (
     Array,
     attitude,
@@ -179,19 +179,6 @@ class OnlineReport:
     seconds: dict[str, float]
     quaternion: Array
     bias: Array
-
-
-@dataclass(frozen=True)
-class OnlineResult(FilterResult):
-    """A :class:`~attopt.solvers.filters.common.FilterResult` with the online pass's report.
-
-    ``solution.loss`` (diagnostic ``nis``) is the epoch's normalised innovation
-    squared against the predicted covariance, as the MEKF's; diagnostics
-    ``n_used``, ``n_gated``, ``n_nan``, ``n_unpredictable`` count observation
-    blocks, ``update_iterations`` the iSAM2 updates of the epoch.
-    """
-
-    report: OnlineReport | None = None
 
 
 class MeasurementCallback:
@@ -385,12 +372,20 @@ def smooth_online(
     model: GyroModel,
     options: OnlineOptions | None = None,
     method: str = "fg_online",
-) -> OnlineResult:
+) -> Track:
     """Causal attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
 
     Inputs as for :func:`attopt.solvers.smoother.smooth` and the filters; the estimate
     at epoch ``k`` uses the gyro up to ``t[k]`` and the measurements of epochs
     ``0 .. k`` only (module docstring).
+
+    The result is a filter's :class:`~attopt.solvers.results.Track`
+    (:func:`~attopt.solvers.filters.common.filter_result`) with the pass's
+    :class:`OnlineReport` as ``report``.  Its ``loss`` (diagnostic ``nis``) is
+    the epoch's normalised innovation squared against the predicted
+    covariance, as the MEKF's; diagnostics ``n_used``, ``n_gated``, ``n_nan``,
+    ``n_unpredictable`` count observation blocks, ``update_iterations`` the
+    iSAM2 updates of the epoch.
     """
     options = options or OnlineOptions()
     begin = time.perf_counter()
@@ -482,7 +477,7 @@ def smooth_online(
     for callback, k in zip(callbacks, callback_epoch, strict=True):
         record.diagnostics["n_unpredictable"][k] += len(callback.lost)
     record.diagnostics["gyro_gap_s"] = np.where(index > 0, gyro.gap_s[index - 1], 0.0)
-    result = filter_result(method, record, options.filter)
+    result = filter_result(method, record, options.filter, t)
     seconds["total"] = time.perf_counter() - begin
     diagnostics = record.diagnostics
     report = OnlineReport(
@@ -503,6 +498,4 @@ def smooth_online(
         quaternion=record.quaternion.copy(),
         bias=record.bias.copy(),
     )
-    return OnlineResult(
-        solution=result.solution, bias=result.bias, covariance=result.covariance, report=report
-    )
+    return replace(result, report=report)

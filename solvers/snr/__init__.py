@@ -3,11 +3,11 @@
 Every solver is an :class:`~attopt.solvers.snr.driver.SnrSolver` in
 :data:`SNR_SOLVERS` with the common contract
 
-* ``solve(problem, prior=None) -> AttitudeSolution`` for one
+* ``solve(problem, prior=None) -> Solution`` for one
   :class:`~attopt.formulations.snr_problem.SnrEpoch` (raises the specific
   :mod:`attopt.formulations.errors` exception on bad input or a failed solve), and
 * ``solve_sequence(problems, prior=None, *, warm_start=True, max_prior_age=10)
-  -> BatchSolution`` for consecutive epochs (invalid ones flagged with the
+  -> Track`` for consecutive epochs (invalid ones flagged with the
   reason, each epoch warm-started from the previous valid estimate).
 
 Names: ``"deterministic"`` (two-step: pattern inverse, boresight cones,

@@ -4,7 +4,7 @@ A solver (:class:`SnrSolver` subclass) supplies its validation rule
 (``min_per_antenna``, :func:`attopt.formulations.snr_problem.epoch_issue`) and an
 :meth:`SnrSolver.estimate` for one validated epoch with an optional a-priori
 attitude.  This module turns that into the project's result types
-(:mod:`attopt.solvers.result`):
+(:mod:`attopt.solvers.results`):
 
 * :meth:`SnrSolver.solve` solves one epoch and raises the specific exception
   of bad input (:class:`~attopt.formulations.errors.InvalidObservationError`,
@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import AttoptError, ConvergenceError
 from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
-from attopt.solvers.result import AttitudeSolution, BatchSolution
+from attopt.solvers.results import Solution, Track
 
 DEFAULT_MAX_PRIOR_AGE = 10
 """Epochs a valid estimate stays usable as the next epochs' warm start."""
@@ -84,9 +84,9 @@ class SnrSolver(ABC):
     def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         """Estimate one validated epoch; ``prior`` is an a-priori attitude or ``None``."""
 
-    def solve(self, problem: SnrEpoch, prior: Rotation | None = None) -> AttitudeSolution:
+    def solve(self, problem: SnrEpoch, prior: Rotation | None = None) -> Solution:
         """Solve one epoch; raises the recorded exception if it is invalid or fails."""
-        return self.solve_sequence([problem], prior=prior).epoch(0)
+        return self.solve_sequence([problem], prior=prior).epoch(0).raise_if_invalid()
 
     def solve_sequence(
         self,
@@ -95,7 +95,7 @@ class SnrSolver(ABC):
         *,
         warm_start: bool = True,
         max_prior_age: int = DEFAULT_MAX_PRIOR_AGE,
-    ) -> BatchSolution:
+    ) -> Track:
         """Solve consecutive epochs; invalid ones are flagged, not raised.
 
         ``prior`` is the a-priori attitude of the first epoch.  With
@@ -138,6 +138,4 @@ class SnrSolver(ABC):
             covariance[i] = est.covariance
             loss[i] = est.loss
             last = (i, est.attitude)
-        return BatchSolution(
-            self.name, quaternion, covariance, loss, valid, reason, error, diagnostics
-        )
+        return Track(self.name, quaternion, covariance, loss, valid, reason, error, diagnostics)

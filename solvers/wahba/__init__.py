@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from numpy.typing import ArrayLike
 
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE, prepare_observations
-from attopt.solvers.result import AttitudeSolution, BatchSolution
+from attopt.solvers.results import Solution, Track
 from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
 from attopt.solvers.wahba.driver import Estimator, solve_prepared
 
@@ -42,7 +42,7 @@ class WahbaSolver:
         present: ArrayLike | None = None,
         *,
         parallel_tolerance: float = PARALLEL_TOLERANCE,
-    ) -> BatchSolution:
+    ) -> Track:
         """Solve ``N`` epochs (``(N, n, 3)`` vectors); invalid epochs are flagged, not raised."""
         obs = prepare_observations(
             body, reference, weights, present, parallel_tolerance=parallel_tolerance
@@ -56,12 +56,12 @@ class WahbaSolver:
         weights: ArrayLike,
         *,
         parallel_tolerance: float = PARALLEL_TOLERANCE,
-    ) -> AttitudeSolution:
+    ) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors); raises a specific error on bad input."""
         obs = prepare_observations(body, reference, weights, parallel_tolerance=parallel_tolerance)
         if obs.n_epochs != 1:
             raise ValueError("solve() takes one epoch of (n, 3) vectors; use solve_batch()")
-        return solve_prepared(self.name, self.estimator, obs).epoch(0)
+        return solve_prepared(self.name, self.estimator, obs).epoch(0).raise_if_invalid()
 
 
 WAHBA_SOLVERS: dict[str, WahbaSolver] = {

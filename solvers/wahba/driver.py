@@ -3,7 +3,7 @@
 A solver supplies only an *estimator*: a function from validated
 observations (:class:`attopt.formulations.vector_observations.ObservationBatch`) to an
 :class:`Estimate` for every epoch.  This module turns that into a
-:class:`attopt.solvers.result.BatchSolution` with Wahba's loss (seed 002 eq. 14), the
+:class:`attopt.solvers.results.Track` with Wahba's loss (seed 002 eq. 14), the
 validity mask and reasons.
 """
 
@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.errors import ConvergenceError
 from attopt.formulations.vector_observations import ObservationBatch
 from attopt.formulations.wahba import wahba_loss
-from attopt.solvers.result import BatchSolution
+from attopt.solvers.results import Track
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class Estimate:
 Estimator = Callable[[ObservationBatch], Estimate]
 
 
-def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> BatchSolution:
+def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> Track:
     """Run ``estimator`` on validated observations and assemble the batch result."""
     n = obs.n_epochs
     valid = obs.valid.copy()
@@ -49,7 +49,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     error = obs.error.copy()
     if not valid.any():
         nan = np.full(n, np.nan)
-        return BatchSolution(
+        return Track(
             method,
             np.full((n, 4), np.nan),
             np.full((n, 3, 3), np.nan),
@@ -74,4 +74,4 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     diagnostics = {
         k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()
     }
-    return BatchSolution(method, quaternion, covariance, loss, valid, reason, error, diagnostics)
+    return Track(method, quaternion, covariance, loss, valid, reason, error, diagnostics)
