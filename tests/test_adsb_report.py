@@ -14,7 +14,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from attopt.experiments.adsb_snr.report import BURN_IN_S, burn_in, figures, filter_section
+from attopt.experiments.adsb_snr.report import (
+    BURN_IN_S,
+    burn_in,
+    figures,
+    filter_section,
+    report,
+)
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.reporting.statistics import nees_interval
 from tests.report_tables import row, table
@@ -157,3 +163,20 @@ def test_filter_figures_are_written(tmp_path):
     assert names == [f"{k}_{g}.png" for g in GYROS for k in ("filter_errors", "gyro_bias")]
     for name in names:
         assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_a_filters_only_run_reports_the_filters_and_integrity(tmp_path):
+    """The filter benchmark's sweep has no single-frame rows (``methods = []``)."""
+    rows = _rows(filters=["mekf_snr", "rts_snr"])
+    rows = rows[rows["gyro"] != "none"]
+    text = report(_context(rows, tmp_path, methods=[], filters=["mekf_snr", "rts_snr"]))
+    assert "## Gyro-aided filters" in text and "Table 2 beside ours" not in text
+    integrity = table(text, "Integrity")
+    assert set(integrity["method"]) == {"mekf_snr", "rts_snr"}
+    assert set(integrity["mean NEES"]) == {"3"} and set(integrity["share beyond 21.1"]) == {"0"}
+    assert (
+        row(table(text, "Filters compared"), {"gyro": "mems", "method": "rts_snr"})[
+            "RMS / mekf_paper RMS"
+        ]
+        == "-"
+    )

@@ -42,7 +42,12 @@ from attopt.experiments.experiment import ReportContext
 from attopt.experiments.reporting.figures import error_figure, image_links, save_figure
 from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.reporting.paper_values import paper_label, paper_table, paper_values
-from attopt.experiments.reporting.statistics import integrity, nees_threshold, squared_norm
+from attopt.experiments.reporting.statistics import (
+    AXES,
+    integrity,
+    nees_threshold,
+    squared_norm,
+)
 from attopt.experiments.reporting.tables import (
     cell,
     document,
@@ -55,7 +60,6 @@ from attopt.experiments.reporting.tables import (
 
 PACKAGE = "attopt.experiments.doa_ground"
 EULER = ("yaw", "roll", "pitch")
-AXES = ("x", "y", "z")
 SETTING = ["snr_db", "snapshots"]
 SETTING_NAMES = {"snr_db": "SNR dB", "snapshots": "L"}
 SETTING_FORMATS = {"SNR dB": "g"}
@@ -137,7 +141,9 @@ def consistency_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFram
     ).dropna(how="all")
 
 
-def convergence_times(curve: pd.DataFrame, attitude_deg: float, rate_deg_s: float):
+def convergence_times(
+    curve: pd.DataFrame, attitude_deg: float, rate_deg_s: float
+) -> tuple[float, float]:
     """First times after which every Euler error stays within ``attitude_deg`` and every
     rate error within ``rate_deg_s`` (NaN if not at the end of the pass)."""
     attitude = curve[[f"euler_{n}_err_deg" for n in EULER]].abs().max(axis=1) > attitude_deg

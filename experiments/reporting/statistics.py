@@ -137,8 +137,8 @@ def nees_threshold(probability: float = INTEGRITY_PROBABILITY, dof: int = NEES_D
 def integrity(
     rows: pd.DataFrame, by: Sequence[str], probability: float = INTEGRITY_PROBABILITY
 ) -> pd.DataFrame:
-    """Per group of the columns ``by``: how often the estimator's covariance fails to cover
-    its error.
+    """Per group of the columns ``by`` (at least one, e.g. the setting columns and
+    ``method``): how often the estimator's covariance fails to cover its error.
 
     Columns (index: the groups, in order of appearance):
 
