@@ -43,12 +43,14 @@ Row = dict[str, Any]
 
 @dataclass(frozen=True)
 class ReportContext:
-    """What an experiment's report hook receives after a sweep."""
+    """What an experiment's report hook receives after a sweep (``command``: the command
+    line that reproduces it, for the tables' captions)."""
 
     parameters: Mapping[str, Any]
     rows: pd.DataFrame
     summary: pd.DataFrame
     out_dir: Path
+    command: str = ""
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ from attopt.experiments.adsb_snr.experiment import (
 )
 from attopt.experiments.sweep import run_sweep
 from attopt.solvers.snr.fit import fit_at
+from tests.report_tables import row, table
 
 SHORT = {"duration_s": 120.0}
 """Two minutes of the pass: 157-193 received messages per epoch, at least 3 per antenna."""
@@ -97,11 +98,11 @@ def test_truncated_ml_nlp_reaches_the_truncated_bound_on_the_short_pass(sweep):
 
 def test_report_table_by_observation_count_shows_each_method_against_each_bound(sweep):
     # Every epoch of the short pass has 100-199 messages: one bin, equal to the summary.
-    report = (sweep.out_dir / "report.md").read_text().splitlines()
-    header = next(line for line in report if line.startswith("| received observations |"))
-    row = next(line for line in report if line.startswith("| 100-199 |"))
-    names, values = ([c.strip() for c in line.strip("|").split("|")] for line in (header, row))
-    cells = dict(zip(names, values, strict=True))
+    report = (sweep.out_dir / "report.md").read_text()
+    bins = table(
+        report, "Accuracy against the number of received observations (Liu et al. 2023 Fig. 10)"
+    )
+    cells = row(bins, {"received observations": "100-199"})
     summary = sweep.summary.set_index("method")
     for method in ("nlp", "nlp_truncated"):
         for column, label in (
@@ -111,6 +112,29 @@ def test_report_table_by_observation_count_shows_each_method_against_each_bound(
             assert float(cells[f"{method} {label}"]) == pytest.approx(
                 summary.loc[method, column], abs=5e-4
             )
+
+
+def test_report_tables_recompute_from_the_rows(sweep):
+    """Table 2's Euler-difference RMS, the efficiency table and the integrity section
+    against the same statistics computed here from the stored rows."""
+    report = (sweep.out_dir / "report.md").read_text()
+    rows = sweep.rows[sweep.rows["valid"]]
+    nlp = rows[(rows["method"] == "nlp") & (rows["gyro"] == NO_GYRO)]
+    euler = row(
+        table(report, "Liu et al. 2023 Table 2 beside ours"), {"row": "nlp", "errors": "Euler"}
+    )
+    expected = [np.sqrt(np.mean(nlp[f"euler_{n}_err_deg"] ** 2)) for n in ("yaw", "pitch", "roll")]
+    assert euler["RMS yaw / pitch / roll (deg)"] == " / ".join(f"{v:.2f}" for v in expected)
+    nlse = row(table(report, "Efficiency"), {"method": "nlse"})
+    gap = float(nlse["largest difference from nlp (deg)"])
+    assert 0.0 < gap < 1e-4  # the two minimise eq. 19 (test_nlp_and_nlse_agree_epoch_by_epoch)
+    integrity = row(table(report, "Integrity"), {"gyro": "mems", "method": "mekf_snr"})
+    filtered = rows[(rows["method"] == "mekf_snr") & (rows["gyro"] == "mems")]
+    assert integrity["valid epochs with a NEES"] == str(len(filtered))
+    assert float(integrity["share beyond 21.1"]) == pytest.approx(
+        np.mean(filtered["nees"] > 21.107), abs=5e-4
+    )
+    assert float(integrity["mean NEES"]) == pytest.approx(filtered["nees"].mean(), rel=5e-3)
 
 
 def test_wrong_minima_are_checked_on_every_20th_epoch(sweep):
@@ -126,10 +150,10 @@ def test_wrong_minima_are_checked_on_every_20th_epoch(sweep):
 
 def test_report_has_table_2_and_existing_figures(sweep):
     report = (sweep.out_dir / "report.md").read_text()
-    assert "Seed 000 Table 2 beside ours" in report
+    assert "## Liu et al. 2023 Table 2 beside ours" in report
     assert "-25.33 / -18.78 / -28.68" in report  # QUEST maximum
     assert "1.21 / 0.85 / 1.48" in report  # NLSE RMS
-    assert "1.46 / -1.31 / 2.40" in report  # seed 000's MEKF maximum
+    assert "1.46 / -1.31 / 2.40" in report  # the paper's MEKF maximum
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report)
     expected = {"observations.png", "error_vs_observations.png"}
     expected |= {f"error_{m}.png" for m in PARAMETERS["methods"]}

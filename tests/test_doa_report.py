@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from attopt.experiments.doa_ground.methods import attitude_methods
 from attopt.experiments.doa_ground.report import (
-    attitude_methods,
     attitude_table,
     consistency_table,
     doa_table,
@@ -33,6 +33,7 @@ from attopt.experiments.doa_ground.report import (
     shared_trials,
 )
 from attopt.experiments.experiment import ReportContext
+from tests.report_tables import row, table
 
 SETTLE_S = 100.0
 ROW_STEP_S = 10.0
@@ -69,6 +70,7 @@ def _frame(method: str, error: float, **extra: Any) -> pd.DataFrame:
         "err_y_deg": 0.0,
         "err_z_deg": 0.0,
         **{f"euler_{n}_err_deg": k * signed for k, n in enumerate(("yaw", "roll", "pitch"), 1)},
+        **{f"sigma_{a}_deg": NEES_SIGMA for a in "xyz"},
         "nees": (signed / NEES_SIGMA) ** 2,
         "valid": True,
         "reason": "",
@@ -177,37 +179,50 @@ def test_doa_rmse_weights_each_trial_by_its_accepted_estimates() -> None:
     assert (doa["crb_theta_deg"], doa["accepted"]) == (pytest.approx(0.1), pytest.approx(2 / 3))
 
 
+def _line(text: str, heading: str, **where: str) -> pd.Series:
+    return row(table(text, heading), {k.replace("_", " "): v for k, v in where.items()})
+
+
 def test_smoother_ratios_use_only_the_trials_fg_batch_ran_in(tmp_path: Path) -> None:
     rows = _rows()
     assert set(shared_trials(rows)["trial_index"]) == set(range(FILTER_TRIALS))
     text = _report(rows, tmp_path)
+    line = _line(text, "Smoothers against the EKF on the same data", SNR_dB="0", L="100")
     # over all three trials RTS / EKF would be 0.56 (1e-09), not 0.40
-    crb = f"{0.01 * np.sqrt(3.0):.4f}"
-    assert (
-        "| 0 | 100 | 2 | 1e-09 | 0.300 | 0.120 | 0.40 (met) | 0.030 | 0.10 (met) | 0.180 "
-        f"| 0.60 (missed) | {crb} |" in text
-    )
-    assert (
-        "| 0 | 10 | 2 | 1e-12 | 0.150 | 0.060 | 0.40 (met) | 0.030 | 0.20 (met) | 0.180 "
-        f"| 1.20 (missed) | {crb} |" in text
-    )
+    assert line["trials"] == "2"
+    assert (line["EKF Q = 1e-09"], line["EKF Q = 1e-12"]) == ("0.300", "0.150")
+    assert (line["RTS Q = 1e-09"], line["RTS Q = 1e-12"]) == ("0.120", "0.060")
+    assert line["bls_seed003 (CRB)"] == "0.0300 (-)"  # the synthetic bls rows carry no crb_*
+    assert line["mekf"] == "0.500"
+    assert line["fg_batch (pass bound)"] == f"0.180 ({0.1 * np.sqrt(3.0):.3f})"
+    ratios = ["RTS / EKF 1e-09", "RTS / EKF 1e-12", "bls_seed003 / EKF 1e-09"]
+    ratios += ["bls_seed003 / EKF 1e-12", "fg_batch / EKF 1e-09", "fg_batch / EKF 1e-12"]
+    assert line[ratios].tolist() == ["0.40", "0.40", "0.10", "0.20", "0.60", "1.20"]
 
 
 def test_summary_has_one_line_per_setting(tmp_path: Path) -> None:
-    """EKF Euler RMSEs at both Q (the seed's beside the lower), the RTS and batch
+    """EKF Euler RMSEs at both Q (the paper's beside the lower), the RTS and batch
     least-squares totals and the EKF's CRB total."""
     text = _report(_rows(), tmp_path)
     pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))
     rts = 0.5 * np.sqrt(np.mean(np.square([0.12, 0.12, 1.2])))
     euler = ", ".join(f"{k * pooled:.3f}" for k in (1, 2, 3))
     low = ", ".join(f"{0.5 * k * pooled:.3f}" for k in (1, 2, 3))
-    doa = "| 1.458 / 0.100 (0.315) | 2.000 / 0.200 (0.308) | 0.667 "
-    assert (
-        f"| 0 | 100 {doa}| {euler} | {low} (0.083, 0.061, 0.094) | {rts:.3f} | 0.0300 "
-        f"| {0.01 * np.sqrt(3.0):.4f} |" in text
-    )
-    summary = text[text.index("## Summary") :]
-    assert summary.index("| 0 | 10 | 1.458 /") < summary.index("| 0 | 100 | 1.458 /")
+    summary = table(text, "Summary")
+    line = row(summary, {"SNR dB": "0", "L": "100"})
+    assert line.tolist() == [
+        "0",
+        "100",
+        "1.458 / 0.100 (0.315)",
+        "2.000 / 0.200 (0.308)",
+        "0.667",
+        euler,
+        f"{low} (0.083, 0.061, 0.094)",
+        f"{rts:.3f}",
+        "0.0300",
+        f"{0.01 * np.sqrt(3.0):.4f}",
+    ]
+    assert summary["L"].tolist() == ["10", "100"]
 
 
 def test_consistency_pools_the_valid_rows_per_phase(tmp_path: Path) -> None:
@@ -215,48 +230,62 @@ def test_consistency_pools_the_valid_rows_per_phase(tmp_path: Path) -> None:
     one third above the 99.99% quantile 21.1), 10^4 while converging; ``wahba``'s
     invalid rows do not count."""
     rows = _rows()
-    table = consistency_table(rows, attitude_methods(rows, PARAMETERS))
-    ekf = table.loc[(0.0, 100, "ekf_seed003_q1e-09", "settled")]
+    table_ = consistency_table(rows, attitude_methods(rows, PARAMETERS))
+    ekf = table_.loc[(0.0, 100, "ekf_seed003_q1e-09", "settled")]
     assert ekf.tolist() == pytest.approx([54.0, 9.0, 1.0 / 3.0])
-    assert table.loc[(0.0, 100, "ekf_seed003_q1e-09", "converging"), "above"] == 1.0
-    assert table.loc[(0.0, 100, "wahba", "settled"), "mean"] == pytest.approx(400.0)
+    assert table_.loc[(0.0, 100, "ekf_seed003_q1e-09", "converging"), "above"] == 1.0
+    assert table_.loc[(0.0, 100, "wahba", "settled"), "mean"] == pytest.approx(400.0)
     text = _report(rows, tmp_path)
-    assert "| 0 | 100 | ekf_seed003_q1e-09 | 54 | 9 | 0.333 | 1.000 |" in text
+    line = _line(text, "Consistency", SNR_dB="0", L="100", method="ekf_seed003_q1e-09")
+    assert line.iloc[3:].tolist() == ["54", "9", "0.333", "1.000"]
+
+
+def test_integrity_takes_every_phase_of_every_trial(tmp_path: Path) -> None:
+    """EKF (1e-09) at 0 dB, L = 100: 10 converging rows per trial (NEES 10^4, all beyond),
+    20 settled with NEES 9, 9 and 144 in the three trials; ``wahba`` valid on 10 of its 20
+    settled rows and all 10 converging."""
+    text = _report(_rows(), tmp_path)
+    section = table(text, "Integrity")
+    ekf = row(section, {"snr_db": "0", "snapshots": "100", "method": "ekf_seed003_q1e-09"})
+    mean = (30 * 1e4 + 40 * 9 + 20 * 144) / 90
+    assert ekf.iloc[3:].tolist() == ["90", "1.000", "90", f"{50 / 90:.3g}", f"{mean:.3g}"]
+    wahba = row(section, {"snr_db": "0", "snapshots": "100", "method": "wahba"})
+    assert wahba["valid"] == f"{60 / 90:.3f}" and wahba["valid epochs with a NEES"] == "60"
 
 
 def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
     rows = _rows()
     missing = (rows["snapshots"] == 10) & rows["method"].isin(["mekf", "music"])
     text = _report(rows[~missing], tmp_path)
-    assert "| 0 | 10 | mekf | - | - | - |  | - | - | - | - | - |" in text
-    assert "| 0 | 10 | - (0.781) | - (0.684) | - / - | - |" in text
-    ekf = "| 0 | 100 | ekf_seed003_q1e-09 | 0.735 | 1.470 | 2.205 "
-    assert ekf + "| 0.083 / 0.061 / 0.094 |" in text  # the seed's values beside the EKF
+    attitude = table(text, "Yang et al. 2014 Table 2 beside ours", 1)
+    mekf = row(attitude, {"L": "10", "method": "mekf"})
+    assert set(mekf.iloc[3:].tolist()) == {"-", ""}
+    doa = row(table(text, "Yang et al. 2014 Table 2 beside ours"), {"L": "10"})
+    assert doa.tolist() == ["0", "10", "-", "-", "-", "-", "-", "0.781", "0.684"]
+    ekf = row(
+        table(text, "Yang et al. 2014 Table 1 beside ours", 1),
+        {"L": "100", "method": "ekf_seed003_q1e-09"},
+    )
+    assert ekf.iloc[3:7].tolist() == ["0.735", "1.470", "2.205", "0.083 / 0.061 / 0.094"]
 
 
 def test_report_writes_the_convergence_figure_and_times(tmp_path: Path) -> None:
     text = _report(_rows(), tmp_path)
-    figure = tmp_path / "doa_convergence.png"
-    assert figure.stat().st_size > 0
-    assert "![convergence](doa_convergence.png)" in text
+    assert (tmp_path / "doa_convergence.png").stat().st_size > 0
+    assert "![doa_convergence.png](doa_convergence.png)" in text
+    convergence = table(text, "Convergence (Yang et al. 2014 Sec. 6, Figs. 6-7)")
     # pitch errors 3 e: 0.9 deg at Q = 1e-09, 0.45 deg at Q = 1e-12 once settled
-    assert (
-        "* EKF Q = 1e-09: Euler-angle errors within 0.5 deg not at the end of the pass, "
-        "rate errors within 0.1 deg/s from t = 50 s." in text
-    )
-    assert (
-        "* EKF Q = 1e-12: Euler-angle errors within 0.5 deg from t = 100 s, "
-        "rate errors within 0.1 deg/s from t = 50 s." in text
-    )
-    assert "## Seed 003 Table 1" in text and "## Seed 003 Table 2" in text
+    assert row(convergence, {"row": "EKF Q = 1e-09"}).iloc[1:].tolist() == ["-", "50"]
+    assert row(convergence, {"row": "EKF Q = 1e-12"}).iloc[1:].tolist() == ["100", "50"]
+    assert row(convergence, {"row": "Yang et al. 2014 Sec. 6, Figs. 6-7"}).iloc[1] == "within 1500"
 
 
 def test_runtime_is_the_mean_over_passes() -> None:
     rows = _rows()
-    table = runtime_table(rows, attitude_methods(rows, PARAMETERS))
-    assert table.loc["ekf_seed003_q1e-09"].tolist() == [6, 2.0]  # 2 settings x 3 trials
-    assert table.loc["fg_batch"].tolist() == [4, 15.0]
-    assert "wahba" not in table.index  # no runtime_s
+    runtimes = runtime_table(rows, attitude_methods(rows, PARAMETERS))
+    assert runtimes.loc["ekf_seed003_q1e-09"].tolist() == [6, 2.0]  # 2 settings x 3 trials
+    assert runtimes.loc["fg_batch"].tolist() == [4, 15.0]
+    assert "wahba" not in runtimes.index  # no runtime_s
 
 
 def test_quick_run_subset_without_fg_batch_and_parameters(tmp_path: Path) -> None:
@@ -264,12 +293,18 @@ def test_quick_run_subset_without_fg_batch_and_parameters(tmp_path: Path) -> Non
     rows = _rows(q_scales={"1e-09": 1.0}, filters=False)
     parameters = {"settle_s": SETTLE_S, "row_step_s": ROW_STEP_S}
     text = _report(rows, tmp_path, parameters)
-    assert "| SNR dB | L | trials | Q | EKF | RTS | RTS / EKF | CRB (Q = 0) |" in text
+    smoothers = table(text, "Smoothers against the EKF on the same data")
+    assert list(smoothers.columns) == [
+        "SNR dB",
+        "L",
+        "trials",
+        "EKF Q = 1e-09",
+        "RTS Q = 1e-09",
+        "RTS / EKF 1e-09",
+    ]
     pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))
     rts = np.sqrt(np.mean(np.square([0.12, 0.12, 1.2])))
-    assert (
-        f"| 0 | 100 | 3 | 1e-09 | {pooled:.3f} | {rts:.3f} | {rts / pooled:.2f} (missed) | "
-        f"{0.01 * np.sqrt(3.0):.4f} |" in text
-    )
+    line = row(smoothers, {"L": "100"})
+    assert line.tolist() == ["0", "100", "3", f"{pooled:.3f}", f"{rts:.3f}", f"{rts / pooled:.2f}"]
     assert "| mekf |" not in text and "| fg_batch |" not in text
     assert (tmp_path / "doa_convergence.png").exists()

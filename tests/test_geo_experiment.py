@@ -10,14 +10,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from attopt.experiments.experiment import ReportContext
 from attopt.experiments.geo_snr_stations.experiment import (
     EXPERIMENT,
     PARAMETERS,
     summary_columns,
     trial,
 )
+from attopt.experiments.geo_snr_stations.report import report
 from attopt.experiments.geo_snr_stations.scenario import MANOEUVRE_START_S
 from attopt.experiments.registry import get_experiment
+from attopt.experiments.sweep import summarise
+from attopt.solvers.geo.m2m4 import snr_table
+from tests.report_tables import row, table
 
 SETTING = {**PARAMETERS, **EXPERIMENT.quick_parameters, "manoeuvre": True}
 METHODS = {"cone", "lsq", "nlp", "usque", "usque_detect", "fg_batch"}
@@ -71,3 +76,49 @@ def test_manoeuvre_detected_and_summarised(rows: pd.DataFrame) -> None:
     assert 0 < delay <= 2 * SETTING["step_s"]
     detected = rows.loc[rows["method"] == "usque_detect"]
     assert detected.loc[detected["detected"].astype(bool), "t_s"].min() > MANOEUVRE_START_S
+
+
+def test_report_tables_from_the_trials_rows(rows: pd.DataFrame, tmp_path) -> None:
+    """The report of one trial per manoeuvre setting: Table 3 beside the paper's, the bounds
+    table equal to the summary, the restarts, integrity without a NEES, the figure."""
+    labelled = pd.concat(
+        [
+            trial({**SETTING, "manoeuvre": False}, np.random.SeedSequence(4)).assign(
+                setting_index=0, manoeuvre=False
+            ),
+            rows.assign(setting_index=1, manoeuvre=True),
+        ],
+        ignore_index=True,
+    ).assign(trial_index=0)
+    summary = summarise(
+        labelled,
+        pd.DataFrame(columns=["setting_index"]),
+        setting_columns=["manoeuvre"],
+        group_by=EXPERIMENT.group_by,
+        extra=summary_columns,
+    )
+    text = report(ReportContext(SETTING, labelled, summary, tmp_path, "attopt run geo"))
+    table3 = table(text, "Pimienta-Penalver and Crassidis Table 3: M2M4 SNR estimator")
+    assert table3.iloc[:, -1].tolist() == ["0.020", "2.025", "4.034", "5.980", "7.990", "10.040"]
+    ours = snr_table(np.random.default_rng(0), 1024, 300)
+    assert table3["ours mean (dB)"].tolist() == [f"{m:.3f}" for m in ours.mean_db]
+    bounds = table(text, "Roll and pitch beside the bound")
+    for _, line in summary.iterrows():
+        cells = row(bounds, {"manoeuvre": str(line["manoeuvre"]), "method": line["method"]})
+        assert cells["roll RMS"] == f"{line['roll_rms_deg']:.2e}"
+        assert cells["pitch bound"] == f"{line['pitch_bound_deg']:.2e}"
+    sensitivity = table(
+        text,
+        "Boresight error with perturbed RF parameters (Pimienta-Penalver and Crassidis Fig. 6)",
+    )
+    exact = row(sensitivity, {"method": "least_squares", "P_t (kW)": "12"})
+    assert exact["D = 12 m"] == "0.0000"  # the true parameters recover the boresight
+    detection = table(text, "Manoeuvre detection")
+    detected = labelled[(labelled["method"] == "usque_detect") & labelled["detected"].astype(bool)]
+    restarts = ", ".join(f"{t:g}" for t in detected["t_s"])
+    assert row(detection, {"manoeuvre": "True"})["restarts at t (s)"] == restarts
+    assert row(detection, {"manoeuvre": "False"})["restarts at t (s)"] == "none"
+    integrity = table(text, "Integrity")
+    assert set(integrity["mean NEES"]) == {"n/a"}  # the rows carry no NEES
+    assert set(integrity["valid"]) == {"1.000"}
+    assert (tmp_path / "usque_3sigma.png").stat().st_size > 10_000

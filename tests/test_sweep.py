@@ -18,6 +18,7 @@ from attopt.experiments.sweep.seeding import trial_index, trial_seed
 from attopt.experiments.sweep.store import UNRECORDED, code_version
 from attopt.experiments.sweep.tasks import ChunkSpec
 from attopt.experiments.sweep.toys import NOOP
+from tests.report_tables import row, table
 from tests.sweep_toys import PROBE, TOY, TOY_WITH_REPORT
 
 
@@ -236,6 +237,13 @@ def test_outputs_written_to_the_directory(tmp_path):
     assert "attopt run tests.sweep_toys:TOY --trials 3 --seed 0" in report
     invalid_a = int((~result.rows["valid"] & (result.rows["method"] == "a")).sum())
     assert invalid_a > 0 and f"| a | outlier | {invalid_a} |" in report
+    # no report of its own: the generic one has the integrity section, per varying setting
+    integrity = table(report, "Integrity")
+    assert list(integrity.columns[:3]) == ["scale", "label", "method"]
+    toy = result.rows[(result.rows["scale"] == 2.0) & (result.rows["method"] == "b")]
+    line = row(integrity, {"scale": "2", "method": "b"})
+    assert line["epochs"] == str(len(toy)) and line["valid"] == f"{toy['valid'].mean():.3f}"
+    assert line["mean NEES"] == "n/a"  # the toy rows carry no NEES
 
 
 def test_noop_experiment_runs_on_the_process_pool(tmp_path):
@@ -264,6 +272,7 @@ def test_experiment_report_follows_the_generic_report(tmp_path):
     report = (tmp_path / "report.md").read_text()
     generic, _, own = report.partition("## Toy section")
     assert "# toy-report" in generic and "## Failed trials" in generic
+    assert "## Integrity" not in generic  # the experiment's report has its own
     assert f"{len(result.rows)} rows, 6 summary rows, scales [1.0, 2.0, 3.0]." in own
     assert (tmp_path / "toy-figure.txt").read_text() == f"{len(result.rows)} rows\n"
 

@@ -11,6 +11,7 @@ from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import run_sweep
 from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT, PARAMETERS, interval_labels
 from attopt.experiments.wahba_mag_sun.scenario import build_geometry
+from tests.report_tables import row, table
 
 FILTERS = ["mekf", "usque", "rts", "fg_batch"]
 SHORT = {
@@ -70,10 +71,21 @@ def test_optimal_methods_give_identical_errors(sweep):
         )
 
 
-def test_report_compares_with_seed_002(sweep):
+def test_report_puts_table_1_beside_the_summary(sweep):
     report = (sweep.out_dir / "report.md").read_text()
-    assert "Seed 002 Table 1 beside ours" in report
-    assert "3.38 / 1.79 / 0.97" in report  # the seed's q-method row, before eclipse
+    table1 = table(report, "Cilden Guler et al. 2017 Table 1 beside ours")
+    q_method = row(table1, {"method": "q_method", "interval": "before_eclipse"})
+    assert q_method["RMS roll / pitch / yaw (Cilden Guler et al. 2017 Table 1)"] == (
+        "3.38 / 1.79 / 0.97"
+    )
+    summary = sweep.summary.set_index(["method", "interval"]).loc[("q_method", "before_eclipse")]
+    ours = " / ".join(f"{summary[f'{a}_rms_deg']:.3f}" for a in ("roll", "pitch", "yaw"))
+    assert q_method["RMS roll / pitch / yaw"] == ours
+    assert row(table1, {"method": "triad", "interval": "eclipse"}).iloc[3:6].tolist() == [
+        "-",
+        "-",
+        "nd",
+    ]
     assert (sweep.out_dir / "error_quest.png").stat().st_size > 10_000
 
 
@@ -164,10 +176,27 @@ def test_bad_filter_parameters_are_rejected(overrides, message):
         EXPERIMENT.grid({**PARAMETERS, **overrides})
 
 
-def test_report_has_the_filter_section(sweep):
+def test_report_has_the_filter_section_and_integrity(sweep):
     report = (sweep.out_dir / "report.md").read_text()
-    assert "## Gyro-aided filters through the eclipse" in report
-    assert "`mems` gyro" in report
+    filters = table(report, "Gyro-aided filters through the eclipse")
+    rows = sweep.rows[sweep.rows["method"].isin(FILTERS) & (sweep.rows["interval"] == "eclipse")]
+    for method, frame in rows.groupby("method"):
+        line = row(filters, {"method": method, "interval": "eclipse"})
+        assert line["mean NEES (3)"] == f"{frame['nees'].mean():.3f}"
+        assert line["mean NEES (6)"] == f"{frame['nees_full'].mean():.3f}"
+        ratio = np.sqrt(
+            sum((frame[f"err_{a}_deg"] ** 2).mean() for a in "xyz")
+            / sum((frame[f"pbound_{a}_deg"] ** 2).mean() for a in "xyz")
+        )
+        assert float(line["RMS / posterior bound"]) == pytest.approx(ratio, abs=5e-4)
+    runtime = table(report, "Gyro-aided filters through the eclipse", 1)
+    assert runtime["filter"].tolist() == FILTERS and set(runtime["passes"]) == {"2"}
+    integrity = table(report, "Integrity")
+    sdp = row(integrity, {"method": "sdp", "interval": "eclipse"})
+    assert sdp.iloc[2:].tolist() == ["598", "0.000", "0", "n/a", "n/a"]  # 2 x 299 epochs
+    valid = sweep.rows[(sweep.rows["method"] == "sdp") & (sweep.rows["interval"] != "eclipse")]
+    line = row(integrity, {"method": "sdp", "interval": "before_eclipse"})
+    assert float(line["mean NEES"]) == pytest.approx(valid["nees"].mean(), rel=5e-3)
     for name in ("filter_errors.png", "gyro_bias.png"):
         assert f"![{name}]({name})" in report
         assert (sweep.out_dir / name).stat().st_size > 10_000

@@ -103,14 +103,7 @@ from attopt.experiments.adsb_snr.filters import (
     check_parameters,
     filter_rows,
 )
-from attopt.experiments.adsb_snr.report import (
-    AXES,
-    MANY_OBSERVATIONS,
-    bounded_valid_rows,
-    crlb_ratio_by_group,
-    report,
-    signed_max,
-)
+from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
 from attopt.experiments.adsb_snr.scenario import (
     BORESIGHTS_BODY,
     build_adsb_geometry,
@@ -122,8 +115,13 @@ from attopt.experiments.filtering import (
     OFFSET_PRIOR_SIGMA_DB,
     child_rng,
 )
-from attopt.experiments.metrics import error_columns
-from attopt.experiments.sweep.aggregate import valid_mask
+from attopt.experiments.metrics import AXES, error_columns
+from attopt.experiments.reporting.statistics import (
+    bounded_valid_rows,
+    rms_ratio_by_group,
+    signed_max,
+    valid_mask,
+)
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
@@ -466,7 +464,7 @@ def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
         ("crlb_ratio_10plus", bounded[bounded["n_obs"] >= MANY_OBSERVATIONS], "bound"),
         ("crlb_ratio_truncated", bounded_valid_rows(rows, "bound_truncated"), "bound_truncated"),
     ):
-        out[column] = crlb_ratio_by_group(subset, keys, bound)
+        out[column] = rms_ratio_by_group(subset, keys, bound)
     n_valid = valid.size().reindex(out.index, fill_value=0)
     out["n_unbounded"] = n_valid - bounded.groupby(keys).size().reindex(out.index, fill_value=0)
     checked = rows.dropna(subset=["wrong_minimum"]).groupby(keys)["wrong_minimum"]
@@ -478,7 +476,7 @@ def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
 EXPERIMENT = Experiment(
     name="adsb-snr",
     summary=(
-        "Seed 000: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) and "
+        "Liu et al. 2023: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) and "
         "gyro-aided filters (MEKF, USQUE, RTS) and GTSAM smoothers over an hour, vs the CRB"
     ),
     parameters=PARAMETERS,

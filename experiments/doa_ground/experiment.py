@@ -35,7 +35,7 @@ noise is drawn), and every estimator sees the same DOAs:
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (:data:`attopt.solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``bls_seed003`` (:data:`~attopt.experiments.doa_ground.report.BATCH_LS`), in the first
+5. ``bls_seed003`` (:data:`~attopt.experiments.doa_ground.methods.BATCH_LS`), in the first
    ``filter_trials`` trials of each setting
    (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
    least squares over the seed's deterministic dynamics
@@ -76,13 +76,8 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.doa_ground.report import (
-    BATCH_LS,
-    GYRO_FILTERS,
-    ekf_method,
-    report,
-    rts_method,
-)
+from attopt.experiments.doa_ground.methods import BATCH_LS, GYRO_FILTERS, ekf_method, rts_method
+from attopt.experiments.doa_ground.report import report
 from attopt.experiments.doa_ground.scenario import (
     DURATION_S,
     FILTER_INITIAL_EULER_DEG,
@@ -563,8 +558,8 @@ def _doa_row(
 EXPERIMENT = Experiment(
     name="doa-ground",
     summary=(
-        "Seed 003: attitude from MUSIC DOAs of ground stations, EKF, Wahba, gyro-aided MEKF "
-        "and GTSAM smoother, Tables 1-2"
+        "Yang et al. 2014: attitude from MUSIC DOAs of ground stations, EKF, Wahba, "
+        "gyro-aided MEKF and GTSAM smoother, Tables 1-2"
     ),
     parameters=PARAMETERS,
     grid=grid,

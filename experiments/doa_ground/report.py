@@ -1,110 +1,71 @@
-"""Report of ``doa-ground``: seed 003 Tables 1 and 2 beside ours, a one-line-per-setting
-summary, the smoother target, the estimators' consistency (NEES), runtimes and
-convergence.
+"""Report of ``doa-ground``: Yang et al. 2014 Tables 1 and 2 beside ours, a summary line
+per setting, the smoothers against the EKF on the same trials, consistency by phase,
+integrity, runtimes and the convergence (Figs. 6-7).
 
 Pooling:
 
 * DOA RMSEs pool every accepted MUSIC estimate of every trial (the ``music``
   row of a trial holds its counts and mean squared errors, weighted by the
   accepted count; the CRB by the count of estimates).
-* Attitude RMSEs follow seed 003 eq. 34: one root mean square over all
-  ``settled`` rows of all trials of a setting, valid rows only (NaN rows of a
-  method without a solution do not count).  Yaw, roll and pitch are the 3-2-1
-  Euler-angle differences; the total is ``sqrt(mean(err_x^2 + err_y^2 +
-  err_z^2))`` of the body-axis errors, and the bound's total the same of
-  ``pbound_*`` (posterior bound of a pass) or ``bound_*`` (single-epoch CRB),
-  and ``crb_*`` (the EKF's and RTS's bound with ``Q = 0``) likewise.
-* The smoother-versus-EKF table pools, per setting, only the trials in which
-  the :data:`SUBSET_METHODS` ran (all trials if none ran in that setting),
-  the same trials for every method of the table.
+* Attitude RMSEs follow Yang et al. 2014 eq. 34: one root mean square over
+  all ``settled`` valid rows of all trials of a setting.  Yaw, roll and pitch
+  are the 3-2-1 Euler-angle differences; the total is ``sqrt(mean(err_x^2 +
+  err_y^2 + err_z^2))`` of the body-axis errors, and the bound's total the
+  same of ``pbound_*`` (posterior bound of a pass) or ``bound_*`` (single-epoch
+  CRB), and ``crb_*`` (the EKF's and RTS's bound with ``Q = 0``) likewise.
+* The smoother table pools, per setting, only the trials in which the
+  :data:`~attopt.experiments.doa_ground.methods.SUBSET_METHODS` ran (all
+  trials if none ran in that setting), the same trials for every column.
 * Runtimes: mean over passes (one ``runtime_s`` per trial and method).
 
-The convergence figure (seed 003 Figs. 6-7) draws the first trial of the
-setting nearest to the seed's first simulation (0 dB, ``L = 100``).
+What the bounds are and why ours differ from the paper's: ``docs/doa.md``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
 
+from attopt.experiments.doa_ground.methods import (
+    BATCH_LS,
+    SMOOTHER,
+    SUBSET_METHODS,
+    attitude_methods,
+    ekf_method,
+    process_noises,
+    rts_method,
+)
 from attopt.experiments.experiment import ReportContext
-from attopt.solvers.doa.ekf import PROCESS_NOISE
+from attopt.experiments.reporting.figures import error_figure, image_links, save_figure
+from attopt.experiments.reporting.integrity import integrity_section
+from attopt.experiments.reporting.paper_values import paper_label, paper_table, paper_values
+from attopt.experiments.reporting.statistics import (
+    AXES,
+    integrity,
+    nees_threshold,
+    squared_norm,
+)
+from attopt.experiments.reporting.tables import (
+    cell,
+    document,
+    joined,
+    made_by,
+    markdown_table,
+    section,
+    with_paper,
+)
 
-# Seed 003 Tables 1-2: (snr_db, L) -> RMSE theta, phi, yaw, roll, pitch (deg).
-SEED003_TABLES: dict[tuple[float, int], tuple[float, float, float, float, float]] = {
-    (-14.0, 100): (11.118, 68.128, 7.397, 3.662, 1.732),
-    (-12.0, 100): (4.106, 17.337, 0.652, 0.177, 0.457),
-    (-10.0, 100): (1.518, 1.307, 0.130, 0.079, 0.215),
-    (-8.0, 100): (0.921, 0.791, 0.109, 0.078, 0.157),
-    (-6.0, 100): (0.595, 0.534, 0.094, 0.071, 0.111),
-    (-2.0, 100): (0.354, 0.334, 0.084, 0.060, 0.094),
-    (0.0, 100): (0.315, 0.308, 0.083, 0.061, 0.094),
-    (14.0, 100): (0.287, 0.289, 0.084, 0.060, 0.093),
-    (0.0, 1): (8.354, 51.089, 15.956, 10.071, 6.852),
-    (0.0, 10): (0.781, 0.684, 0.099, 0.070, 0.146),
-    (0.0, 20): (0.408, 0.385, 0.086, 0.064, 0.100),
-    (0.0, 50): (0.342, 0.326, 0.084, 0.062, 0.091),
-    (0.0, 1000): (0.287, 0.289, 0.084, 0.062, 0.093),
-}
-SEED003_TABLE1_SNAPSHOTS = 100
-SEED003_TABLE2_SNR_DB = 0.0
-GYRO_FILTERS = ("mekf", "fg_batch")
-"""Default ``filters``: the gyro-aided MEKF and the factor-graph smoother."""
-SMOOTHER = "fg_batch"
-BATCH_LS = "bls_seed003"
-"""Whole-pass batch least squares over the seed's dynamics (``Q = 0``)."""
-SUBSET_METHODS = (BATCH_LS, *GYRO_FILTERS)
-"""Methods that run only in the first ``filter_trials`` trials of a setting."""
-SMOOTHER_TARGET = 0.5
-"""Issue target: a smoother's settled RMS at most half the seed's EKF's on the same data."""
-ATTITUDE_THRESHOLD_DEG = 0.5
-"""Seed 003 sec. 6: attitude errors converge to 0.5 deg (within 1500 s)."""
-RATE_THRESHOLD_DEG_S = 0.1
-"""Seed 003 sec. 6: rate errors reach 0.1 deg/s (in about 1000 s)."""
+PACKAGE = "attopt.experiments.doa_ground"
 EULER = ("yaw", "roll", "pitch")
-AXES = ("x", "y", "z")
 SETTING = ["snr_db", "snapshots"]
+SETTING_NAMES = {"snr_db": "SNR dB", "snapshots": "L"}
+SETTING_FORMATS = {"SNR dB": "g"}
 KEYS = [*SETTING, "method"]
-
-
-def ekf_method(q: float) -> str:
-    """Method name of the seed's EKF with process noise ``q``."""
-    return f"ekf_seed003_q{q:.0e}"
-
-
-def rts_method(q: float) -> str:
-    """Method name of the RTS smoother over the EKF with process noise ``q``."""
-    return f"rts_seed003_q{q:.0e}"
-
-
-def process_noises(parameters: Mapping[str, Any]) -> list[float]:
-    """The EKFs' ``Q`` values; the first is the seed's (default its 1e-9 alone)."""
-    return [float(q) for q in np.atleast_1d(parameters.get("process_noise", PROCESS_NOISE))]
-
-
-def attitude_methods(rows: pd.DataFrame, parameters: Mapping[str, Any]) -> list[str]:
-    """Attitude methods present in ``rows``: EKFs and RTSs in ``process_noise`` order,
-    the batch least squares, ``wahba``, then the gyro-aided ``filters``."""
-    qs = process_noises(parameters)
-    candidates = [
-        *map(ekf_method, qs),
-        *map(rts_method, qs),
-        BATCH_LS,
-        "wahba",
-        *parameters.get("filters", GYRO_FILTERS),
-    ]
-    present = set(rows["method"])
-    return [m for m in dict.fromkeys(candidates) if m in present]
+TABLE1_SNAPSHOTS = 100
+TABLE2_SNR_DB = 0.0
 
 
 def doa_table(rows: pd.DataFrame) -> pd.DataFrame:
@@ -129,14 +90,6 @@ def doa_table(rows: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def _squared_norm(rows: pd.DataFrame, prefix: str) -> pd.Series:
-    """``x^2 + y^2 + z^2`` of the ``{prefix}_{axis}_deg`` columns (NaN if any is NaN or absent)."""
-    columns = [f"{prefix}_{a}_deg" for a in AXES]
-    if not set(columns) <= set(rows.columns):
-        return pd.Series(np.nan, index=rows.index)
-    return (rows[columns] ** 2).sum(axis=1, min_count=len(columns))
-
-
 def attitude_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
     """Per ``(snr_db, snapshots, method)``: settled Euler and total RMSEs (eq. 34 pooling,
     valid rows), the bound's total RMS, RMS / bound, valid share and contributing trials."""
@@ -146,9 +99,9 @@ def attitude_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
     squares = pd.DataFrame(
         {
             **{f"{n}_rmse_deg": good[f"euler_{n}_err_deg"] ** 2 for n in EULER},
-            "total_rmse_deg": _squared_norm(good, "err"),
-            "bound_total_deg": _squared_norm(good, "pbound").fillna(_squared_norm(good, "bound")),
-            "crb_total_deg": _squared_norm(good, "crb"),
+            "total_rmse_deg": squared_norm(good, "err"),
+            "bound_total_deg": squared_norm(good, "pbound").fillna(squared_norm(good, "bound")),
+            "crb_total_deg": squared_norm(good, "crb"),
         }
     )
     share = valid.groupby([settled[k] for k in KEYS]).mean()
@@ -160,8 +113,8 @@ def attitude_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
 
 
 def shared_trials(rows: pd.DataFrame) -> pd.DataFrame:
-    """The rows of the trials in which the :data:`SUBSET_METHODS` ran, per setting (every
-    trial of a setting in which none ran)."""
+    """The rows of the trials in which the subset methods ran, per setting (every trial of a
+    setting in which none ran)."""
     in_subset = rows["method"].isin(SUBSET_METHODS)
     in_trial = in_subset.groupby([rows[k] for k in [*SETTING, "trial_index"]]).transform("any")
     in_setting = in_subset.groupby([rows[k] for k in SETTING]).transform("any")
@@ -176,13 +129,25 @@ def runtime_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
     return table.reindex([m for m in methods if m in table.index])
 
 
-def convergence_times(curve: pd.DataFrame) -> tuple[float, float]:
-    """First times after which every Euler error stays within 0.5 deg and every rate error
-    within 0.1 deg/s (NaN if never)."""
-    attitude = (
-        curve[[f"euler_{n}_err_deg" for n in EULER]].abs().max(axis=1) > ATTITUDE_THRESHOLD_DEG
-    )
-    rate = curve[[f"rate_err_{a}_deg_s" for a in AXES]].abs().max(axis=1) > RATE_THRESHOLD_DEG_S
+def consistency_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
+    """Per ``(snr_db, snapshots, method, phase)``: mean and median attitude NEES of the valid
+    rows and their share above the chi-square(3) integrity quantile."""
+    chosen = rows[rows["method"].isin(methods)]
+    table = integrity(chosen, [*KEYS, "phase"])
+    valid = chosen[chosen["valid"].astype(bool)]
+    median = valid.groupby([*KEYS, "phase"])["nees"].median()
+    return pd.DataFrame(
+        {"mean": table["mean_nees"], "median": median, "above": table["share_beyond"]}
+    ).dropna(how="all")
+
+
+def convergence_times(
+    curve: pd.DataFrame, attitude_deg: float, rate_deg_s: float
+) -> tuple[float, float]:
+    """First times after which every Euler error stays within ``attitude_deg`` and every
+    rate error within ``rate_deg_s`` (NaN if not at the end of the pass)."""
+    attitude = curve[[f"euler_{n}_err_deg" for n in EULER]].abs().max(axis=1) > attitude_deg
+    rate = curve[[f"rate_err_{a}_deg_s" for a in AXES]].abs().max(axis=1) > rate_deg_s
     return _settling_time(curve["t"], attitude), _settling_time(curve["t"], rate)
 
 
@@ -194,85 +159,24 @@ def _settling_time(t: pd.Series, outside: pd.Series) -> float:
 
 
 def convergence_trial(
-    rows: pd.DataFrame, methods: Sequence[str]
+    rows: pd.DataFrame, methods: Sequence[str], snr_db: float, snapshots: int
 ) -> tuple[dict[str, pd.DataFrame], float, int]:
-    """Rows (sorted by ``t``) per method of the first trial of the setting nearest 0 dB,
-    ``L = 100``, with that setting's SNR and ``L``."""
+    """Rows (sorted by ``t``) per method of the first trial of the setting nearest
+    ``snr_db`` and ``snapshots``, with that setting's SNR and ``L``."""
     attitude = rows[rows["method"].isin(methods)]
     settings = attitude[SETTING].drop_duplicates()
-    distance = settings["snr_db"].abs() + np.abs(np.log10(settings["snapshots"] / 100.0))
-    snr, snapshots = settings.iloc[int(np.argmin(distance.to_numpy()))]
-    chosen = attitude[(attitude["snr_db"] == snr) & (attitude["snapshots"] == snapshots)]
+    distance = (settings["snr_db"] - snr_db).abs() + np.abs(
+        np.log10(settings["snapshots"] / snapshots)
+    )
+    snr, count = settings.iloc[int(np.argmin(distance.to_numpy()))]
+    chosen = attitude[(attitude["snr_db"] == snr) & (attitude["snapshots"] == count)]
     first = chosen[chosen["trial_index"] == chosen["trial_index"].min()].sort_values("t")
-    return dict(tuple(first.groupby("method"))), float(snr), int(snapshots)
-
-
-def _figure(
-    curves: Mapping[str, pd.DataFrame], qs: Sequence[float], title: str, path: Path
-) -> None:
-    """Top: Euler errors of the seed's-Q EKF and (dashed) the lowest-Q EKF, total errors of
-    the lowest-Q RTS, ``fg_batch`` and the batch least squares; bottom: the EKFs' rate
-    errors."""
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    drawn = dict.fromkeys([qs[0], min(qs)])  # the seed's Q, then the lowest if another
-    for q, style in zip(drawn, ("-", "--"), strict=False):
-        curve = curves.get(ekf_method(q))
-        if curve is None:
-            continue
-        for name, color in zip(EULER, ("C0", "C1", "C2"), strict=True):
-            top.plot(
-                curve["t"],
-                curve[f"euler_{name}_err_deg"],
-                style,
-                color=color,
-                label=f"{name}, EKF Q={q:.0e}",
-            )
-        for axis, color in zip(AXES, ("C0", "C1", "C2"), strict=True):
-            bottom.plot(
-                curve["t"],
-                curve[f"rate_err_{axis}_deg_s"],
-                style,
-                color=color,
-                label=f"omega_{axis}, EKF Q={q:.0e}",
-            )
-    for method, color in ((rts_method(min(qs)), "C3"), (SMOOTHER, "C4"), (BATCH_LS, "C5")):
-        if method in curves:
-            curve = curves[method]
-            total = np.sqrt(_squared_norm(curve, "err"))
-            top.plot(curve["t"], total, color=color, label=f"{method} total")
-    top.set_ylabel("attitude error (deg)")
-    top.set_yscale("symlog", linthresh=0.1)
-    top.legend(fontsize="small", ncol=2)
-    bottom.set_ylabel("rate error (deg/s)")
-    bottom.set_yscale("symlog", linthresh=0.01)
-    bottom.set_xlabel("t (s)")
-    bottom.legend(fontsize="small", ncol=2)
-    top.set_title(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def _f(x: float | None, spec: str = ".3f") -> str:
-    """``x`` formatted with ``spec``; ``-`` for a missing or non-finite value."""
-    return "-" if x is None or not np.isfinite(x) else format(x, spec)
-
-
-def _since(time_s: float) -> str:
-    return f"from t = {time_s:.0f} s" if np.isfinite(time_s) else "not at the end of the pass"
-
-
-def _verdict(ratio: float) -> str:
-    if not np.isfinite(ratio):
-        return "-"
-    return f"{ratio:.2f} ({'met' if ratio <= SMOOTHER_TARGET else 'missed'})"
+    return dict(tuple(first.groupby("method"))), float(snr), int(count)
 
 
 def _entry(table: pd.DataFrame, key: tuple[Any, ...]) -> pd.Series:
     """Row ``key`` of ``table``, or NaN in every column."""
-    if key in table.index:
-        return table.loc[key]
-    return pd.Series(np.nan, index=table.columns)
+    return table.loc[key] if key in table.index else pd.Series(np.nan, index=table.columns)
 
 
 def _table_settings(
@@ -285,294 +189,284 @@ def _table_settings(
     return [(float(s), int(n)) for s, n in chosen.sort_values(swept)[SETTING].to_numpy()]
 
 
-def _seed_table(
-    title: str,
+def _paper(name: str) -> pd.DataFrame:
+    table = paper_table(PACKAGE, name)
+    return table.astype({"snr_db": float, "snapshots": int}).set_index(SETTING)
+
+
+def _papers() -> pd.DataFrame:
+    """Tables 1 and 2 together, one row per setting."""
+    both = pd.concat([_paper("table1"), _paper("table2")])
+    return both[~both.index.duplicated()]
+
+
+def paper_table_section(
+    name: str,
     settings: Sequence[tuple[float, int]],
     doa: pd.DataFrame,
     attitude: pd.DataFrame,
     methods: Sequence[str],
-) -> list[str]:
-    """One of seed 003's tables: the DOA table and the attitude table beside the seed's."""
-    lines = [
-        "",
-        f"## {title}",
-        "",
-        "| SNR dB | L | theta RMSE (seed) | phi RMSE (seed) | CRB theta / phi | accepted |",
-        "|---|---|---|---|---|---|",
-    ]
-    for snr, snapshots in settings:
-        seed = SEED003_TABLES.get((snr, snapshots), (np.nan,) * 5)
-        d = _entry(doa, (snr, snapshots))
-        lines.append(
-            f"| {snr:g} | {snapshots} | {_f(d['theta_rmse_deg'])} ({_f(seed[0])}) "
-            f"| {_f(d['phi_rmse_deg'])} ({_f(seed[1])}) "
-            f"| {_f(d['crb_theta_deg'])} / {_f(d['crb_phi_deg'])} | {_f(d['accepted'])} |"
-        )
-    lines += [
-        "",
-        "| SNR dB | L | method | yaw | roll | pitch | seed 003 EKF yaw / roll / pitch "
-        "| total RMS | bound RMS | RMS / bound | CRB (Q = 0) | valid | trials |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for snr, snapshots in settings:
-        seed = SEED003_TABLES.get((snr, snapshots), (np.nan,) * 5)
-        for method in methods:
-            a = _entry(attitude, (snr, snapshots, method))
-            beside = " / ".join(map(_f, seed[2:])) if method.startswith("ekf_") else ""
-            lines.append(
-                f"| {snr:g} | {snapshots} | {method} "
-                f"| {' | '.join(_f(a[f'{n}_rmse_deg']) for n in EULER)} | {beside} "
-                f"| {_f(a['total_rmse_deg'])} | {_f(a['bound_total_deg'])} "
-                f"| {_f(a['ratio'], '.2f')} | {_f(a['crb_total_deg'], '.4f')} "
-                f"| {_f(a['valid'])} | {_f(a['trials'], '.0f')} |"
+    command: str,
+) -> str:
+    """One of the paper's tables: our DOA and attitude RMSEs beside it."""
+    label = paper_label(PACKAGE, name)
+    paper = _paper(name)
+    index = pd.MultiIndex.from_tuples(settings, names=SETTING)
+    doa_rows = doa.reindex(index).set_axis(
+        ["theta RMSE", "phi RMSE", "CRB theta", "CRB phi", "accepted"], axis=1
+    )
+    doa_rows = with_paper(
+        doa_rows.reset_index(), paper[["theta", "phi"]].reset_index(), SETTING, label
+    )
+    keys = pd.MultiIndex.from_tuples([(*k, m) for k in settings for m in methods], names=KEYS)
+    ours = attitude.reindex(keys).reset_index()
+    beside = joined(paper.reindex(pd.MultiIndex.from_frame(ours[SETTING])), EULER).to_numpy()
+    lines = ours[KEYS].assign(
+        **{n: ours[f"{n}_rmse_deg"] for n in EULER},
+        **{
+            f"EKF yaw / roll / pitch ({label})": np.where(
+                ours["method"].str.startswith("ekf_"), beside, ""
             )
-    return lines
+        },
+        **{
+            "total RMS": ours["total_rmse_deg"],
+            "bound RMS": ours["bound_total_deg"],
+            "RMS / bound": ours["ratio"],
+            "CRB (Q = 0)": ours["crb_total_deg"],
+            "valid": ours["valid"],
+            "trials": ours["trials"],
+        },
+    )
+    caption = (
+        "DOA: RMSE over the accepted MUSIC estimates of all trials, RMS Cramer-Rao bound at the "
+        "true DOAs and the share accepted. Attitude: eq. 34 RMSE over the settled valid rows of "
+        "all trials (3-2-1 Euler-angle differences; total over the body axes), the RMS of each "
+        "row's bound (posterior bound of the method's own model, single-epoch CRB for wahba), "
+        "the Cramer-Rao bound of the paper's problem (Q = 0), the valid share and the trials "
+        "with a solution (deg)." + made_by(command)
+    )
+    formats = {"RMS / bound": ".2f", "CRB (Q = 0)": ".4f", "trials": ".0f"}
+    return section(
+        f"{label} beside ours",
+        caption,
+        markdown_table(doa_rows.rename(columns=SETTING_NAMES), SETTING_FORMATS, spec=".3f"),
+        markdown_table(lines.rename(columns=SETTING_NAMES), SETTING_FORMATS | formats, spec=".3f"),
+    )
 
 
-def _summary_lines(
+def summary_section(
     settings: Sequence[tuple[float, int]],
     doa: pd.DataFrame,
     attitude: pd.DataFrame,
     qs: Sequence[float],
-) -> list[str]:
-    """One line per setting: the DOA RMSEs against the CRB, the EKFs' Euler RMSEs at the
-    seed's and the lowest ``Q`` (the seed's values beside the lowest), the lowest-``Q``
-    RTS, the batch least squares and the whole pass's ``Q = 0`` CRB (totals)."""
-    seed_q, low = qs[0], min(qs)
-    lines = [
-        "",
-        "## Summary",
-        "",
-        "DOA RMSE / RMS CRB (deg) and the share of estimates accepted; settled attitude RMSEs "
-        "(deg): the EKFs' yaw, roll, pitch (seed 003 in brackets), the total RMS of the RTS "
-        f"pass and of `{BATCH_LS}` (in the trials it ran in), and the total of the CRB "
-        "(Q = 0) of the whole pass (the RTS rows' `crb_*`, the bound of the smoothers and of "
-        "the batch least squares).",
-        "",
-        "| SNR dB | L | theta / CRB (seed) | phi / CRB (seed) | accepted "
-        f"| EKF Q = {seed_q:.0e}: yaw, roll, pitch "
-        + (f"| EKF Q = {low:.0e}: yaw, roll, pitch (seed) " if low != seed_q else "")
-        + f"| RTS Q = {low:.0e} | {BATCH_LS} | CRB (Q = 0) |",
-        "|---|---|---|---|---|---|" + ("---|" if low != seed_q else "") + "---|---|---|",
-    ]
-    for snr, snapshots in settings:
-        seed = SEED003_TABLES.get((snr, snapshots), (np.nan,) * 5)
-        d = _entry(doa, (snr, snapshots))
-        euler = {
-            q: ", ".join(
-                _f(_entry(attitude, (snr, snapshots, ekf_method(q)))[f"{n}_rmse_deg"])
-                for n in EULER
+    command: str,
+) -> str:
+    """One line per setting: DOA against the CRB, the EKFs' Euler RMSEs at the paper's and
+    the lowest ``Q`` (the paper's beside the lowest), the lowest-``Q`` RTS, the batch least
+    squares and the whole pass's ``Q = 0`` CRB (totals)."""
+    paper = _papers()
+    label = paper_values(PACKAGE)["paper"]
+    first, low = qs[0], min(qs)
+    lines = []
+    for key in settings:
+        seed = paper.loc[key] if key in paper.index else pd.Series(np.nan, index=paper.columns)
+        d = _entry(doa, key)
+        line = {"SNR dB": key[0], "L": key[1]}
+        for angle in ("theta", "phi"):
+            line[f"{angle} / CRB ({label})"] = (
+                f"{cell(d[f'{angle}_rmse_deg'], '.3f')} / {cell(d[f'crb_{angle}_deg'], '.3f')} "
+                f"({cell(seed[angle], '.3f')})"
             )
-            for q in (seed_q, low)
-        }
-        cells = [
-            f"{_f(d['theta_rmse_deg'])} / {_f(d['crb_theta_deg'])} ({_f(seed[0])})",
-            f"{_f(d['phi_rmse_deg'])} / {_f(d['crb_phi_deg'])} ({_f(seed[1])})",
-            _f(d["accepted"]),
-            euler[seed_q],
-        ]
-        if low != seed_q:
-            cells.append(f"{euler[low]} ({', '.join(map(_f, seed[2:]))})")
-        cells += [
-            _f(_entry(attitude, (snr, snapshots, rts_method(low)))["total_rmse_deg"]),
-            _f(_entry(attitude, (snr, snapshots, BATCH_LS))["total_rmse_deg"], ".4f"),
-            _f(_entry(attitude, (snr, snapshots, rts_method(low)))["crb_total_deg"], ".4f"),
-        ]
-        lines.append(f"| {snr:g} | {snapshots} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def _smoother_lines(rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[float]) -> list[str]:
-    """Total settled RMS of the smoothers against each EKF on the trials the
-    :data:`SUBSET_METHODS` ran in, with the ``Q = 0`` CRB."""
-    shared = shared_trials(rows)
-    table = attitude_table(shared, methods)
-    others = [m for m in (BATCH_LS, SMOOTHER) if m in methods]
-    trials = shared.groupby(SETTING)["trial_index"].nunique()
-    lines = [
-        "",
-        "## Smoother versus the seed's EKF on the same data",
-        "",
-        f"Issue target: a smoother's total settled RMS at most {SMOOTHER_TARGET:g} times the "
-        f"EKF's. Per setting only the trials in which `{'`, `'.join(SUBSET_METHODS)}` ran (all "
-        "trials where none did), the same trials for every column; RTS is the smoother over "
-        f"the EKF of the same Q, `{BATCH_LS}` the whole-pass batch least squares over the "
-        "seed's dynamics (Q = 0), whose Cramer-Rao bound is the CRB column (the whole "
-        "pass's, the RTS rows' `crb_*`). RMS in deg.",
-        "",
-        "| SNR dB | L | trials | Q | EKF | "
-        + " | ".join(f"{label} | {label} / EKF" for label in ["RTS", *others])
-        + " | CRB (Q = 0) |",
-        "|---|---|---|---|---|" + "---|---|" * (1 + len(others)) + "---|",
-    ]
-    for (snr, snapshots), count in trials.items():
-        for q in qs:
-            ekf = _entry(table, (snr, snapshots, ekf_method(q)))["total_rmse_deg"]
-            crb = _entry(table, (snr, snapshots, rts_method(q)))["crb_total_deg"]
-            cells = []
-            for name in [rts_method(q), *others]:
-                rms = _entry(table, (snr, snapshots, name))["total_rmse_deg"]
-                cells += [_f(rms), _verdict(rms / ekf)]
-            lines.append(
-                f"| {snr:g} | {snapshots} | {count} | {q:.0e} | {_f(ekf)} | "
-                + " | ".join(cells)
-                + f" | {_f(crb, '.4f')} |"
-            )
-    return lines
-
-
-NEES_PROBABILITY = 0.9999
-"""Quantile of ``chi2(3)`` above which a row's attitude NEES counts as inconsistent."""
-
-
-def consistency_table(rows: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
-    """Per ``(snr_db, snapshots, method)`` and phase: mean and median attitude NEES of the
-    valid rows and their share above the ``chi2(3)`` :data:`NEES_PROBABILITY` quantile."""
-    if "nees" not in rows:
-        rows = rows.assign(nees=np.nan)
-    chosen = rows[rows["method"].isin(methods) & rows["valid"].astype(bool)]
-    chosen = chosen[chosen["nees"].notna()]
-    threshold = chi2.ppf(NEES_PROBABILITY, 3)
-    grouped = chosen.groupby([*KEYS, "phase"])["nees"]
-    return pd.DataFrame(
-        {
-            "mean": grouped.mean(),
-            "median": grouped.median(),
-            "above": grouped.apply(lambda x: float(np.mean(x > threshold))),
-        }
+        line["accepted"] = d["accepted"]
+        for q in dict.fromkeys([first, low]):
+            euler = _entry(attitude, (*key, ekf_method(q)))
+            text = ", ".join(cell(euler[f"{n}_rmse_deg"], ".3f") for n in EULER)
+            if q == low and low != first:
+                text += f" ({', '.join(cell(seed[n], '.3f') for n in EULER)})"
+            suffix = f" ({label})" if q == low and low != first else ""
+            line[f"EKF Q = {q:.0e}: yaw, roll, pitch{suffix}"] = text
+        line[f"RTS Q = {low:.0e}"] = _entry(attitude, (*key, rts_method(low)))["total_rmse_deg"]
+        line[BATCH_LS] = cell(_entry(attitude, (*key, BATCH_LS))["total_rmse_deg"], ".4f")
+        line["CRB (Q = 0)"] = cell(
+            _entry(attitude, (*key, rts_method(low)))["crb_total_deg"], ".4f"
+        )
+        lines.append(line)
+    caption = (
+        "DOA RMSE / RMS CRB (deg) and the share accepted; settled attitude RMSEs (deg): the "
+        "EKFs' yaw, roll, pitch (the paper's in brackets), the total RMS of the RTS pass and "
+        f"of `{BATCH_LS}` (in the trials it ran in), and the total of the whole pass's CRB "
+        "(Q = 0, the RTS rows' `crb_*`)." + made_by(command)
+    )
+    return section(
+        "Summary", caption, markdown_table(pd.DataFrame(lines), SETTING_FORMATS, spec=".3f")
     )
 
 
-def _consistency_lines(rows: pd.DataFrame, methods: Sequence[str]) -> list[str]:
+def smoother_section(
+    rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[float], command: str
+) -> str:
+    """Per setting, on the trials the subset methods ran in: total settled RMS of every EKF,
+    RTS, the batch least squares, the gyro-aided rows, and the smoothers' ratios to each EKF."""
+    shared = shared_trials(rows)
+    table = attitude_table(shared, methods)
+    trials = shared.groupby(SETTING)["trial_index"].nunique()
+    ratios = [("RTS", rts_method), (BATCH_LS, lambda _: BATCH_LS), (SMOOTHER, lambda _: SMOOTHER)]
+    lines = []
+    for key, count in trials.items():
+
+        def total(method: str, column: str = "total_rmse_deg", key=key) -> float:
+            return _entry(table, (*key, method))[column]
+
+        line = {"SNR dB": key[0], "L": key[1], "trials": count}
+        line |= {f"EKF Q = {q:.0e}": total(ekf_method(q)) for q in qs}
+        line |= {f"RTS Q = {q:.0e}": total(rts_method(q)) for q in qs}
+        if BATCH_LS in methods:
+            line[f"{BATCH_LS} (CRB)"] = (
+                f"{cell(total(BATCH_LS), '.4f')} ({cell(total(BATCH_LS, 'crb_total_deg'), '.4f')})"
+            )
+        for method in (m for m in methods if m in SUBSET_METHODS and m != BATCH_LS):
+            line[method] = cell(total(method), ".3f")
+            if method == SMOOTHER:
+                bound = cell(total(method, "bound_total_deg"), ".3f")
+                line[f"{method} (pass bound)"] = f"{line.pop(method)} ({bound})"
+        for label, method_of in ratios:
+            for q in qs:
+                if method_of(q) in methods:
+                    line[f"{label} / EKF {q:.0e}"] = total(method_of(q)) / total(ekf_method(q))
+        lines.append(line)
+    caption = (
+        "Total settled RMS (deg) per setting over the trials in which "
+        f"`{'`, `'.join(SUBSET_METHODS)}` ran (all trials where none did), the same trials "
+        "for every column; RTS over the EKF of the same Q; "
+        f"`{BATCH_LS}` beside its Cramer-Rao bound (Q = 0), `{SMOOTHER}` beside the posterior "
+        "bound of its pass with the gyro; ratios to each EKF." + made_by(command)
+    )
+    formats = {c: ".2f" for c in lines[0] if " / EKF " in c} if lines else {}
+    return section(
+        "Smoothers against the EKF on the same data",
+        caption,
+        markdown_table(pd.DataFrame(lines), SETTING_FORMATS | formats, spec=".3f"),
+    )
+
+
+def consistency_section(rows: pd.DataFrame, methods: Sequence[str], command: str) -> str:
+    """Mean and median NEES once settled and the share beyond the quantile in both phases."""
     table = consistency_table(rows, methods)
-    threshold = chi2.ppf(NEES_PROBABILITY, 3)
-    lines = [
-        "",
-        "## Consistency",
-        "",
-        "Attitude NEES `e^T P^-1 e` of the valid rows against each method's own covariance "
-        "(3 for a consistent estimator): mean, median and the share of rows above the "
-        f"chi-square(3) {NEES_PROBABILITY} quantile ({threshold:.1f}), converging / settled. "
-        "The EKF and RTS rows are never flagged invalid, so a diverged pass shows here.",
-        "",
-        "| SNR dB | L | method | mean | median | share above | converging share above |",
-        "|---|---|---|---|---|---|---|",
-    ]
+    lines = []
     for (snr, snapshots, method), _ in table.groupby(level=KEYS, sort=True):
         settled = _entry(table, (snr, snapshots, method, "settled"))
         converging = _entry(table, (snr, snapshots, method, "converging"))
         lines.append(
-            f"| {snr:g} | {snapshots} | {method} | {_f(settled['mean'], '.3g')} "
-            f"| {_f(settled['median'], '.3g')} | {_f(settled['above'])} "
-            f"| {_f(converging['above'])} |"
+            {
+                "SNR dB": snr,
+                "L": snapshots,
+                "method": method,
+                "mean": settled["mean"],
+                "median": settled["median"],
+                "share beyond": settled["above"],
+                "converging share beyond": converging["above"],
+            }
         )
-    return lines
-
-
-def _runtime_lines(rows: pd.DataFrame, methods: Sequence[str]) -> list[str]:
-    lines = [
-        "",
-        "## Runtime",
-        "",
-        "Mean wall-clock time per pass (s), as each method's rows report it.",
-        "",
-        "| method | passes | mean runtime (s) |",
-        "|---|---|---|",
-    ]
-    for method, r in runtime_table(rows, methods).iterrows():
-        lines.append(f"| {method} | {r['count']:.0f} | {_f(r['mean'], '.3g')} |")
-    return lines
-
-
-def _convergence_lines(
-    rows: pd.DataFrame, methods: Sequence[str], qs: Sequence[float], out_dir: Path
-) -> list[str]:
-    curves, snr, snapshots = convergence_trial(rows, methods)
-    _figure(
-        curves,
-        qs,
-        f"First trial, SNR {snr:g} dB, L = {snapshots} (seed 003 Figs. 6-7)",
-        out_dir / "doa_convergence.png",
+    caption = (
+        "Attitude NEES of the valid settled rows against each method's own covariance (3 when "
+        "consistent): mean, median and the share beyond the chi-square(3) 0.9999 quantile "
+        f"({nees_threshold():.1f}), and that share while converging. The EKF and RTS rows are "
+        "never flagged invalid, so a diverged pass shows here." + made_by(command)
     )
+    formats = SETTING_FORMATS | {"mean": ".3g", "median": ".3g"}
+    return section("Consistency", caption, markdown_table(pd.DataFrame(lines), formats, spec=".3f"))
+
+
+def runtime_section(rows: pd.DataFrame, methods: Sequence[str], command: str) -> str:
+    """Mean pass time per method."""
+    table = runtime_table(rows, methods).reset_index()
+    table.columns = ["method", "passes", "mean runtime (s)"]
+    caption = "Mean wall-clock time per pass (s), as each method's rows report it." + made_by(
+        command
+    )
+    return section(
+        "Runtime", caption, markdown_table(table, {"mean runtime (s)": ".3g", "passes": ".0f"})
+    )
+
+
+def convergence_section(ctx: ReportContext, methods: Sequence[str], qs: Sequence[float]) -> str:
+    """Convergence times of each EKF and the first trial's errors (Figs. 6-7)."""
+    stated = paper_values(PACKAGE)["convergence"]
+    label = paper_label(PACKAGE, "convergence")
+    curves, snr, snapshots = convergence_trial(
+        ctx.rows, methods, stated["snr_db"], stated["snapshots"]
+    )
+    attitude_column = f"Euler errors within {stated['attitude_deg']:g} deg from t (s)"
+    rate_column = f"rate errors within {stated['rate_deg_s']:g} deg/s from t (s)"
     lines = [
-        "",
-        "## Convergence (seed 003 Figs. 6-7)",
-        "",
-        f"First trial at SNR {snr:g} dB, L = {snapshots}. Seed 003: Euler-angle errors within "
-        f"{ATTITUDE_THRESHOLD_DEG} deg within 1500 s, rate errors {RATE_THRESHOLD_DEG_S} deg/s "
-        "after about 1000 s.",
-        "",
+        {
+            "row": label,
+            attitude_column: f"within {stated['attitude_within_s']:g}",
+            rate_column: f"about {stated['rate_within_s']:g}",
+        }
     ]
     for q in qs:
         if ekf_method(q) in curves:
-            attitude_time, rate_time = convergence_times(curves[ekf_method(q)])
-            lines.append(
-                f"* EKF Q = {q:.0e}: Euler-angle errors within {ATTITUDE_THRESHOLD_DEG} deg "
-                f"{_since(attitude_time)}, rate errors within {RATE_THRESHOLD_DEG_S} deg/s "
-                f"{_since(rate_time)}."
+            attitude, rate = convergence_times(
+                curves[ekf_method(q)], stated["attitude_deg"], stated["rate_deg_s"]
             )
-    return [*lines, "", "![convergence](doa_convergence.png)"]
+            lines.append({"row": f"EKF Q = {q:.0e}", attitude_column: attitude, rate_column: rate})
+    drawn = [ekf_method(qs[0]), ekf_method(min(qs)), BATCH_LS]
+    frames = {m: curves[m] for m in dict.fromkeys(drawn) if m in curves}
+    figure = error_figure(
+        frames, f"Body-axis error, first trial at SNR {snr:g} dB, L = {snapshots}"
+    )
+    for axis in figure.axes:
+        axis.set_yscale("symlog", linthresh=0.1)
+    name = save_figure(figure, ctx.out_dir, "doa_convergence.png")
+    caption = (
+        f"First trial at SNR {snr:g} dB, L = {snapshots}: when the EKF's 3-2-1 Euler-angle and "
+        "rate errors last enter their thresholds (not at the end of the pass: -); the figure "
+        "draws the body-axis errors with +/-3 sigma of their own covariance (symmetric log "
+        "scale)." + made_by(ctx.command)
+    )
+    return section(
+        f"Convergence ({label})",
+        caption,
+        markdown_table(pd.DataFrame(lines), spec=".0f"),
+        image_links([name]),
+    )
 
 
 def report(ctx: ReportContext) -> str:
-    """Markdown: Tables 1-2 (ours beside seed 003), the smoother target, runtimes and
-    the convergence figure (written to ``ctx.out_dir``)."""
-    parameters = ctx.parameters
+    """Markdown: Tables 1-2 beside ours, the summary, the smoothers, consistency, integrity,
+    runtimes and convergence (the figure written to ``ctx.out_dir``)."""
+    parameters: Mapping[str, Any] = ctx.parameters
     qs = process_noises(parameters)
     methods = attitude_methods(ctx.rows, parameters)
     doa = doa_table(ctx.rows)
     attitude = attitude_table(ctx.rows, methods)
     settings = ctx.rows[SETTING].dropna().drop_duplicates()
-    lines = [
-        "## Seed 003 tables, the smoothers and the bounds",
-        "",
-        "DOA: RMSE over the accepted MUSIC estimates of all trials, the RMS Cramer-Rao bound "
-        "at the true DOAs and the share of estimates MUSIC accepted; seed 003 in brackets.",
-        "Attitude (seed 003 eq. 34): RMSE over the valid rows with "
-        f"t >= {_f(parameters.get('settle_s'), '.0f')} s of all trials, every "
-        f"{_f(parameters.get('row_step_s'), 'g')} s; yaw / roll / pitch are 3-2-1 Euler-angle "
-        "differences, the total RMS is over the three body-axis errors (deg). Bound: the "
-        "filter's or smoother's posterior Cramer-Rao bound (`pbound`) of its own model "
-        "(for the EKF and RTS rows the dynamics with process noise Q per step, which the "
-        "torque-free truth does not have, so errors below it are possible); for `wahba` the "
-        "single-epoch CRB where two or more stations are accepted. CRB (Q = 0): the "
-        "Cramer-Rao bound of the seed's problem itself (known deterministic dynamics, all "
-        "DOAs up to the epoch for the EKF, of the pass for the RTS). Valid: share of settled "
-        "rows with a solution; trials: trials with at least one.",
-        f"`{BATCH_LS}` (batch least squares over the seed's dynamics, Q = 0; its bound is "
-        "the CRB), `mekf` and `fg_batch` (gyro-aided) run only in the first "
-        f"{_f(parameters.get('filter_trials'), '.0f')} trials of a setting.",
-    ]
-    lines += _seed_table(
-        "Seed 003 Table 1",
-        _table_settings(
-            settings,
-            "snapshots",
-            parameters.get("table1_snapshots", SEED003_TABLE1_SNAPSHOTS),
-            "snr_db",
-            parameters.get("table1_snr_db"),
-        ),
-        doa,
-        attitude,
-        methods,
+    table1 = _table_settings(
+        settings,
+        "snapshots",
+        parameters.get("table1_snapshots", TABLE1_SNAPSHOTS),
+        "snr_db",
+        parameters.get("table1_snr_db"),
     )
-    lines += _seed_table(
-        "Seed 003 Table 2",
-        _table_settings(
-            settings,
-            "snr_db",
-            parameters.get("table2_snr_db", SEED003_TABLE2_SNR_DB),
-            "snapshots",
-            parameters.get("table2_snapshots"),
-        ),
-        doa,
-        attitude,
-        methods,
+    table2 = _table_settings(
+        settings,
+        "snr_db",
+        parameters.get("table2_snr_db", TABLE2_SNR_DB),
+        "snapshots",
+        parameters.get("table2_snapshots"),
     )
     ordered = [(float(a), int(b)) for a, b in settings.sort_values(SETTING).to_numpy()]
-    lines += _summary_lines(ordered, doa, attitude, qs)
-    lines += _smoother_lines(ctx.rows, methods, qs)
-    lines += _consistency_lines(ctx.rows, methods)
-    lines += _runtime_lines(ctx.rows, methods)
-    lines += _convergence_lines(ctx.rows, methods, qs, ctx.out_dir)
-    return "\n".join(lines) + "\n"
+    attitude_rows = ctx.rows[ctx.rows["method"].isin(methods)]
+    return document(
+        [
+            paper_table_section("table1", table1, doa, attitude, methods, ctx.command),
+            paper_table_section("table2", table2, doa, attitude, methods, ctx.command),
+            summary_section(ordered, doa, attitude, qs, ctx.command),
+            smoother_section(ctx.rows, methods, qs, ctx.command),
+            consistency_section(ctx.rows, methods, ctx.command),
+            integrity_section(attitude_rows, KEYS, ctx.command),
+            runtime_section(ctx.rows, methods, ctx.command),
+            convergence_section(ctx, methods, qs),
+        ]
+    )

@@ -356,8 +356,9 @@ def summary_columns(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
 EXPERIMENT = Experiment(
     name="geo-snr-stations",
     summary=(
-        "Seed 004: GEO broadcaster boresight from ground-station SNRs (cones, least squares, "
-        "NLP, USQUE with manoeuvre detection, factor-graph smoother)"
+        "Pimienta-Penalver and Crassidis: GEO broadcaster boresight from ground-station "
+        "SNRs (cones, least squares, NLP, USQUE with manoeuvre detection, factor-graph "
+        "smoother)"
     ),
     parameters=PARAMETERS,
     grid=grid,

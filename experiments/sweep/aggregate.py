@@ -1,7 +1,9 @@
 """Per-setting, per-method statistics of the attitude errors of a sweep.
 
 A row counts as valid when its ``valid`` column (if any) is true and its three
-error components are finite.  RMS, means and percentiles are over valid rows;
+error components are finite
+(:func:`attopt.experiments.reporting.statistics.valid_mask`).  RMS, means and
+percentiles are over valid rows;
 the error angle is the norm of the error rotation vector.  When the rows carry
 ``bound_{x,y,z}_deg`` (predicted standard deviations), the RMS of the bound
 over the valid rows and the ratio RMS / bound are added per axis.
@@ -13,6 +15,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 import pandas as pd
+
+from attopt.experiments.reporting.statistics import valid_mask
 
 AXES = (
     ("roll", "err_x_deg", "bound_x_deg"),
@@ -58,15 +62,6 @@ def summarise(
     summary["failed_trials"] = summary["setting_index"].map(failed).fillna(0).astype(int)
     summary = summary.sort_values("setting_index", kind="stable")
     return summary.reset_index(drop=True)
-
-
-def valid_mask(rows: pd.DataFrame) -> np.ndarray:
-    """Return which rows have a valid attitude with finite error components."""
-    errors = rows[list(ERROR_COLUMNS)].to_numpy(dtype=float)
-    valid = np.isfinite(errors).all(axis=1)
-    if "valid" in rows:
-        valid &= rows["valid"].fillna(False).to_numpy(dtype=bool)
-    return valid
 
 
 def invalid_reasons(rows: pd.DataFrame, group_by: Sequence[str]) -> pd.DataFrame:

@@ -1,13 +1,15 @@
-"""The generic part of ``report.md``: what was run, the summary, the failures."""
+"""The generic part of ``report.md``: what was run, the summary, the failures and, for an
+experiment without its own report, the integrity section."""
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import pandas as pd
+
+from attopt.experiments.reporting.tables import markdown_table
 
 MAX_FAILURE_KINDS = 10
 
@@ -35,8 +37,10 @@ def render_report(
     summary: pd.DataFrame,
     reasons: pd.DataFrame,
     failures: pd.DataFrame,
+    integrity: str = "",
 ) -> str:
-    """Return the markdown of the generic report."""
+    """Return the markdown of the generic report (``integrity``: the integrity section of
+    :mod:`attopt.experiments.reporting.integrity`, if any)."""
     parameters = pd.DataFrame(
         {"parameter": list(run.parameters), "value": [repr(v) for v in run.parameters.values()]}
     )
@@ -52,25 +56,10 @@ def render_report(
     ]
     if len(reasons):
         parts.append("## Invalid rows (most common reasons)\n\n" + markdown_table(reasons))
+    if integrity:
+        parts.append(integrity)
     parts.append("## Failed trials\n\n" + _failures_section(failures))
     return "\n".join(parts)
-
-
-def markdown_table(frame: pd.DataFrame) -> str:
-    """Return ``frame`` as a GitHub markdown table (floats to 4 significant digits)."""
-    header = [str(column) for column in frame.columns]
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row in frame.itertuples(index=False):
-        lines.append("| " + " | ".join(_cell(value) for value in row) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def _cell(value: Any) -> str:
-    if isinstance(value, float):
-        return "" if math.isnan(value) else f"{value:.4g}"
-    if value is None or value is pd.NA:
-        return ""
-    return str(value).replace("|", "\\|").replace("\n", " ")
 
 
 def _trial_counts(run: RunDescription) -> str:

@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from attopt.experiments.experiment import Experiment, ReportContext, Setting
 from attopt.experiments.registry import display_name, reference_of
+from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.sweep.aggregate import invalid_reasons, summarise
 from attopt.experiments.sweep.config import resolve_parameters
 from attopt.experiments.sweep.engines import Engine, make_engine
@@ -162,7 +163,7 @@ def run_sweep(
         n_missing=n_missing,
         code_versions=code_versions,
     )
-    _write_outputs(store.out, experiment, description, rows, summary, failures)
+    _write_outputs(store.out, experiment, description, rows, summary, failures, setting_columns)
     return SweepResult(
         out_dir=store.out,
         experiment=experiment.name,
@@ -237,14 +238,23 @@ def _write_outputs(
     rows: pd.DataFrame,
     summary: pd.DataFrame,
     failures: pd.DataFrame,
+    setting_columns: list[str],
 ) -> None:
     summary.to_csv(out / "summary.csv", index=False)
     failures.to_csv(out / "failures.csv", index=False)
     reasons = invalid_reasons(rows, experiment.group_by)
-    report = render_report(description, summary, reasons, failures)
+    integrity = ""
+    if experiment.report is None and len(rows):
+        varying = [c for c in setting_columns if rows[c].nunique(dropna=False) > 1]
+        integrity = integrity_section(rows, [*varying, *experiment.group_by], description.command)
+    report = render_report(description, summary, reasons, failures, integrity)
     (out / "report.md").write_text(report)
     if experiment.report is not None:
         context = ReportContext(
-            parameters=description.parameters, rows=rows, summary=summary, out_dir=out
+            parameters=description.parameters,
+            rows=rows,
+            summary=summary,
+            out_dir=out,
+            command=description.command,
         )
         (out / "report.md").write_text(report + "\n" + experiment.report(context))

@@ -251,7 +251,10 @@ def _method_rows(
 
 EXPERIMENT = Experiment(
     name="wahba-mag-sun",
-    summary="Seed 002: six Wahba solvers on TIMED with magnetometer + Sun sensor, vs the CRB",
+    summary=(
+        "Cilden Guler et al. 2017: six Wahba solvers on TIMED with magnetometer + Sun sensor, "
+        "vs the CRB"
+    ),
     parameters=PARAMETERS,
     grid=grid,
     trial=trial,
