@@ -34,9 +34,11 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
-from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth, usque
+from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.solvers.estimator import PassEstimator
+from attopt.solvers.filters import FilterOptions, Mekf, Rts, Usque
 from attopt.solvers.results import Track
-from attopt.solvers.smoother import SmootherOptions, smooth, smooth_online
+from attopt.solvers.smoother import OnlineSmoother, SmootherOptions, smooth
 
 Array = NDArray[np.float64]
 
@@ -93,8 +95,20 @@ class FilterInputs:
     """One trial's gyro record and prior (drawn from :func:`child_rng`)."""
 
     gyro: SimulatedGyro
-    prior: FilterPrior
+    prior: Prior
     model: GyroModel
+
+    def filter_pass(
+        self, truth: GyroTruth, measurements: Sequence[AttitudeMeasurement | None]
+    ) -> Pass:
+        """The :class:`~attopt.formulations.passes.Pass` the filters solve: the epochs'
+        orbit-frame ``measurements`` re-expressed for the inertial attitude
+        (:func:`referenced`), the gyro record and the prior."""
+        t = truth.t[truth.epoch_samples]
+        inertial = referenced(measurements, truth.epoch_frames)
+        samples = self.gyro.samples
+        gyro = GyroRecord(samples.t, samples.rates, self.model)
+        return Pass(t, epoch_snapshots(inertial, t), gyro, self.prior)
 
 
 def simulate_filter_inputs(
@@ -111,10 +125,10 @@ def simulate_filter_inputs(
     gyro = simulate_gyro(truth.t, truth.attitude, model, rng)
     sigma0 = np.radians(initial_sigma_deg)
     error = sigma0 * rng.standard_normal(3)
-    prior = FilterPrior(
+    prior = Prior(
         attitude=Rotation.from_rotvec(error) * truth.attitude[0],
-        bias=np.zeros(3),
         covariance=np.diag([sigma0**2] * 3 + [model.initial_bias_sigma**2] * 3),
+        bias=np.zeros(3),
     )
     return FilterInputs(gyro, prior, model)
 
@@ -142,6 +156,15 @@ OFFSET_PRIOR_SIGMA_DB = 2.0
 """Default prior standard deviation of a transmitter's power offset (issue 6 sec. 2)."""
 
 
+FILTER_ESTIMATORS: dict[str, PassEstimator] = {
+    "mekf": Mekf(),
+    "usque": Usque(),
+    "rts": Rts(),
+    "fg_online": OnlineSmoother(),
+}
+"""The registry estimators :func:`run_filter` runs, by filter kind."""
+
+
 def run_filter(
     kind: str,
     inputs: FilterInputs,
@@ -153,16 +176,12 @@ def run_filter(
 
     ``rts`` runs the MEKF and smooths it.
     """
-    if kind not in ("mekf", "usque", "rts", "fg_online"):
-        raise ValueError(f"run_filter runs mekf, usque, rts or fg_online, not {kind!r}")
-    inertial = referenced(measurements, truth.epoch_frames)
-    t_epochs = truth.t[truth.epoch_samples]
+    if kind not in FILTER_ESTIMATORS:
+        raise ValueError(f"run_filter runs {', '.join(FILTER_ESTIMATORS)}, not {kind!r}")
+    pass_ = inputs.filter_pass(truth, measurements)
     start = time.perf_counter()
-    run = {"usque": usque, "fg_online": smooth_online}.get(kind, mekf)
-    result = run(inputs.gyro.samples, t_epochs, inertial, inputs.prior, inputs.model, method=method)
-    if kind == "rts":
-        result = rts_smooth(result, method=method)
-    return result, time.perf_counter() - start
+    result = FILTER_ESTIMATORS[kind].solve(pass_)
+    return replace(result, method=method), time.perf_counter() - start
 
 
 def method_name(kind: str, suffix: str) -> str:
@@ -201,9 +220,13 @@ def run_filters(
         out["mekf"] = run_filter("mekf", inputs, truth, measurements, method_name("mekf", suffix))
     if "rts" in wanted or from_rts:
         filtered, seconds = out["mekf"]
+        pass_ = inputs.filter_pass(truth, measurements)
         start = time.perf_counter()
-        smoothed = rts_smooth(filtered, method=method_name("rts", suffix))
-        out["rts"] = (smoothed, seconds + time.perf_counter() - start)
+        smoothed = FILTER_ESTIMATORS["rts"].solve(pass_, initial=filtered)
+        out["rts"] = (
+            replace(smoothed, method=method_name("rts", suffix)),
+            seconds + time.perf_counter() - start,
+        )
     if "usque" in wanted:
         out["usque"] = run_filter(
             "usque", inputs, truth, measurements, method_name("usque", suffix)

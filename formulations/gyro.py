@@ -137,12 +137,13 @@ def _cross_matrices(w: Array) -> Array:
     return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=-1).reshape(*w.shape[:-1], 3, 3)
 
 
-def error_state_transition(rate: ArrayLike, dt: float) -> Array:
+def error_state_transition(rate: ArrayLike, dt: ArrayLike) -> Array:
     """Transition ``Phi = expm(F dt)`` of the error state over one step, ``(..., 6, 6)``.
 
     ``F = [[-[w x], I], [0, 0]]`` with ``w`` the estimated rate ``(..., 3)``
-    held over the step.  ``Phi11 = exp(-[w x] dt)`` (the rotation matrix of
-    the attitude increment) and ``Phi12 = int_0^dt exp(-[w x] s) ds``
+    held over the step; ``dt`` the step (s), or one per rate shaped ``(..., 1,
+    1)``.  ``Phi11 = exp(-[w x] dt)`` (the rotation matrix of the attitude
+    increment) and ``Phi12 = int_0^dt exp(-[w x] s) ds``
     (Markley and Crassidis 2014, eqs. 6.83-6.84), by Taylor series below
     :data:`_SERIES_LIMIT`.
     """
@@ -167,8 +168,9 @@ def error_state_transition(rate: ArrayLike, dt: float) -> Array:
     return phi
 
 
-def attitude_increment(rate: ArrayLike, dt: float) -> Rotation:
-    """Rotation ``exp(-[w x] dt)`` that carries the attitude over a step at rate ``w``.
+def attitude_increment(rate: ArrayLike, dt: ArrayLike) -> Rotation:
+    """Rotation ``exp(-[w x] dt)`` that carries the attitude over a step at rate ``w``
+    (``dt`` the step, s, or steps broadcastable against the rates).
 
     With ``A`` mapping reference to body, ``dA/dt = -[w x] A``, so
     ``A(t + dt) = exp(-[w x] dt) A(t)`` for a constant rate.

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
 from attopt.formulations.gyro import MEMS_GYRO, GyroModel, GyroSamples, simulate_gyro
-from attopt.solvers.filters import FilterPrior
+from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.solvers.estimator import PassEstimator
+from attopt.solvers.results import Track
 
 GYRO = dataclasses.replace(MEMS_GYRO, name="mems-2hz", rate_hz=2.0)
 RATE = np.array([0.01, -0.02, 0.015])
@@ -19,7 +22,7 @@ SIGMA = 1e-3
 
 
 @dataclasses.dataclass
-class Pass:
+class SimulatedPass:
     """One simulated pass: truth at the gyro times, gyro record, epochs and measurements."""
 
     truth: Rotation
@@ -38,6 +41,31 @@ class Pass:
         return self.bias[self.index]
 
 
+def gyro_pass(
+    gyro: GyroSamples,
+    t: np.ndarray,
+    measurements: Sequence[AttitudeMeasurement | None],
+    prior: Prior,
+    model: GyroModel = GYRO,
+) -> Pass:
+    """The :class:`~attopt.formulations.passes.Pass` of a gyro record (with ``model``),
+    epochs, their measurements and a prior."""
+    return Pass(t, epoch_snapshots(measurements, t), GyroRecord(gyro.t, gyro.rates, model), prior)
+
+
+def solve_with(
+    estimator: PassEstimator,
+    gyro: GyroSamples,
+    t: np.ndarray,
+    measurements: Sequence[AttitudeMeasurement | None],
+    prior: Prior,
+    model: GyroModel = GYRO,
+    initial: Track | None = None,
+) -> Track:
+    """``estimator`` on :func:`gyro_pass` of the arguments."""
+    return estimator.solve(gyro_pass(gyro, t, measurements, prior, model), initial)
+
+
 def simulate_pass(
     rng: np.random.Generator,
     duration: float = 300.0,
@@ -46,7 +74,7 @@ def simulate_pass(
     simulated_gyro: GyroModel = GYRO,
     rate: np.ndarray = RATE,
     references: np.ndarray = REFERENCES,
-) -> Pass:
+) -> SimulatedPass:
     """Truth turning at ``rate`` from a random start, its gyro record, and noisy (or
     exact) unit-vector measurements of ``references`` at 1 s epochs."""
     dt = simulated_gyro.dt
@@ -62,15 +90,15 @@ def simulate_pass(
         if noisy:
             body = body + sigma * rng.standard_normal(body.shape)
         measurements.append(VectorMeasurement(body, references, sigma))
-    return Pass(truth, simulated.samples, simulated.bias, t, index, measurements)
+    return SimulatedPass(truth, simulated.samples, simulated.bias, t, index, measurements)
 
 
 def prior_covariance(attitude_sigma: float, model: GyroModel = GYRO) -> np.ndarray:
     return np.diag([attitude_sigma**2] * 3 + [model.initial_bias_sigma**2] * 3)
 
 
-def drawn_prior(rng: np.random.Generator, run: Pass, covariance: np.ndarray) -> FilterPrior:
+def drawn_prior(rng: np.random.Generator, run: SimulatedPass, covariance: np.ndarray) -> Prior:
     """Prior whose error ``[delta, delta_beta]`` is drawn from ``covariance``."""
     error = rng.multivariate_normal(np.zeros(6), covariance)
     attitude = Rotation.from_rotvec(-error[:3]) * run.truth[0]  # A_true = exp(delta) A_est
-    return FilterPrior(attitude, run.bias[0] - error[3:], covariance)
+    return Prior(attitude, covariance, bias=run.bias[0] - error[3:])

@@ -1,6 +1,7 @@
-"""Whole-pass batch least squares over the seed-003 dynamics (``solvers/doa/batch_ls.py``):
-noise-free recovery, its covariance against the ``Q = 0`` posterior bound, Monte Carlo
-consistency, flagged non-convergence and bad input."""
+"""Whole-pass batch least squares over Yang et al. 2014's dynamics (``solvers/doa/batch_ls.py``,
+registry ``bls_seed003``): noise-free recovery, its covariance against the ``Q = 0``
+posterior bound, Monte Carlo consistency, the estimator from its RTS start, flagged
+non-convergence and bad input."""
 
 from __future__ import annotations
 
@@ -11,12 +12,27 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
+from attopt.formulations.attitude_measurement import EulerAngleMeasurement
 from attopt.formulations.conventions import attitude_error
-from attopt.formulations.errors import ConvergenceError, UnobservableError
-from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
+from attopt.formulations.errors import (
+    ConvergenceError,
+    UnobservableError,
+    UnsupportedMeasurementError,
+)
+from attopt.formulations.passes import Pass
+from attopt.formulations.snapshot import Snapshot
+from attopt.solvers.doa import DoaBatchLs, DoaRts
+from attopt.solvers.doa.batch_ls import BatchLsOptions, batch_least_squares
+from attopt.solvers.doa.ekf import ekf_dynamics
 from attopt.solvers.filters.common import apply_error, error_vector
-from tests.test_doa_ekf import DT, VectorPass, relative_covariance_difference, simulate_vectors
+from attopt.solvers.results import Track
+from attopt.solvers.sequential import stored_rotations
+from tests.test_doa_ekf import (
+    VectorPass,
+    rate_prior,
+    relative_covariance_difference,
+    simulate_vectors,
+)
 from tests.test_doa_eks import bound
 
 EPOCHS = 400
@@ -26,9 +42,15 @@ START = np.diag([1e-6] * 3 + [1e-4] * 3)
 (1e-3 rad/s and 0.6 deg): inside the basin of the minimum."""
 
 
-def solve(run: VectorPass, attitude: Rotation, rate: np.ndarray, **options) -> BatchLsResult:
+def solve(run: VectorPass, attitude: Rotation, rate: np.ndarray, **options) -> Track:
     return batch_least_squares(
-        attitude, rate, *run.arrays, run.turns, WHEEL_MOMENTUM, DT, **options
+        attitude,
+        rate,
+        run.arrays,
+        ekf_dynamics(run.pass_()),
+        run.t,
+        BatchLsOptions(**options),
+        "bls_seed003",
     )
 
 
@@ -56,10 +78,11 @@ def test_noise_free_recovers_the_truth(seed: int, angle: float, rate_error: floa
     start = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)) * run.truth[0]
     rate = run.rate[0] + rate_error * direction / np.linalg.norm(direction)
     result = solve(run, start, rate)
-    assert result.converged, result.reason
-    assert np.abs(attitude_error(result.attitude, run.truth)).max() < 1e-9
+    assert result.report.converged, result.report.reason
+    assert result.valid.all() and result.state == ("rate", "attitude")
+    assert np.abs(attitude_error(result.attitude(), run.truth)).max() < 1e-9
     assert np.abs(result.rate - run.rate).max() < 1e-11
-    assert result.cost < 1e-16
+    assert result.report.cost < 1e-16
 
 
 def test_covariance_is_the_zero_process_noise_smoother_bound() -> None:
@@ -77,15 +100,16 @@ def test_covariance_is_the_zero_process_noise_smoother_bound() -> None:
         return bound(run, prior, 0.0)[1]
 
     wide = np.diag([1e-2] * 3 + [1.0] * 3)
-    assert relative_covariance_difference(result.covariance, smoother_bound(wide)) < 1e-6
+    covariance = result.state_covariance
+    assert relative_covariance_difference(covariance, smoother_bound(wide)) < 1e-6
     tight = np.diag([1e-4] * 3 + [1e-2] * 3)
-    with_prior = np.linalg.inv(np.linalg.inv(result.covariance[0]) + np.linalg.inv(tight))
+    with_prior = np.linalg.inv(np.linalg.inv(covariance[0]) + np.linalg.inv(tight))
     difference = relative_covariance_difference(with_prior, smoother_bound(tight)[0])
     assert difference < 1e-8
 
 
 @pytest.fixture(scope="module")
-def monte_carlo() -> tuple[np.ndarray, np.ndarray, list[BatchLsResult]]:
+def monte_carlo() -> tuple[np.ndarray, np.ndarray, list[Track]]:
     """20 seeded noisy passes: errors ``(runs, epochs, 6)``, covariances and results."""
     errors, covariances, results = [], [], []
     for seed in range(RUNS):
@@ -94,10 +118,10 @@ def monte_carlo() -> tuple[np.ndarray, np.ndarray, list[BatchLsResult]]:
         result = solve(run, *drawn_start(rng, run))
         errors.append(
             np.concatenate(
-                [run.rate - result.rate, error_vector(run.truth, result.attitude)], axis=1
+                [run.rate - result.rate, error_vector(run.truth, result.attitude())], axis=1
             )
         )
-        covariances.append(result.covariance)
+        covariances.append(result.state_covariance)
         results.append(result)
     return np.array(errors), np.array(covariances), results
 
@@ -107,7 +131,7 @@ def test_monte_carlo_nees_is_consistent(monte_carlo) -> None:
     for an efficient estimator, is inside its two-sided 99% interval; so is the
     attitude's (3 states) at the middle and the last epoch."""
     errors, covariances, results = monte_carlo
-    assert all(r.converged for r in results)
+    assert all(r.report.converged for r in results)
     low, high = chi2.ppf([0.005, 0.995], 6 * RUNS) / RUNS
     nees = np.einsum("ri,rij,rj->r", errors[:, 0], np.linalg.inv(covariances[:, 0]), errors[:, 0])
     assert low < nees.mean() < high, (nees.mean(), low, high)
@@ -123,7 +147,7 @@ def test_cost_per_row_is_two_thirds(monte_carlo) -> None:
     three rows carry noise, so the minimised cost per row is about 2/3 (minus the six
     fitted states)."""
     _, _, results = monte_carlo
-    per_row = np.array([r.cost / r.rows for r in results])
+    per_row = np.array([r.report.cost / r.report.rows for r in results])
     assert np.all(np.abs(per_row - 2.0 / 3.0) < 0.1), per_row
 
 
@@ -132,8 +156,16 @@ def test_not_converged_is_flagged() -> None:
     rng = np.random.default_rng(4)
     run = simulate_vectors(rng, EPOCHS)
     result = solve(run, *drawn_start(rng, run), max_iterations=1)
-    assert not result.converged
-    assert result.reason == "not converged in 1 passes"
+    assert not result.report.converged
+    assert result.report.reason == "not converged in 1 passes"
+    assert not result.valid.any() and set(result.reason) == {"not converged in 1 passes"}
+    assert np.isnan(result.quaternion).all()
+    with pytest.raises(ConvergenceError, match="not converged"):
+        result.epoch(0).raise_if_invalid()
+    kept = solve(
+        run, *drawn_start(np.random.default_rng(4), run), max_iterations=1, flag_unconverged=False
+    )
+    assert kept.valid.all() and not kept.report.converged
 
 
 def test_no_vectors_is_unobservable() -> None:
@@ -147,3 +179,34 @@ def test_a_start_spinning_beyond_the_step_limit_raises() -> None:
     run = simulate_vectors(np.random.default_rng(6), 50)
     with pytest.raises(ConvergenceError):
         solve(run, run.truth[0], np.array([1.0, 0.0, 0.0]))
+
+
+def test_estimator_starts_from_the_rts_track() -> None:
+    """``bls_seed003`` on a noise-free pass: without a start track it runs ``rts_seed003``
+    and starts from its first epoch, exactly as when given that track; the truth is
+    recovered."""
+    rng = np.random.default_rng(7)
+    run = simulate_vectors(rng, EPOCHS, noisy=False)
+    prior = rate_prior(
+        apply_error(np.radians([2.0, -1.0, 1.0]), run.truth[0]), run.rate[0] + 1e-4, START * 4
+    )
+    pass_ = run.pass_(prior)
+    rts = DoaRts().solve(pass_)
+    own, given = DoaBatchLs().solve(pass_), DoaBatchLs().solve(pass_, initial=rts)
+    np.testing.assert_array_equal(own.quaternion, given.quaternion)
+    np.testing.assert_array_equal(own.rate, given.rate)
+    expected = solve(run, stored_rotations(rts.quaternion[0]), rts.rate[0])
+    np.testing.assert_array_equal(own.quaternion, expected.quaternion)
+    assert own.method == "bls_seed003" and own.report.converged
+    assert np.abs(attitude_error(own.attitude(), run.truth)).max() < 1e-9
+
+
+def test_estimator_accepts_unit_vectors_only() -> None:
+    """Another measurement type raises ``UnsupportedMeasurementError``."""
+    run = simulate_vectors(np.random.default_rng(8), 20)
+    pass_ = run.pass_(rate_prior(run.truth[0], run.rate[0], START))
+    snapshots = list(pass_.snapshots)
+    snapshots[3] = Snapshot.of(EulerAngleMeasurement([0.1, 0.2, 0.3], 1e-4 * np.eye(3)))
+    mixed = Pass(pass_.t, tuple(snapshots), None, pass_.prior, pass_.dynamics)
+    with pytest.raises(UnsupportedMeasurementError, match="bls_seed003 accepts VectorMeasurement"):
+        DoaBatchLs().solve(mixed)

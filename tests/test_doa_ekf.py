@@ -1,5 +1,6 @@
-"""The EKF of seed 003 (``solvers/doa/ekf.py``): step model, transition matrix, convergence,
-the CasADi pass against the Python loop, the update against the textbook Joseph form."""
+"""The EKF of Yang et al. 2014 (``solvers/doa/ekf.py``, registry ``ekf_seed003``): step model,
+transition matrix, convergence, the CasADi pass against the Python loop, the update against
+the textbook Joseph form, gating and the lost-track monitor."""
 
 from __future__ import annotations
 
@@ -18,17 +19,18 @@ from attopt.experiments.doa_ground.scenario import (
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import ConvergenceError
+from attopt.formulations.passes import Pass, Prior, RigidBody, epoch_snapshots
+from attopt.solvers.doa import DoaEkf
 from attopt.solvers.doa.ekf import (
     INERTIA_SEED003,
     MAX_STEP_ANGLE,
-    EkfPrior,
-    EkfResult,
-    run_ekf,
-    run_ekf_vectors,
+    PRIOR_ORDER,
     step_function,
     update_function,
 )
-from attopt.solvers.filters.common import apply_error
+from attopt.solvers.doa.vector_slots import vector_arrays
+from attopt.solvers.filters.common import FilterOptions, apply_error
+from attopt.solvers.results import Track
 
 PASS_S = 1200.0
 STEP_S = 1.0
@@ -81,18 +83,21 @@ def test_converges_from_the_paper_initial_condition_noise_free() -> None:
         visible = geometry.visible[k]
         body = geometry.truth[k].apply(reference[k, visible])
         measurements.append(VectorMeasurement(body, reference[k, visible], np.radians(0.3)))
-    prior = EkfPrior(
+    prior = rate_prior(
         attitude_from_euler321(*np.radians(FILTER_INITIAL_EULER_DEG)),
         np.radians(FILTER_INITIAL_RATE_DEG_S),
         np.diag(np.radians([0.5] * 3 + [60.0] * 3) ** 2),
     )
-    result = run_ekf(prior, measurements, geometry.orbit_turns(), WHEEL_MOMENTUM, STEP_S)
-    error = np.degrees(np.linalg.norm(attitude_error(result.attitude, geometry.truth), axis=1))
+    dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)
+    pass_ = Pass(geometry.t, epoch_snapshots(measurements, geometry.t), None, prior, dynamics)
+    result = DoaEkf(compiled=False).solve(pass_)
+    error = np.degrees(np.linalg.norm(attitude_error(result.attitude(), geometry.truth), axis=1))
     rate_error = np.degrees(np.linalg.norm(result.rate - geometry.rate, axis=1))
     assert np.degrees(np.linalg.norm(attitude_error(prior.attitude, geometry.truth[0]))) > 50.0
+    assert result.valid.all() and result.state == ("rate", "attitude")
     assert error[-1] < 1e-3
     assert rate_error[-1] < 1e-4
-    assert result.updates[-1] == 3 * geometry.visible[-1].sum()
+    assert result.diagnostics["rows"][-1] == 3 * geometry.visible[-1].sum()
 
 
 # --- synthetic passes of the filter's own model ---------------------------------------------------
@@ -107,6 +112,12 @@ SIGMA = 0.005
 ORBIT_TURN = Rotation.from_rotvec([0.0, -1.1e-3 * DT, 0.0])
 
 
+def rate_prior(attitude: Rotation, rate: np.ndarray, covariance: np.ndarray) -> Prior:
+    """The :class:`Prior` of an estimate whose error covariance is given in the filter's
+    order ``[delta_omega, delta]`` (the prior's is ``[attitude, rate]``)."""
+    return Prior(attitude, covariance[np.ix_(PRIOR_ORDER, PRIOR_ORDER)], rate=rate)
+
+
 @dataclass
 class VectorPass:
     """Truth from the filter's own step map (plus process noise), vectors with NaN rows."""
@@ -116,14 +127,21 @@ class VectorPass:
     body: np.ndarray
     reference: np.ndarray
     sigma: np.ndarray
-    turns: Rotation
+    dynamics: RigidBody
 
-    def measurements(self) -> list[VectorMeasurement]:
-        return [VectorMeasurement(*(x[k] for x in self.arrays)) for k in range(len(self.truth))]
+    @property
+    def t(self) -> np.ndarray:
+        return DT * np.arange(len(self.truth))
 
     @property
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self.body, self.reference, self.sigma
+
+    def pass_(self, prior: Prior | None = None) -> Pass:
+        """The pass of the vectors (one ``VectorMeasurement`` per epoch with any) with the
+        dynamics and ``prior``."""
+        vectors = Pass.from_vectors(self.t, *self.arrays)
+        return Pass(self.t, vectors.snapshots, None, prior, self.dynamics)
 
 
 def simulate_vectors(
@@ -136,13 +154,19 @@ def simulate_vectors(
     """``n`` epochs ``DT`` apart; each reference vector seen with probability
     ``presence`` per epoch; truth with ``Q = process_noise E_6`` per step."""
     step = step_function(DT, tuple(INERTIA_SEED003.ravel()))
-    turn = ORBIT_TURN.as_matrix()
+    frames = [Rotation.identity()]
+    for _ in range(n - 1):
+        frames.append(ORBIT_TURN * frames[-1])
+    dynamics = RigidBody(INERTIA_SEED003, Rotation.concatenate(frames), WHEEL_MOMENTUM)
+    turns = dynamics.orbit_turns.as_matrix()
     rate, attitude = RATE0.copy(), Rotation.random(random_state=rng)
     rates, attitudes = [], []
-    for _ in range(n):
+    for k in range(n):
         rates.append(rate)
         attitudes.append(attitude)
-        w, a, _ = step(rate, attitude.as_matrix(), WHEEL_MOMENTUM, turn)
+        if k == n - 1:
+            break
+        w, a, _ = step(rate, attitude.as_matrix(), WHEEL_MOMENTUM, turns[k])
         noise = rng.normal(0.0, np.sqrt(process_noise), 6)
         rate = w.full().ravel() + noise[:3]
         attitude = apply_error(noise[3:], Rotation.from_matrix(a.full()))
@@ -154,21 +178,34 @@ def simulate_vectors(
         body /= np.linalg.norm(body, axis=-1, keepdims=True)
     body[rng.random(body.shape[:2]) > presence] = np.nan
     sigma = np.full(body.shape[:2], SIGMA)
-    return VectorPass(
-        truth, np.array(rates), body, reference, sigma, Rotation.concatenate([ORBIT_TURN] * (n - 1))
-    )
+    return VectorPass(truth, np.array(rates), body, reference, sigma, dynamics)
 
 
-def drawn_prior(rng: np.random.Generator, run: VectorPass, covariance: np.ndarray) -> EkfPrior:
+def drawn_prior(rng: np.random.Generator, run: VectorPass, covariance: np.ndarray) -> Prior:
     """Prior whose error ``[delta_omega, delta]`` (``A_true = C(delta) A_est``) is drawn
-    from ``covariance``."""
+    from ``covariance`` (in that order)."""
     error = rng.multivariate_normal(np.zeros(6), covariance)
-    return EkfPrior(apply_error(-error[3:], run.truth[0]), run.rate[0] - error[:3], covariance)
+    return rate_prior(apply_error(-error[3:], run.truth[0]), run.rate[0] - error[:3], covariance)
 
 
-def run_fast(run: VectorPass, prior: EkfPrior, process_noise: float) -> EkfResult:
-    return run_ekf_vectors(
-        prior, *run.arrays, run.turns, WHEEL_MOMENTUM, DT, process_noise=process_noise
+def run_fast(run: VectorPass, prior: Prior, process_noise: float) -> Track:
+    """The EKF's compiled pass (unit vectors, no gate)."""
+    return DoaEkf(process_noise=process_noise).solve(run.pass_(prior))
+
+
+def run_loop(run: VectorPass, prior: Prior, process_noise: float, **faults) -> Track:
+    """The EKF through the sequential loop (Python), with ``faults`` as fault handling."""
+    options = FilterOptions(**{"gate_probability": 1.0, "max_attitude_sigma": np.inf, **faults})
+    estimator = DoaEkf(process_noise=process_noise, filter=options, compiled=False)
+    return estimator.solve(run.pass_(prior))
+
+
+def history_rotations(track: Track) -> tuple[Rotation, Rotation]:
+    """Filtered and predicted attitudes of an EKF track's history (matrices)."""
+    history = track.history
+    return (
+        Rotation.from_matrix(history.filtered_attitude),
+        Rotation.from_matrix(history.predicted_attitude),
     )
 
 
@@ -179,8 +216,8 @@ def relative_covariance_difference(p: np.ndarray, reference: np.ndarray) -> floa
 
 
 def test_fast_path_equals_the_generic_loop_on_a_noisy_pass() -> None:
-    """``run_ekf_vectors`` (epochs in CasADi, fixed slots) against ``run_ekf`` with one
-    ``VectorMeasurement`` per epoch (Python loop, rows left out), from a 40-deg
+    """The compiled pass (epochs in CasADi, fixed slots) against the sequential loop with
+    one ``VectorMeasurement`` per epoch (Python, rows left out), from a 40-deg
     initial error (large geodesic innovations), NaN vectors and empty epochs:
     attitudes within 1e-9 rad, rates, transition matrices and covariances
     within 1e-8 of their scale, the predicted states alike.  (Rounding
@@ -189,26 +226,84 @@ def test_fast_path_equals_the_generic_loop_on_a_noisy_pass() -> None:
     rng = np.random.default_rng(7)
     run = simulate_vectors(rng, 240, process_noise=1e-9)
     covariance = np.diag([1e-4] * 3 + [np.radians(40.0) ** 2] * 3)
-    prior = EkfPrior(
+    prior = rate_prior(
         apply_error(np.radians([25.0, -25.0, 20.0]), run.truth[0]), run.rate[0], covariance
     )
-    fast = run_fast(run, prior, 1e-9)
-    loop = run_ekf(prior, run.measurements(), run.turns, WHEEL_MOMENTUM, DT, process_noise=1e-9)
+    fast, loop = run_fast(run, prior, 1e-9), run_loop(run, prior, 1e-9)
     start = np.degrees(np.linalg.norm(attitude_error(prior.attitude, run.truth[0])))
-    end = np.degrees(np.linalg.norm(attitude_error(fast.attitude[-1], run.truth[-1])))
+    end = np.degrees(np.linalg.norm(attitude_error(fast.attitude()[-1], run.truth[-1])))
     assert start > 35.0 and end < 1.0
-    assert (fast.updates == 0).any() and (fast.updates == 9).any()
-    np.testing.assert_array_equal(fast.updates, loop.updates)
-    for name in ("attitude", "predicted_attitude"):
-        error = attitude_error(getattr(fast, name), getattr(loop, name))
-        assert np.radians(np.abs(error).max()) < 1e-9, name
-    for name in ("rate", "predicted_rate", "transition"):
-        expected = getattr(loop, name)
-        np.testing.assert_allclose(
-            getattr(fast, name), expected, atol=1e-8 * np.abs(expected).max()
+    rows = fast.diagnostics["rows"]
+    assert (rows == 0).any() and (rows == 9).any()
+    for name in ("rows", "n_used", "n_gated", "recoveries"):
+        np.testing.assert_array_equal(fast.diagnostics[name], loop.diagnostics[name])
+    assert fast.valid.all() and loop.valid.all()
+    for got, expected in zip(history_rotations(fast), history_rotations(loop), strict=True):
+        assert np.radians(np.abs(attitude_error(got, expected)).max()) < 1e-9
+    for got, expected in (
+        (fast.rate, loop.rate),
+        (fast.history.predicted_vector, loop.history.predicted_vector),
+        (fast.history.transition[1:], loop.history.transition[1:]),
+    ):
+        np.testing.assert_allclose(got, expected, atol=1e-8 * np.abs(expected).max())
+    for got, expected in (
+        (fast.state_covariance, loop.state_covariance),
+        (fast.history.predicted_covariance, loop.history.predicted_covariance),
+    ):
+        assert relative_covariance_difference(got, expected) < 1e-8
+
+
+def test_compiled_pass_and_loop_agree_to_rounding() -> None:
+    """Noisy vectors with a prior within a few sigma (the linear regime): the compiled
+    pass and the sequential loop give the same track to 1e-12 (attitudes in rad,
+    rates and covariances relative to their scale), the same diagnostics, validity
+    and history."""
+    rng = np.random.default_rng(12)
+    run = simulate_vectors(rng, 200, process_noise=1e-9)
+    prior = drawn_prior(rng, run, np.diag([1e-8] * 3 + [1e-5] * 3))
+    fast, loop = run_fast(run, prior, 1e-9), run_loop(run, prior, 1e-9)
+    np.testing.assert_array_equal(fast.valid, loop.valid)
+    np.testing.assert_array_equal(fast.reason, loop.reason)
+    for name in ("rows", "n_used", "n_gated", "recoveries"):
+        np.testing.assert_array_equal(fast.diagnostics[name], loop.diagnostics[name])
+    assert np.abs(attitude_error(fast.attitude(), loop.attitude())).max() < 1e-12
+    np.testing.assert_allclose(fast.rate, loop.rate, rtol=0, atol=1e-12 * np.abs(loop.rate).max())
+    assert relative_covariance_difference(fast.state_covariance, loop.state_covariance) < 1e-12
+    assert (
+        relative_covariance_difference(
+            fast.history.predicted_covariance, loop.history.predicted_covariance
         )
-    for name in ("covariance", "predicted_covariance"):
-        assert relative_covariance_difference(getattr(fast, name), getattr(loop, name)) < 1e-8
+        < 1e-12
+    )
+    np.testing.assert_allclose(fast.history.transition, loop.history.transition, atol=1e-12)
+
+
+def test_lost_track_is_flagged_with_the_gate_on() -> None:
+    """A prior 40 deg off that claims 0.1 deg, precise vectors, the gate on: every vector
+    is gated, so from the ``max_rejected_epochs``-th epoch on the epochs are flagged
+    "lost track" and the covariance is inflated to re-acquire (``recoveries``); the
+    filter then converges and is valid again.  Without the gate (the default, as in
+    the paper) the monitor never fires."""
+    rng = np.random.default_rng(13)
+    run = simulate_vectors(rng, 240, process_noise=1e-9, presence=1.0)
+    covariance = np.diag([1e-8] * 3 + [np.radians(0.1) ** 2] * 3)
+    prior = rate_prior(
+        apply_error(np.radians([40.0, 0.0, 0.0]), run.truth[0]), run.rate[0], covariance
+    )
+    gated = run_loop(run, prior, 1e-9, gate_probability=0.9999)
+    lost = np.char.startswith(gated.reason.astype(str), "lost track")
+    first = FilterOptions().max_rejected_epochs - 1
+    assert lost[first] and not lost[:first].any()
+    assert gated.diagnostics["n_gated"][: first + 1].min() == 3
+    assert gated.diagnostics["recoveries"].sum() >= 1
+    assert gated.valid[-40:].all()
+    error = attitude_error(gated.attitude()[-40:], run.truth[-40:])
+    assert np.degrees(np.abs(error).max()) < 0.5
+    default = run_fast(run, prior, 1e-9)
+    assert default.valid.all()
+    assert (
+        default.diagnostics["n_gated"].sum() == 0 and default.diagnostics["recoveries"].sum() == 0
+    )
 
 
 def test_update_is_the_textbook_joseph_update() -> None:
@@ -240,22 +335,26 @@ def test_update_is_the_textbook_joseph_update() -> None:
 
 def test_an_epoch_without_vectors_is_exactly_no_update() -> None:
     """Absent slots carry zero weight: an epoch without vectors returns its
-    predicted state bit for bit, and absent slots beside present ones change nothing."""
+    predicted state bit for bit, and absent slots beside present ones change nothing
+    (the slots are cut to the most vectors at any epoch before the pass)."""
     rng = np.random.default_rng(2)
     run = simulate_vectors(rng, 120, presence=0.4)
     prior = drawn_prior(rng, run, np.diag([1e-6] * 3 + [1e-4] * 3))
     result = run_fast(run, prior, 1e-9)
-    empty = result.updates == 0
+    history = result.history
+    empty = result.diagnostics["rows"] == 0
     assert empty.sum() > 10
-    np.testing.assert_array_equal(result.covariance[empty], result.predicted_covariance[empty])
-    np.testing.assert_array_equal(result.rate[empty], result.predicted_rate[empty])
     np.testing.assert_array_equal(
-        result.attitude[empty].as_matrix(), result.predicted_attitude[empty].as_matrix()
+        history.filtered_covariance[empty], history.predicted_covariance[empty]
+    )
+    np.testing.assert_array_equal(result.rate[empty], history.predicted_vector[empty])
+    np.testing.assert_array_equal(
+        history.filtered_attitude[empty], history.predicted_attitude[empty]
     )
     padded = [np.concatenate([x, np.full_like(x[:, :2], np.nan)], axis=1) for x in run.arrays]
     padded[2][:, -2:] = 1.0
-    again = run_ekf_vectors(prior, *padded, run.turns, WHEEL_MOMENTUM, DT, process_noise=1e-9)
-    np.testing.assert_array_equal(again.covariance, result.covariance)
+    for got, expected in zip(vector_arrays(*padded), vector_arrays(*run.arrays), strict=True):
+        np.testing.assert_array_equal(got, expected)
 
 
 def test_noise_free_run_from_the_truth_stays_at_the_truth() -> None:
@@ -263,21 +362,21 @@ def test_noise_free_run_from_the_truth_stays_at_the_truth() -> None:
     truth: the estimate stays on it to rounding over 600 epochs."""
     rng = np.random.default_rng(4)
     run = simulate_vectors(rng, 600, noisy=False)
-    prior = EkfPrior(run.truth[0], run.rate[0], np.diag([1e-6] * 3 + [1e-4] * 3))
+    prior = rate_prior(run.truth[0], run.rate[0], np.diag([1e-6] * 3 + [1e-4] * 3))
     result = run_fast(run, prior, 1e-9)
-    assert np.radians(np.abs(attitude_error(result.attitude, run.truth)).max()) < 1e-12
+    assert np.radians(np.abs(attitude_error(result.attitude(), run.truth)).max()) < 1e-12
     np.testing.assert_allclose(result.rate, run.rate, rtol=0, atol=1e-14)
 
 
-@pytest.mark.parametrize("fast", [True, False], ids=["run_ekf_vectors", "run_ekf"])
+@pytest.mark.parametrize("fast", [True, False], ids=["compiled", "loop"])
 def test_a_rate_beyond_the_step_limit_raises(fast: bool) -> None:
     """``MAX_STEP_ANGLE`` per step: reported with the first epoch that exceeds it."""
     rng = np.random.default_rng(5)
     run = simulate_vectors(rng, 20, noisy=False)
     rate = np.array([0.0, 0.0, 1.1 * MAX_STEP_ANGLE / DT])
-    prior = EkfPrior(run.truth[0], rate, np.diag([1e-12] * 3 + [1e-4] * 3))
+    prior = rate_prior(run.truth[0], rate, np.diag([1e-12] * 3 + [1e-4] * 3))
     with pytest.raises(ConvergenceError, match="at epoch 0"):
         if fast:
             run_fast(run, prior, 1e-9)
         else:
-            run_ekf(prior, run.measurements(), run.turns, WHEEL_MOMENTUM, DT)
+            run_loop(run, prior, 1e-9)

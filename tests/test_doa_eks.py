@@ -1,7 +1,7 @@
-"""Smoother and posterior bound of the seed-003 EKF (``solvers/doa/eks.py``): the generic
-backward pass (``solvers/filters/rts.py``) against the textbook recursion for the EKF and
-the gyro MEKF, covariance order, errors, Monte Carlo NEES, and the bound against the EKF
-run at the truth."""
+"""The RTS smoother over Yang et al. 2014's EKF (``rts_seed003``) and the EKF's posterior bound
+(``solvers/doa/eks.py``): the one backward pass (``solvers/filters/rts.py``) against the
+textbook recursion for the EKF and the gyro MEKF, covariance order, errors, Monte Carlo
+NEES, and the bound against the EKF run at the truth."""
 
 from __future__ import annotations
 
@@ -11,19 +11,20 @@ import pytest
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from attopt.experiments.doa_ground.scenario import WHEEL_MOMENTUM
 from attopt.formulations.conventions import attitude_error
-from attopt.solvers.doa.ekf import EkfPrior, EkfResult
-from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
-from attopt.solvers.filters import mekf, rts_smooth
+from attopt.solvers.doa import DoaRts
+from attopt.solvers.doa.ekf import PRIOR_ORDER
+from attopt.solvers.doa.eks import posterior_bound_ekf
+from attopt.solvers.filters import Mekf, Rts
 from attopt.solvers.filters.common import apply_error, error_vector
 from attopt.solvers.filters.rts import composed_error
-from tests.filter_passes import GYRO, prior_covariance, simulate_pass
+from attopt.solvers.results import Track
+from tests.filter_passes import GYRO, gyro_pass, prior_covariance, simulate_pass
 from tests.filter_passes import drawn_prior as drawn_gyro_prior
 from tests.test_doa_ekf import (
-    DT,
     VectorPass,
     drawn_prior,
+    rate_prior,
     relative_covariance_difference,
     run_fast,
     simulate_vectors,
@@ -37,11 +38,16 @@ RUNS = 20
 EPOCHS = 400
 
 
-def state_errors(result: EkfResult, run: VectorPass) -> np.ndarray:
+def state_errors(result: Track, run: VectorPass) -> np.ndarray:
     """``(N, 6)`` errors ``[omega_true - omega, delta]``, ``A_true = C(delta) A``."""
     return np.concatenate(
-        [run.rate - result.rate, error_vector(run.truth, result.attitude)], axis=1
+        [run.rate - result.rate, error_vector(run.truth, result.attitude())], axis=1
     )
+
+
+def smooth(run: VectorPass, filtered: Track) -> Track:
+    """``rts_seed003`` over the EKF track ``filtered`` of ``run``."""
+    return DoaRts().solve(run.pass_(), initial=filtered)
 
 
 def nees(errors: np.ndarray, covariance: np.ndarray) -> np.ndarray:
@@ -79,20 +85,21 @@ def textbook_rts(
 
 
 def mekf_smoother() -> tuple[tuple, tuple, Rotation]:
-    """``rts_smooth`` on a gyro MEKF pass (attitude block first) and the textbook
-    recursion on the filter's history; also the filtered attitudes."""
+    """``rts`` on a gyro MEKF pass (attitude block first) and the textbook recursion on
+    the filter's history; also the filtered attitudes."""
     rng = np.random.default_rng(5)
     run = simulate_pass(rng, duration=60.0)
     prior = drawn_gyro_prior(rng, run, prior_covariance(np.radians(1.0)))
-    filtered = mekf(run.gyro, run.t, run.measurements, prior, GYRO)
-    smoothed = rts_smooth(filtered)
+    pass_ = gyro_pass(run.gyro, run.t, run.measurements, prior, GYRO)
+    filtered = Mekf().solve(pass_)
+    smoothed = Rts().solve(pass_, initial=filtered)
     history = filtered.history
-    after = Rotation.from_quat(history.filtered_quaternion)
+    after = Rotation.from_quat(history.filtered_attitude)
     expected = textbook_rts(
         after,
-        Rotation.from_quat(history.predicted_quaternion),
-        history.filtered_bias,
-        history.predicted_bias,
+        Rotation.from_quat(history.predicted_attitude),
+        history.filtered_vector,
+        history.predicted_vector,
         history.filtered_covariance,
         history.predicted_covariance,
         history.transition[1:],
@@ -102,31 +109,33 @@ def mekf_smoother() -> tuple[tuple, tuple, Rotation]:
 
 
 def ekf_smoother() -> tuple[tuple, tuple, Rotation]:
-    """``rts_smooth_ekf`` on an EKF pass (attitude block last) and the textbook
-    recursion on it; also the filtered attitudes."""
+    """``rts_seed003`` on an EKF pass (attitude block last) and the textbook recursion on
+    the filter's history; also the filtered attitudes."""
     rng = np.random.default_rng(8)
     run = simulate_vectors(rng, 200, process_noise=PROCESS_NOISE)
     filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
-    smoothed = rts_smooth_ekf(filtered)
+    smoothed = smooth(run, filtered)
+    history = filtered.history
+    after = Rotation.from_matrix(history.filtered_attitude)
     expected = textbook_rts(
-        filtered.attitude,
-        filtered.predicted_attitude,
-        filtered.rate,
-        filtered.predicted_rate,
-        filtered.covariance,
-        filtered.predicted_covariance,
-        filtered.transition,
+        after,
+        Rotation.from_matrix(history.predicted_attitude),
+        history.filtered_vector,
+        history.predicted_vector,
+        history.filtered_covariance,
+        history.predicted_covariance,
+        history.transition[1:],
         slice(3, 6),
     )
-    return (smoothed.attitude, smoothed.rate, smoothed.covariance), expected, filtered.attitude
+    return (smoothed.attitude(), smoothed.rate, smoothed.state_covariance), expected, after
 
 
 @pytest.mark.parametrize("smoother", [mekf_smoother, ekf_smoother], ids=["mekf", "ekf"])
 def test_rts_backward_is_the_textbook_recursion(smoother) -> None:
-    """The smoothers built on ``attopt.solvers.filters.rts.rts_backward``, the gyro MEKF's
-    ``rts_smooth`` (state ``[delta, delta_beta]``) and the EKF's ``rts_smooth_ekf``
-    (``[delta_omega, delta]``), equal the textbook recursion: one backward pass
-    serves both filters."""
+    """The one RTS smoother (``attopt.solvers.filters.rts.rts_smooth``) on the gyro MEKF's
+    track (state ``[delta, delta_beta]``, ``rts``) and on the EKF's
+    (``[delta_omega, delta]``, ``rts_seed003``) equals the textbook recursion: one
+    backward pass serves both filters."""
     (attitude, rest, covariance), expected, filtered = smoother()
     assert np.abs(attitude_error(attitude, expected[0])).max() < 1e-12
     np.testing.assert_allclose(rest, expected[1], rtol=0, atol=1e-15)
@@ -157,9 +166,9 @@ def monte_carlo() -> dict[str, tuple[np.ndarray, np.ndarray]]:
         rng = np.random.default_rng(100 + seed)
         run = simulate_vectors(rng, EPOCHS, process_noise=PROCESS_NOISE)
         filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
-        for name, result in (("filter", filtered), ("smoother", rts_smooth_ekf(filtered))):
+        for name, result in (("filter", filtered), ("smoother", smooth(run, filtered))):
             out[name][0].append(state_errors(result, run))
-            out[name][1].append(result.covariance)
+            out[name][1].append(result.state_covariance)
     return {name: (np.array(e), np.array(p)) for name, (e, p) in out.items()}
 
 
@@ -208,28 +217,33 @@ def test_smoother_keeps_the_last_epoch_and_moves_the_others() -> None:
     rng = np.random.default_rng(8)
     run = simulate_vectors(rng, 200, process_noise=PROCESS_NOISE)
     filtered = run_fast(run, drawn_prior(rng, run, PRIOR), PROCESS_NOISE)
-    smoothed = rts_smooth_ekf(filtered)
-    np.testing.assert_array_equal(smoothed.attitude[-1].as_quat(), filtered.attitude[-1].as_quat())
+    smoothed = smooth(run, filtered)
+    np.testing.assert_array_equal(smoothed.quaternion[-1], filtered.quaternion[-1])
     np.testing.assert_array_equal(smoothed.rate[-1], filtered.rate[-1])
-    moved = np.linalg.norm(attitude_error(smoothed.attitude[:-1], filtered.attitude[:-1]), axis=1)
+    moved = np.linalg.norm(
+        attitude_error(smoothed.attitude()[:-1], filtered.attitude()[:-1]), axis=1
+    )
     assert np.all(moved > 0) and moved.max() > 1e-4
 
 
 def bound(
     run: VectorPass, covariance: np.ndarray, process_noise: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    return posterior_bound_ekf(
-        run.truth,
-        run.rate,
-        run.reference,
-        run.sigma,
-        np.isfinite(run.body).all(axis=-1),
-        run.turns,
-        WHEEL_MOMENTUM,
-        DT,
-        covariance,
-        process_noise=process_noise,
-    )
+    """The posterior bounds of ``run``'s vectors with the prior ``covariance`` (of
+    ``[delta_omega, delta]``)."""
+    prior = rate_prior(run.truth[0], run.rate[0], covariance)
+    return posterior_bound_ekf(run.pass_(prior), run.truth, run.rate, process_noise)
+
+
+def test_bound_prior_order_is_the_filters() -> None:
+    """The bound's first filtered covariance without a measurement is the prior's,
+    permuted to ``[delta_omega, delta]``."""
+    run = simulate_vectors(np.random.default_rng(10), 20)
+    run.body[0] = np.nan
+    covariance = np.diag([1e-6, 2e-6, 3e-6, 1e-4, 2e-4, 3e-4])
+    filtered, _ = bound(run, covariance, PROCESS_NOISE)
+    np.testing.assert_array_equal(filtered[0], covariance)
+    assert np.array_equal(PRIOR_ORDER[PRIOR_ORDER], np.arange(6))
 
 
 def test_filter_bound_is_the_ekf_covariance_at_the_truth() -> None:
@@ -238,11 +252,12 @@ def test_filter_bound_is_the_ekf_covariance_at_the_truth() -> None:
     runs (Phi and H at the truth), filter and smoother alike."""
     rng = np.random.default_rng(6)
     run = simulate_vectors(rng, 500, noisy=False)
-    result = run_fast(run, EkfPrior(run.truth[0], run.rate[0], PRIOR), PROCESS_NOISE)
-    assert np.abs(attitude_error(result.attitude, run.truth)).max() < 1e-12
+    result = run_fast(run, rate_prior(run.truth[0], run.rate[0], PRIOR), PROCESS_NOISE)
+    assert np.abs(attitude_error(result.attitude(), run.truth)).max() < 1e-12
     filter_bound, smoother_bound = bound(run, PRIOR, PROCESS_NOISE)
-    assert relative_covariance_difference(filter_bound, result.covariance) < 1e-9
-    assert relative_covariance_difference(smoother_bound, rts_smooth_ekf(result).covariance) < 1e-9
+    assert relative_covariance_difference(filter_bound, result.state_covariance) < 1e-9
+    smoothed = smooth(run, result).state_covariance
+    assert relative_covariance_difference(smoother_bound, smoothed) < 1e-9
 
 
 def test_smoother_bound_is_below_the_filter_bound() -> None:

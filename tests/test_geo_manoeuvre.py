@@ -28,6 +28,7 @@ from attopt.experiments.geo_snr_stations.scenario import (
     build_geo_snr_scenario,
 )
 from attopt.formulations.geo_link import BORESIGHT_BODY
+from attopt.formulations.passes import GyroRecord, Pass, epoch_snapshots
 from attopt.solvers.geo.boresight import cone_intersection
 from attopt.solvers.geo.manoeuvre import (
     DetectionOptions,
@@ -60,15 +61,15 @@ def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSn
     prior = boresight_prior(
         start, boresight(0), np.zeros(3), DetectionOptions(yaw_sigma=np.radians(5.0))
     )
-    run = detect_and_reinitialise(
-        assumed_rates(scenario),
+    samples = assumed_rates(scenario)
+    pass_ = Pass(
         scenario.t,
-        measurements,
+        epoch_snapshots(measurements, scenario.t),
+        GyroRecord(samples.t, samples.rates, model),
         prior,
-        model,
-        boresight,
-        DetectionOptions(window=detection_window(setting)),
-        FILTER_OPTIONS,
+    )
+    run = detect_and_reinitialise(
+        pass_, boresight, DetectionOptions(window=detection_window(setting)), FILTER_OPTIONS
     )
     return run, scenario
 

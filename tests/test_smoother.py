@@ -32,10 +32,13 @@ from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.gyro import GyroModel, GyroSamples, attitude_increment, simulate_gyro
+from attopt.formulations.passes import Prior
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, rts_smooth
+from attopt.solvers.filters import FilterOptions, Mekf
 from attopt.solvers.filters.common import prepare_gyro
+from attopt.solvers.filters.rts import rts_smooth
+from attopt.solvers.gyro_timeline import gyro_timeline
 from attopt.solvers.results import Track
 from attopt.solvers.smoother import SmootherOptions, single_frame_initial, smooth
 from attopt.solvers.smoother.conventions import (
@@ -52,10 +55,11 @@ from tests.filter_passes import (
     RATE,
     REFERENCES,
     SIGMA,
-    Pass,
+    SimulatedPass,
     drawn_prior,
     prior_covariance,
     simulate_pass,
+    solve_with,
 )
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
@@ -65,14 +69,14 @@ TIGHT = SmootherOptions(relative_tolerance=1e-15, absolute_tolerance=1e-14)
 """Tolerances for comparisons at 1e-8: stop only at the rounding floor."""
 
 
-def state_errors(result, run: Pass) -> np.ndarray:
+def state_errors(result, run: SimulatedPass) -> np.ndarray:
     """``(N, 6)`` errors ``[delta, beta - beta_hat]`` at the epochs."""
     assert result.valid.all(), set(result.reason)
     delta = -attitude_error(result.attitude(), run.truth_at_epochs)
     return np.concatenate([delta, run.bias_at_epochs - result.bias], axis=1)
 
 
-def rms_deg(result, run: Pass, skip: int = 0) -> float:
+def rms_deg(result, run: SimulatedPass, skip: int = 0) -> float:
     error = attitude_error(result.attitude(), run.truth_at_epochs)[skip:]
     return float(np.degrees(np.sqrt(np.mean(np.sum(error**2, axis=1)))))
 
@@ -90,10 +94,10 @@ def test_noise_free_pass_recovers_truth_and_bias():
     declared = GyroModel("declared", 1e-7, 1e-9, GYRO.initial_bias_sigma, GYRO.rate_hz)
     run = simulate_pass(rng, duration=60.0, sigma=1e-6, noisy=False, simulated_gyro=bias_only)
     axis = np.array([1.0, 1.0, -1.0]) / math.sqrt(3.0)
-    prior = FilterPrior(
+    prior = Prior(
         Rotation.from_rotvec(np.radians(20.0) * axis) * run.truth[0],
-        np.zeros(3),
         prior_covariance(np.radians(20.0), declared),
+        bias=np.zeros(3),
     )
     result = smooth(run.gyro, run.t, run.measurements, prior, declared, TIGHT)
     assert result.report.converged, result.report.message
@@ -122,16 +126,16 @@ def test_ahrs_factor_follows_attitude_increment():
     rng = np.random.default_rng(3)
     samples, truth, bias = _ahrs_pass(rng)
     model = GyroModel("ahrs", 1e-3, 1e-4, 0.01, rate_hz=10.0)
-    gyro = prepare_gyro(samples, FilterOptions())
     nodes = np.array([0, 10, 30])
-    intervals = gyro_intervals(nodes, gyro, model, samples.dt)
-    graph = gyro_graph(intervals, gyro, samples.dt, np.tile(bias, (3, 1)))
+    gyro = prepare_gyro(gyro_timeline(samples, samples.t[nodes]), FilterOptions())
+    intervals = gyro_intervals(nodes, gyro, model)
+    graph = gyro_graph(intervals, gyro, np.tile(bias, (3, 1)))
     values = to_values(truth[nodes], np.tile(bias, (3, 1)))
     for i in range(graph.size()):
         assert np.abs(graph.at(i).unwhitenedError(values)).max() < 1e-12
     # preintegrated about a zero bias, GTSAM's first-order bias correction is
     # accurate to second order in (b - b_hat) T (measured 9e-8 rad here)
-    about_zero = gyro_graph(intervals, gyro, samples.dt, np.zeros((3, 3)))
+    about_zero = gyro_graph(intervals, gyro, np.zeros((3, 3)))
     assert np.abs(about_zero.at(0).unwhitenedError(values)).max() < 1e-6
     delta = np.array([2e-6, -1e-6, 3e-6])
     moved = to_values(
@@ -210,7 +214,7 @@ def test_prior_factor_matches_numerical_derivative_and_filter_sign():
     rng = np.random.default_rng(7)
     root = rng.standard_normal((6, 6)) * np.array([1e-2] * 3 + [1e-4] * 3)
     covariance = root @ root.T + 1e-8 * np.eye(6)
-    prior = FilterPrior(Rotation.random(random_state=rng), 1e-3 * np.ones(3), covariance)
+    prior = Prior(Rotation.random(random_state=rng), covariance, bias=1e-3 * np.ones(3))
     joint = JointPrior(prior)
     estimate = Rotation.from_rotvec([0.01, -0.02, 0.005]) * prior.attitude
     bias = prior.bias + np.array([1e-4, 2e-4, -1e-4])
@@ -359,7 +363,9 @@ def test_marginal_covariance_equals_rts_covariance_on_a_near_linear_pass():
     rng = np.random.default_rng(3)
     run = simulate_pass(rng, duration=29.0, sigma=2e-2)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0)))
-    rts = rts_smooth(mekf(run.gyro, run.t, run.measurements, prior, GYRO))
+    rts = rts_smooth(
+        solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, GYRO), FilterOptions(), "rts"
+    )
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, initial=rts)
     sigma = np.sqrt(np.einsum("kii->ki", rts.state_covariance))
     scale = sigma[:, :, None] * sigma[:, None, :]
@@ -381,8 +387,8 @@ def test_smoother_at_least_as_good_as_the_filters():
         rng = np.random.default_rng(100 + seed)
         run = simulate_pass(rng, duration=90.0, sigma=2e-2, simulated_gyro=NOISY)
         prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0), NOISY))
-        forward = mekf(run.gyro, run.t, run.measurements, prior, NOISY)
-        backward = rts_smooth(forward)
+        forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, NOISY)
+        backward = rts_smooth(forward, FilterOptions(), "rts")
         result = smooth(run.gyro, run.t, run.measurements, prior, NOISY, initial=backward)
         assert result.report.converged, result.report.message
         assert result.report.final_cost <= result.report.initial_cost
@@ -392,7 +398,7 @@ def test_smoother_at_least_as_good_as_the_filters():
     assert abs(smoother_rms / rts_rms - 1.0) < 5e-3
 
 
-def _snr_pass(rng: np.random.Generator, epochs: int = 40) -> tuple[Pass, FilterPrior]:
+def _snr_pass(rng: np.random.Generator, epochs: int = 40) -> tuple[SimulatedPass, Prior]:
     """A slowly turning body seen by the SNRs of 12 aircraft per epoch (1 dB noise,
     true SNRs at least 10 dB), the MEMS gyro at 2 Hz, a prior drawn with 5 deg per axis."""
     t_gyro = np.arange(round((epochs - 1) / GYRO.dt) + 1) * GYRO.dt
@@ -403,7 +409,7 @@ def _snr_pass(rng: np.random.Generator, epochs: int = 40) -> tuple[Pass, FilterP
     measurements = []
     for i in index:
         measurements.append(_snr_measurement(rng, truth[i]))
-    run = Pass(truth, gyro.samples, gyro.bias, t, index, measurements)
+    run = SimulatedPass(truth, gyro.samples, gyro.bias, t, index, measurements)
     return run, drawn_prior(rng, run, prior_covariance(np.radians(5.0)))
 
 
@@ -414,8 +420,8 @@ def test_snr_pass_end_to_end():
     (measured RMS: MEKF 1.44 deg, RTS 1.00, smoother 1.02; one 40 s pass, the
     difference is within its noise)."""
     run, prior = _snr_pass(np.random.default_rng(0))
-    forward = mekf(run.gyro, run.t, run.measurements, prior, GYRO)
-    backward = rts_smooth(forward)
+    forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, GYRO)
+    backward = rts_smooth(forward, FilterOptions(), "rts")
     options = SmootherOptions(noise_updates=1)
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, options, initial=backward)
     report = result.report
@@ -517,10 +523,10 @@ def test_non_convergence_is_reported_not_silent():
     rng = np.random.default_rng(29)
     run = simulate_pass(rng, duration=30.0)
     axis = np.array([1.0, -1.0, 1.0]) / math.sqrt(3.0)
-    prior = FilterPrior(
+    prior = Prior(
         Rotation.from_rotvec(np.radians(20.0) * axis) * run.truth[0],
-        np.zeros(3),
         prior_covariance(np.radians(20.0)),
+        bias=np.zeros(3),
     )
     options = SmootherOptions(initialisation="gyro", max_iterations=1)
     result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, options)
@@ -573,9 +579,8 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     strict = SmootherOptions(filter=FilterOptions(max_gyro_gap_s=5.0))
     result = smooth(gyro, run.t, run.measurements, prior, GYRO, strict)
     assert result.report.converged, result.report.message
-    intervals = gyro_intervals(
-        np.round(run.t / GYRO.dt).astype(int), prepare_gyro(gyro, strict.filter), GYRO, GYRO.dt, 5.0
-    )
+    prepared = prepare_gyro(gyro_timeline(gyro, run.t), strict.filter)
+    intervals = gyro_intervals(np.round(run.t / GYRO.dt).astype(int), prepared, GYRO, 5.0)
     np.testing.assert_array_equal(np.flatnonzero(intervals.broken), np.arange(20, 40))
     graph = result.report.problem.graph
     ahrs = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.AHRSFactor)]

@@ -25,7 +25,7 @@ from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.smoother import SmootherOptions, smooth
 from attopt.solvers.smoother.measurement_factors import prepare_factor
-from tests.filter_passes import GYRO, RATE, Pass, drawn_prior, prior_covariance
+from tests.filter_passes import GYRO, RATE, SimulatedPass, drawn_prior, prior_covariance
 from tests.test_smoother import TIGHT, rms_deg, state_errors
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
@@ -75,7 +75,7 @@ def _offset_pass(
     measurements = [
         SnrMeasurement(_epoch(rng, truth[i], offsets, sigma, noisy), truncated) for i in index
     ]
-    run = Pass(truth, gyro.samples, gyro.bias, t, index, measurements)
+    run = SimulatedPass(truth, gyro.samples, gyro.bias, t, index, measurements)
     return run, drawn_prior(rng, run, prior_covariance(np.radians(3.0))), offsets
 
 

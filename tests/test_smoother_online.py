@@ -28,8 +28,9 @@ from attopt.formulations.attitude_measurement import EulerAngleMeasurement, Vect
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gyro import GyroModel
-from attopt.solvers.filters import FilterOptions, FilterPrior, mekf
-from attopt.solvers.smoother import OnlineOptions, smooth, smooth_online
+from attopt.formulations.passes import Prior
+from attopt.solvers.filters import FilterOptions, Mekf
+from attopt.solvers.smoother import OnlineOptions, OnlineSmoother, smooth
 from attopt.solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
 from attopt.solvers.smoother.gyro_factors import JointPrior
 from attopt.solvers.smoother.measurement_factors import prepare_factor
@@ -41,12 +42,12 @@ from tests.filter_passes import (
     drawn_prior,
     prior_covariance,
     simulate_pass,
+    solve_with,
 )
 from tests.test_smoother import NOISY, TRUTH, _snr_measurement, _snr_pass, rms_deg, state_errors
 
-TIGHT = OnlineOptions(
-    attitude_threshold=1e-13,
-    bias_threshold=1e-15,
+TIGHT = OnlineSmoother(
+    online=OnlineOptions(attitude_threshold=1e-13, bias_threshold=1e-15),
     filter=FilterOptions(max_update_iterations=30, relinearise_fraction=1e-12),
 )
 """Relinearise until the steps are at the rounding level (exactness checks)."""
@@ -65,12 +66,12 @@ def test_noise_free_pass_recovers_truth_and_bias():
     declared = GyroModel("declared", 1e-7, 1e-9, GYRO.initial_bias_sigma, GYRO.rate_hz)
     run = simulate_pass(rng, duration=30.0, sigma=1e-6, noisy=False, simulated_gyro=bias_only)
     axis = np.array([1.0, 1.0, -1.0]) / math.sqrt(3.0)
-    prior = FilterPrior(
+    prior = Prior(
         Rotation.from_rotvec(np.radians(20.0) * axis) * run.truth[0],
-        np.zeros(3),
         prior_covariance(np.radians(20.0), declared),
+        bias=np.zeros(3),
     )
-    result = smooth_online(run.gyro, run.t, run.measurements, prior, declared, TIGHT)
+    result = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, declared)
     errors = state_errors(result, run)
     assert np.abs(errors[:, :3]).max() < 1e-9
     assert np.abs(errors[1, 3:]).max() < 1e-8
@@ -96,7 +97,9 @@ def test_estimates_are_causal():
     run = simulate_pass(rng, duration=20.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
     changed = _turned_at(run, 10, 0.2)
-    online = [smooth_online(run.gyro, run.t, m, prior, GYRO) for m in (run.measurements, changed)]
+    online = [
+        solve_with(OnlineSmoother(), run.gyro, run.t, m, prior) for m in (run.measurements, changed)
+    ]
     assert online[1].diagnostics["n_gated"][10] == 0
     for name in ("quaternion", "covariance"):
         before = [getattr(r, name)[:10] for r in online]
@@ -146,7 +149,7 @@ def test_snr_and_prior_factor_jacobians_match_numerical_derivative():
     measurement = _snr_measurement(rng)
     _check_jacobian(measurement, TRUTH, Rotation.from_rotvec(np.radians([0.5, -0.3, 0.4])) * TRUTH)
     root = rng.standard_normal((6, 6)) * np.array([1e-2] * 3 + [1e-4] * 3)
-    prior = FilterPrior(Rotation.random(random_state=rng), 1e-3 * np.ones(3), root @ root.T)
+    prior = Prior(Rotation.random(random_state=rng), root @ root.T, bias=1e-3 * np.ones(3))
     custom = prior_factor(JointPrior(prior))
     estimate = rot3(Rotation.from_rotvec([0.01, -0.02, 0.005]) * prior.attitude)
     bias = prior.bias + np.array([1e-4, 2e-4, -1e-4])
@@ -191,8 +194,8 @@ def test_unpredictable_rows_give_zero_rows_not_nan():
 
 def _compare_with_mekf_and_batch(run, prior, model, options=None):
     """Online, MEKF and the batch started from the online result on one pass."""
-    online = smooth_online(run.gyro, run.t, run.measurements, prior, model)
-    forward = mekf(run.gyro, run.t, run.measurements, prior, model)
+    online = solve_with(OnlineSmoother(), run.gyro, run.t, run.measurements, prior, model)
+    forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, model)
     batch = smooth(run.gyro, run.t, run.measurements, prior, model, options, initial=online)
     assert online.valid.all() and batch.report.converged, batch.report.message
     assert batch.report.initialisation == "given"
@@ -238,7 +241,7 @@ def test_nees_of_the_online_estimates_is_consistent():
         rng = np.random.default_rng(300 + seed)
         run = simulate_pass(rng, duration=60.0)
         prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
-        result = smooth_online(run.gyro, run.t, run.measurements, prior, GYRO)
+        result = solve_with(OnlineSmoother(), run.gyro, run.t, run.measurements, prior)
         errors = state_errors(result, run)
         values.append(
             np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.state_covariance), errors)
@@ -252,16 +255,19 @@ def test_bad_input_is_rejected():
     rng = np.random.default_rng(17)
     run = simulate_pass(rng, duration=10.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
-    with pytest.raises(InvalidObservationError, match="measurements for"):
-        smooth_online(run.gyro, run.t, run.measurements[:-1], prior, GYRO)
+    online = OnlineSmoother()
+    with pytest.raises(InvalidObservationError, match="snapshots for"):
+        solve_with(online, run.gyro, run.t, run.measurements[:-1], prior)
     rigid = dataclasses.replace(GYRO, sigma_u=0.0)
     with pytest.raises(InvalidObservationError, match="sigma_u > 0"):
-        smooth_online(run.gyro, run.t, run.measurements, prior, rigid)
-    bad_prior = dataclasses.replace(prior, covariance=-np.eye(6))
+        solve_with(online, run.gyro, run.t, run.measurements, prior, rigid)
     with pytest.raises(InvalidObservationError, match="positive definite"):
-        smooth_online(run.gyro, run.t, run.measurements, bad_prior, GYRO)
+        bad_prior = dataclasses.replace(prior, covariance=-np.eye(6))
+        solve_with(online, run.gyro, run.t, run.measurements, bad_prior)
     with pytest.raises(ValueError, match="lag_s"):
         OnlineOptions(lag_s=0.0)
+    with pytest.raises(ValueError, match="max_update_iterations"):
+        OnlineSmoother(filter=FilterOptions(max_update_iterations=0))
 
 
 def test_nan_block_counted_and_long_gyro_gap_flagged_as_the_filters_do():
@@ -276,8 +282,8 @@ def test_nan_block_counted_and_long_gyro_gap_flagged_as_the_filters_do():
     gyro = dataclasses.replace(run.gyro, rates=rates)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
     strict = FilterOptions(max_gyro_gap_s=5.0)
-    result = smooth_online(gyro, run.t, run.measurements, prior, GYRO, OnlineOptions(filter=strict))
-    forward = mekf(gyro, run.t, run.measurements, prior, GYRO, strict)
+    result = solve_with(OnlineSmoother(filter=strict), gyro, run.t, run.measurements, prior)
+    forward = solve_with(Mekf(filter=strict), gyro, run.t, run.measurements, prior, GYRO)
     diagnostics = result.diagnostics
     assert diagnostics["n_nan"][5] == 1 and diagnostics["n_used"][5] == 0
     assert result.report.n_nan == 1 and np.isnan(result.loss[5])

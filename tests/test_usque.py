@@ -17,9 +17,12 @@ from scipy.stats import chi2
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
-from attopt.solvers.filters import FilterOptions, FilterPrior, mekf, usque
-from attopt.solvers.filters.common import NON_FINITE, propagate_attitude
+from attopt.formulations.passes import Prior
+from attopt.solvers.filters import FilterOptions, Mekf, Usque
+from attopt.solvers.filters.common import propagate_attitude
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import NON_FINITE
+from tests.filter_passes import solve_with
 
 REFERENCES = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 RATE = np.array([0.01, -0.02, 0.015])
@@ -30,7 +33,7 @@ VECTOR_SIGMA = 1e-3
 
 
 @dataclass
-class Pass:
+class UsquePass:
     """Simulated data of one pass."""
 
     gyro: SimulatedGyro
@@ -59,7 +62,7 @@ def simulate(
     model: GyroModel = MODEL,
     every: int = 10,
     noise_free: bool = False,
-) -> Pass:
+) -> UsquePass:
     """A pass of ``duration`` s with a measurement every ``every`` gyro samples."""
     t = np.arange(0.0, duration + 1e-9, model.dt)
     truth = Rotation.from_rotvec(-np.outer(t, RATE)) * START
@@ -76,12 +79,12 @@ def simulate(
     if not noise_free:
         bodies = bodies + VECTOR_SIGMA * rng.standard_normal(bodies.shape)
         bodies /= np.linalg.norm(bodies, axis=-1, keepdims=True)
-    return Pass(gyro, truth, epochs, bodies)
+    return UsquePass(gyro, truth, epochs, bodies)
 
 
-def prior_at(data: Pass, error: np.ndarray, covariance: np.ndarray) -> FilterPrior:
+def prior_at(data: UsquePass, error: np.ndarray, covariance: np.ndarray) -> Prior:
     """Prior whose attitude is ``exp(error) A_true`` and bias zero."""
-    return FilterPrior(Rotation.from_rotvec(error) * data.truth[0], np.zeros(3), covariance)
+    return Prior(Rotation.from_rotvec(error) * data.truth[0], covariance, bias=np.zeros(3))
 
 
 def wide_covariance(attitude_sigma_deg: float) -> np.ndarray:
@@ -89,15 +92,16 @@ def wide_covariance(attitude_sigma_deg: float) -> np.ndarray:
 
 
 def run(
-    data: Pass,
-    prior: FilterPrior,
+    data: UsquePass,
+    prior: Prior,
     measurements: list[AttitudeMeasurement | None] | None = None,
     options: FilterOptions | None = None,
     model: GyroModel = MODEL,
-    filter_=usque,
+    estimator: type[Mekf | Usque] = Usque,
 ) -> Track:
     measurements = data.measurements() if measurements is None else measurements
-    return filter_(data.gyro.samples, data.t, measurements, prior, model, options)
+    filter_ = estimator(filter=options or FilterOptions())
+    return solve_with(filter_, data.gyro.samples, data.t, measurements, prior, model)
 
 
 def test_noise_free_data_converge_to_the_truth_from_20_degrees() -> None:
@@ -130,7 +134,7 @@ def test_agrees_with_the_mekf_on_noisy_data() -> None:
     rng = np.random.default_rng(np.random.SeedSequence(202))
     data = simulate(rng, 300.0)
     prior = prior_at(data, np.radians([5.0, -3.0, 2.0]), wide_covariance(5.0))
-    unscented, extended = run(data, prior), run(data, prior, filter_=mekf)
+    unscented, extended = run(data, prior), run(data, prior, estimator=Mekf)
     assert unscented.valid.all() and extended.valid.all()
     steady = slice(50, None)
     sigma = np.sqrt(np.diagonal(unscented.covariance, axis1=1, axis2=2))[steady]
@@ -175,7 +179,7 @@ def test_nees_is_consistent_over_a_monte_carlo() -> None:
         data = simulate(rng, duration, model=model, every=10)
         draw = root @ rng.standard_normal(6)
         start = Rotation.from_rotvec(-draw[:3]) * data.truth[0]
-        prior = FilterPrior(start, data.gyro.bias[0] - draw[3:], covariance)
+        prior = Prior(start, covariance, bias=data.gyro.bias[0] - draw[3:])
         result = run(data, prior, model=model)
         assert result.valid.all()
         errors = data.errors(result)
@@ -231,7 +235,7 @@ def test_gyro_gap_grows_the_covariance_and_is_flagged_only_when_long() -> None:
     first, last = 600, 650  # gyro steps of the gap: t = 60 s to 65 s
     rates = data.gyro.samples.rates.copy()
     rates[first:last] = np.nan
-    gapped = Pass(
+    gapped = UsquePass(
         SimulatedGyro(
             GyroSamples(data.gyro.samples.t, rates, MODEL.dt), data.gyro.true_rates, data.gyro.bias
         ),

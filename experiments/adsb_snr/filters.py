@@ -19,7 +19,7 @@ rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
 * ``rts_snr``: the multiplicative RTS backward pass over ``mekf_snr`` (its
   ``runtime_s`` includes the forward MEKF).
 * ``fg_online``: the causal fixed-lag factor-graph smoother
-  (:func:`attopt.solvers.smoother.smooth_online`) on the same SNR measurements.
+  (:class:`attopt.solvers.smoother.OnlineSmoother`) on the same SNR measurements.
 * ``fg_batch``: the whole-pass factor-graph smoother
   (:func:`attopt.solvers.smoother.smooth`) started from ``fg_online``'s estimates (or
   from ``rts_snr``'s when ``fg_online`` is not asked for); ``runtime_s``

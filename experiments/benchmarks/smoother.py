@@ -16,10 +16,11 @@ attitude error), it times:
   measurements, each one ``predict`` per epoch);
 * ``predict``: one pass of ``predict`` over all epochs at the truth, the
   interface's cost that bounds the smoother's from below;
-* ``online`` (with ``--online``): :func:`attopt.solvers.smoother.smooth_online`
-  with its default options (causal estimates, split into factor set-up and
-  iSAM2 updates with marginals, with its ratio to the MEKF of the same run,
-  its model evaluations per epoch and its window).
+* ``online`` (with ``--online``): the online smoother (registry estimator
+  ``fg_online``, :class:`attopt.solvers.smoother.OnlineSmoother`) with its
+  default options (causal estimates, split into factor set-up and iSAM2
+  updates with marginals, with its ratio to the MEKF of the same run, its
+  model evaluations per epoch and its window).
 
 and reports each method's RMS attitude error (body axes, degrees, all valid
 epochs and those after 300 s), the posterior Cramer-Rao bound of the pass
@@ -54,8 +55,8 @@ from attopt.experiments.filtering import (
 )
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
-from attopt.solvers.filters import mekf, rts_smooth
-from attopt.solvers.smoother import OnlineReport, smooth, smooth_online
+from attopt.solvers.filters import Mekf, Rts
+from attopt.solvers.smoother import OnlineReport, OnlineSmoother, smooth
 
 BURN_IN_S = 300.0
 
@@ -109,9 +110,11 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
         PARAMETERS["snr_sigma_db"],
         PARAMETERS["threshold_db"],
     )
-    measurements = referenced(snr_measurements(noisy.epochs, "truncated"), truth.epoch_frames)
+    orbit_frame = snr_measurements(noisy.epochs, "truncated")
+    measurements = referenced(orbit_frame, truth.epoch_frames)
     model = GYRO_MODELS[gyro]
     inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))
+    pass_ = inputs.filter_pass(truth, orbit_frame)
     t = truth.t[truth.epoch_samples]
     true_attitude = truth.attitude[truth.epoch_samples]
     late = t >= t[0] + BURN_IN_S
@@ -123,26 +126,23 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     predict = time.perf_counter() - start
 
     start = time.perf_counter()
-    forward = mekf(inputs.gyro.samples, t, measurements, inputs.prior, model)
+    forward = Mekf().solve(pass_)
     mekf_s = time.perf_counter() - start
     start = time.perf_counter()
-    backward = rts_smooth(forward)
+    backward = Rts().solve(pass_, initial=forward)
     rts_s = time.perf_counter() - start
     start = time.perf_counter()
     result = smooth(inputs.gyro.samples, t, measurements, inputs.prior, model, initial=backward)
     smoother_s = time.perf_counter() - start
     report = result.report
 
-    orbit_frame = snr_measurements(noisy.epochs, "truncated")
     trace = np.sum(posterior_bound(inputs, truth, orbit_frame, backward) ** 2, axis=1)
 
     solutions = {"mekf": forward, "rts": backward, "smoother": result}
     online_s = None
     if online:
         start = time.perf_counter()
-        solutions["online"] = smooth_online(
-            inputs.gyro.samples, t, measurements, inputs.prior, model
-        )
+        solutions["online"] = OnlineSmoother().solve(pass_)
         online_s = time.perf_counter() - start
     rms, rms_late = {}, {}
     for name, estimate in solutions.items():
@@ -260,7 +260,7 @@ def main() -> None:
     parser.add_argument("--durations", type=float, nargs="+", default=[900.0, 3600.0, 14400.0])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--gyro", default="mems", choices=sorted(GYRO_MODELS))
-    parser.add_argument("--online", action="store_true", help="also time smooth_online")
+    parser.add_argument("--online", action="store_true", help="also time the online smoother")
     args = parser.parse_args()
     rows = []
     for duration in sorted(args.durations):

@@ -24,8 +24,8 @@ noise is drawn), and every estimator sees the same DOAs:
    the seed's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
    our EKF reproduces the seed's attitude RMSEs (docs/doa.md).
 3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
-   model, same data; :mod:`attopt.solvers.doa.eks`).  The EKF and RTS rows carry
-   ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
+   model, same data; :func:`attopt.solvers.filters.rts.rts_smooth`).  The EKF
+   and RTS rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
    (filter and smoother) linearised along the truth, with the DOA CRB at the
    true DOAs of every visible station, and ``crb_{x,y,z}_deg``, the same with
    ``Q = 0``: the bound of the seed's problem itself, whose torque-free
@@ -74,7 +74,6 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation
 
 from attopt.experiments.doa_ground.methods import BATCH_LS, GYRO_FILTERS, ekf_method, rts_method
 from attopt.experiments.doa_ground.report import report
@@ -111,12 +110,14 @@ from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.formulations.gyro import MEMS_GYRO
-from attopt.solvers.doa.batch_ls import BatchLsResult, batch_least_squares
-from attopt.solvers.doa.ekf import PROCESS_NOISE, EkfPrior, EkfResult, run_ekf_vectors
-from attopt.solvers.doa.eks import posterior_bound_ekf, rts_smooth_ekf
+from attopt.formulations.passes import Pass, Prior, RigidBody
+from attopt.solvers.doa import DoaBatchLs, DoaEkf, DoaRts
+from attopt.solvers.doa.batch_ls import BatchLsOptions
+from attopt.solvers.doa.ekf import INERTIA_SEED003, PROCESS_NOISE
+from attopt.solvers.doa.eks import posterior_bound_ekf
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
-from attopt.solvers.filters.common import FilterPrior
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import stored_rotations
 from attopt.solvers.smoother.batch import single_frame_initial
 from attopt.solvers.wahba import WAHBA_SOLVERS
 
@@ -154,6 +155,9 @@ MUSIC = MusicEstimator()
 """One estimator per process: its grid is built once."""
 GYRO = MEMS_GYRO
 """The gyro of the gyro-aided rows, sampled at the epochs (``rate_hz = 1 / step_s``)."""
+BATCH_LS_ESTIMATOR = DoaBatchLs(batch=BatchLsOptions(flag_unconverged=False))
+"""``bls_seed003`` with an unconverged pass's estimates kept (its rows are flagged with the
+report's reason)."""
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -196,12 +200,13 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         geometry, setting["snr_db"], setting["snapshots"], np.random.default_rng(seed)
     )
     vectors = unit_vector_observations(geometry, epochs, stations, doas)
+    doa_pass = _vector_pass(geometry, vectors, _prior(setting))
     row_epochs = np.arange(0, geometry.t.size, round(setting["row_step_s"] / setting["step_s"]))
     common = {
         "t": geometry.t[row_epochs],
         "phase": np.where(geometry.t[row_epochs] < setting["settle_s"], "converging", "settled"),
     }
-    passes = {q: _dynamics_passes(setting, geometry, vectors, q) for q in setting["process_noise"]}
+    passes = {q: _dynamics_passes(setting, doa_pass, q) for q in setting["process_noise"]}
     frames = [
         _dynamics_rows(method, run, geometry, row_epochs, common)
         for q, runs in passes.items()
@@ -210,38 +215,40 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     frames.append(_wahba_rows(geometry, vectors, row_epochs, common, setting))
     if trial_index(seed) < setting["filter_trials"]:
         lowest = passes[min(passes)][1]
-        frames.append(_batch_ls_rows(setting, geometry, vectors, row_epochs, common, lowest))
+        frames.append(_batch_ls_rows(doa_pass, geometry, row_epochs, common, lowest))
         frames += _gyro_rows(setting, seed, geometry, vectors, row_epochs, common, lowest)
     frames.append(pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]))
     return pd.concat(frames, ignore_index=True)
 
 
-def _dynamics_passes(
-    setting: Setting,
+def _vector_pass(
     geometry: DoaGroundGeometry,
     vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
-    process_noise: float,
+    prior: Prior,
+) -> Pass:
+    """The pass of the unit vectors (NaN body rows: absent) with the scenario's rigid-body
+    dynamics (inertia of seed 003 eq. 25, wheel momentum, orbit frames) and ``prior``."""
+    dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)
+    return replace(Pass.from_vectors(geometry.t, *vectors), dynamics=dynamics, prior=prior)
+
+
+def _dynamics_passes(
+    setting: Setting, doa_pass: Pass, process_noise: float
 ) -> tuple[DynamicsPass, DynamicsPass]:
     """The seed's EKF and its RTS pass with ``Q = process_noise E_6``: each result, its
     wall time (the RTS's includes the EKF's), the model's bound and the ``Q = 0`` bound."""
+    ekf = DoaEkf(process_noise=process_noise)
     start = time.perf_counter()
-    ekf = run_ekf_vectors(
-        _prior(setting),
-        *vectors,
-        geometry.orbit_turns(),
-        WHEEL_MOMENTUM,
-        setting["step_s"],
-        process_noise=process_noise,
-    )
+    filtered = ekf.solve(doa_pass)
     ekf_seconds = time.perf_counter() - start
-    smoothed = rts_smooth_ekf(ekf)
+    smoothed = DoaRts(forward=ekf).solve(doa_pass, initial=filtered)
     rts_seconds = time.perf_counter() - start
     keys = [setting[k] for k in ("duration_s", "step_s", "snr_db", "snapshots")]
     prior_sigmas = setting["initial_sigma_deg"], setting["initial_rate_sigma_deg_s"]
     filter_bound, smoother_bound = _model_bound(*keys, process_noise, *prior_sigmas)
     filter_crb, smoother_crb = _model_bound(*keys, 0.0, *prior_sigmas)
     return (
-        DynamicsPass(ekf, ekf_seconds, filter_bound, filter_crb),
+        DynamicsPass(filtered, ekf_seconds, filter_bound, filter_crb),
         DynamicsPass(smoothed, rts_seconds, smoother_bound, smoother_crb),
     )
 
@@ -252,7 +259,7 @@ class DynamicsPass:
     and the bound with ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)``
     each."""
 
-    result: EkfResult | BatchLsResult
+    result: Track
     seconds: float
     bound: np.ndarray
     crb: np.ndarray
@@ -278,26 +285,19 @@ def _model_bound(
     crb = stochastic_crb(truth_doa[:, 0], truth_doa[:, 1], 10.0 ** (snr_db / 10.0), snapshots)
     sigma = np.ones(geometry.visible.shape)
     sigma[geometry.visible] = _isotropic_sigma(truth_doa[:, 0], truth_doa[:, 1], crb)
-    covariance = np.diag(np.radians([initial_rate_sigma_deg_s] * 3 + [initial_sigma_deg] * 3) ** 2)
-    bounds = posterior_bound_ekf(
-        geometry.truth,
-        geometry.rate,
-        _unit(geometry.line_of_sight_km),
-        sigma,
-        geometry.visible,
-        geometry.orbit_turns(),
-        WHEEL_MOMENTUM,
-        step_s,
-        covariance,
-        process_noise=process_noise,
-    )
+    covariance = np.diag(np.radians([initial_sigma_deg] * 3 + [initial_rate_sigma_deg_s] * 3) ** 2)
+    reference = _unit(geometry.line_of_sight_km)
+    body = np.einsum("nij,nsj->nsi", geometry.truth.as_matrix(), reference)
+    body[~geometry.visible] = np.nan
+    prior = Prior(geometry.truth[0], covariance, rate=geometry.rate[0])
+    bound_pass = _vector_pass(geometry, (body, reference, sigma), prior)
+    bounds = posterior_bound_ekf(bound_pass, geometry.truth, geometry.rate, process_noise)
     return tuple(np.degrees(np.sqrt(np.diagonal(b, axis1=1, axis2=2)[:, 3:])) for b in bounds)
 
 
 def _batch_ls_rows(
-    setting: Setting,
+    doa_pass: Pass,
     geometry: DoaGroundGeometry,
-    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
     rows: np.ndarray,
     common: Mapping[str, Any],
     start: DynamicsPass,
@@ -307,14 +307,7 @@ def _batch_ls_rows(
     start's.  A pass that raises or does not converge gives invalid rows with the reason."""
     began = time.perf_counter()
     try:
-        result = batch_least_squares(
-            start.result.attitude[0],
-            start.result.rate[0],
-            *vectors,
-            geometry.orbit_turns(),
-            WHEEL_MOMENTUM,
-            setting["step_s"],
-        )
+        result = BATCH_LS_ESTIMATOR.solve(doa_pass, initial=start.result)
     except (UnobservableError, ConvergenceError) as error:
         return pd.DataFrame(
             {
@@ -326,7 +319,7 @@ def _batch_ls_rows(
             }
         )
     run = DynamicsPass(result, start.seconds + time.perf_counter() - began, start.crb, start.crb)
-    return _dynamics_rows(BATCH_LS, run, geometry, rows, common, result.reason)
+    return _dynamics_rows(BATCH_LS, run, geometry, rows, common, result.report.reason)
 
 
 def _dynamics_rows(
@@ -340,7 +333,7 @@ def _dynamics_rows(
     """Rows of an EKF, RTS or batch pass: errors, rate errors, both bounds, wall time;
     invalid with ``reason`` if one is given."""
     result = run.result
-    solution = _solution(method, result.attitude[rows], result.covariance[rows, 3:, 3:])
+    solution = _solution(method, result.quaternion[rows], result.covariance[rows])
     rate_error = np.degrees(result.rate[rows] - geometry.rate[rows])
     return pd.DataFrame(
         {
@@ -357,14 +350,14 @@ def _dynamics_rows(
     )
 
 
-def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float) -> FilterPrior:
+def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float) -> Prior:
     """The EKF's initial attitude estimate and sigma (seed 003 sec. 6) for the gyro-aided
     rows, in the inertial frame, with the gyro's initial bias sigma."""
     ekf = _prior(setting)
-    return FilterPrior(
+    return Prior(
         attitude=ekf.attitude * geometry.eci_to_orbit[0],
+        covariance=np.diag([ekf.covariance[0, 0]] * 3 + [bias_sigma**2] * 3),
         bias=np.zeros(3),
-        covariance=np.diag([ekf.covariance[3, 3]] * 3 + [bias_sigma**2] * 3),
     )
 
 
@@ -397,9 +390,9 @@ def _gyro_rows(
         for k in range(geometry.t.size)
     ]
     smoothed = start.result
+    inertial = stored_rotations(smoothed.quaternion) * geometry.eci_to_orbit
     first = single_frame_initial(
-        _solution("rts", smoothed.attitude * geometry.eci_to_orbit, smoothed.covariance[:, 3:, 3:]),
-        inputs.prior,
+        _solution("rts", inertial.as_quat(), smoothed.covariance), inputs.prior
     )
     runs = run_filters(
         setting["filters"], inputs, truth, measurements, initial=(first, start.seconds)
@@ -455,23 +448,25 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
 
 
-def _prior(setting: Setting) -> EkfPrior:
-    """Seed 003 sec. 6's initial estimate with the experiment's prior sigmas."""
+def _prior(setting: Setting) -> Prior:
+    """Seed 003 sec. 6's initial estimate with the experiment's prior sigmas (covariance of
+    ``[attitude, rate]``)."""
     sigma = np.radians(
-        [setting["initial_rate_sigma_deg_s"]] * 3 + [setting["initial_sigma_deg"]] * 3
+        [setting["initial_sigma_deg"]] * 3 + [setting["initial_rate_sigma_deg_s"]] * 3
     )
-    return EkfPrior(
+    return Prior(
         attitude=attitude_from_euler321(*np.radians(FILTER_INITIAL_EULER_DEG)),
-        rate=np.radians(FILTER_INITIAL_RATE_DEG_S),
         covariance=np.diag(sigma**2),
+        rate=np.radians(FILTER_INITIAL_RATE_DEG_S),
     )
 
 
-def _solution(method: str, attitude: Rotation, covariance: np.ndarray) -> Track:
-    n = len(attitude)
+def _solution(method: str, quaternion: np.ndarray, covariance: np.ndarray) -> Track:
+    """A valid track of the estimates ``quaternion`` with their attitude covariances."""
+    n = len(quaternion)
     return Track(
         method=method,
-        quaternion=attitude.as_quat(),
+        quaternion=quaternion,
         covariance=covariance,
         loss=np.full(n, np.nan),
         valid=np.ones(n, dtype=bool),

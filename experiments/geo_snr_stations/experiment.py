@@ -71,7 +71,8 @@ from attopt.formulations.errors import AttoptError
 from attopt.formulations.geo_fisher import snr_fisher_information
 from attopt.formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
 from attopt.formulations.gyro import GyroModel, GyroSamples, mean_rates
-from attopt.solvers.filters import FilterOptions, FilterPrior, usque
+from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.solvers.filters import FilterOptions, Usque
 from attopt.solvers.geo.boresight import (
     StationCones,
     cone_intersection,
@@ -265,7 +266,7 @@ def _filter_rows(method: str, scenario: GeoSnrScenario, result: Track) -> _Rows:
 
 def _filter_prior(
     setting: Setting, scenario: GeoSnrScenario, rng: np.random.Generator, cone_start: Array
-) -> FilterPrior:
+) -> Prior:
     """The seed's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
     sigma0 = np.radians(setting["initial_sigma_deg"])
     draw = Rotation.from_rotvec(sigma0 * rng.standard_normal(3)) * scenario.truth[0]
@@ -290,14 +291,18 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     measurements = [scenario.measurement(k, row) for k, row in enumerate(filter_snr)]
     samples, model = assumed_rates(scenario), rate_model(setting)
     prior = _filter_prior(setting, scenario, child_rng(seed, GYRO_STREAM), cone.boresight[0])
-    plain = usque(samples, scenario.t, measurements, prior, model, FILTER_OPTIONS)
+    filter_pass = Pass(
+        scenario.t,
+        epoch_snapshots(measurements, scenario.t),
+        GyroRecord(samples.t, samples.rates, model),
+        prior,
+    )
+    plain = Usque(filter=FILTER_OPTIONS).solve(filter_pass)
     detection = DetectionOptions(
         window=detection_window(setting), false_alarm=setting["false_alarm"]
     )
     boresight: Callable[[int], Array] = _cone_or_lsq(cone, snapshot[1])
-    run = detect_and_reinitialise(
-        samples, scenario.t, measurements, prior, model, boresight, detection, FILTER_OPTIONS
-    )
+    run = detect_and_reinitialise(filter_pass, boresight, detection, FILTER_OPTIONS)
     smoothed = smooth(
         samples,
         scenario.t,

@@ -1,5 +1,14 @@
-"""Direction-of-arrival estimation on antenna arrays (seed 003): MUSIC."""
+"""Yang et al. 2014 (DOAs of ground stations): MUSIC, the EKF on rigid-body dynamics,
+its RTS smoother and the whole-pass batch least squares.
 
+Registry estimators (:mod:`attopt.solvers.doa.estimators`): ``ekf_seed003``,
+``rts_seed003`` and ``bls_seed003``.
+"""
+
+from attopt.solvers.doa.estimators import DoaBatchLs, DoaEkf, DoaRts
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
 
-__all__ = ["DoaEstimates", "MusicEstimator"]
+ESTIMATORS = (DoaEkf(), DoaRts(), DoaBatchLs())
+"""The package's registry estimators with their default options."""
+
+__all__ = ["ESTIMATORS", "DoaBatchLs", "DoaEkf", "DoaEstimates", "DoaRts", "MusicEstimator"]

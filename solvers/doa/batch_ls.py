@@ -1,4 +1,4 @@
-"""Whole-pass batch least squares over seed 003's deterministic dynamics (``Q = 0``).
+"""Whole-pass batch least squares over Yang et al. 2014's deterministic dynamics (``Q = 0``).
 
 The truth of seed 003's problem is torque free with known inertia, wheel
 momentum and orbit (sec. 4.2, eqs. 23-25), so the whole pass is fixed by the
@@ -37,8 +37,11 @@ Cramer-Rao bound evaluated at the estimate.
 
 No prior enters: the pass's information dwarfs any prior (the ``crb_*``
 column's 60 deg, 0.5 deg/s prior changes it by less than 1e-4 relative), and
-the start only has to lie in the basin of the minimum (from the RTS pass over
-the EKF in ``doa-ground``).
+the start only has to lie in the basin of the minimum (the first epoch of the
+RTS pass over the EKF, ``rts_seed003``: registry estimator ``bls_seed003``,
+:mod:`attopt.solvers.doa.estimators`).  The result is a
+:class:`~attopt.solvers.results.Track` (state ``("rate", "attitude")``)
+with the pass's :class:`BatchLsReport`.
 """
 
 from __future__ import annotations
@@ -54,15 +57,15 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_model import increment_matrix
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.solvers.doa.ekf import (
-    INERTIA_SEED003,
-    check_lengths,
+    EkfDynamics,
     check_steps,
     epoch_symbols,
     step_function,
-    vector_arrays,
     vector_information_function,
 )
+from attopt.solvers.doa.vector_slots import vector_arrays
 from attopt.solvers.filters.casadi_pass import accumulate
+from attopt.solvers.results import Track
 
 Array = NDArray[np.float64]
 
@@ -72,13 +75,27 @@ which the initial state counts as observable."""
 
 
 @dataclass(frozen=True)
-class BatchLsResult:
-    """The whole-pass estimate (module docstring).
+class BatchLsOptions:
+    """Gauss-Newton settings (module docstring).
 
     Attributes:
-        attitude: ``N`` estimates of ``C_bo`` (the trajectory from the estimated ``x_0``).
-        rate: ``(N, 3)`` estimates of ``omega_bi`` (rad/s).
-        covariance: ``(N, 6, 6)`` of ``[delta_omega, delta]``, ``S_k N^-1 S_k^T``.
+        tolerance: Mahalanobis length of the last step at convergence.
+        max_iterations: passes before giving up.
+        flag_unconverged: flag every epoch invalid when the solve did not
+            converge; ``False`` keeps the estimates valid (the track's
+            :class:`BatchLsReport` says whether it converged).
+    """
+
+    tolerance: float = 1e-6
+    max_iterations: int = 20
+    flag_unconverged: bool = True
+
+
+@dataclass(frozen=True)
+class BatchLsReport:
+    """How the whole-pass solve went.
+
+    Attributes:
         cost: the final ``J`` (weighted squared innovations).
         rows: number of vector components (3 per vector) in ``J``.
         iterations: passes run (each one propagation of the whole trajectory).
@@ -86,9 +103,6 @@ class BatchLsResult:
         reason: empty if converged, else why not.
     """
 
-    attitude: Rotation
-    rate: Array
-    covariance: Array
     cost: float
     rows: int
     iterations: int
@@ -150,32 +164,31 @@ class _Pass:
 
 
 def batch_least_squares(
-    initial_attitude: Rotation,
-    initial_rate: ArrayLike,
-    body: ArrayLike,
-    reference: ArrayLike,
-    sigma: ArrayLike,
-    orbit_turns: Rotation,
-    wheel_momentum: ArrayLike,
-    dt: float,
-    inertia: ArrayLike = INERTIA_SEED003,
-    tolerance: float = 1e-6,
-    max_iterations: int = 20,
-) -> BatchLsResult:
-    """Whole-pass least-squares estimate of the seed-003 dynamics' initial state.
+    start_attitude: Rotation,
+    start_rate: ArrayLike,
+    vectors: tuple[ArrayLike, ArrayLike, ArrayLike],
+    dynamics: EkfDynamics,
+    t: ArrayLike,
+    options: BatchLsOptions,
+    method: str,
+) -> Track:
+    """Whole-pass least-squares estimate of the dynamics' initial state (module docstring).
 
     Args:
-        initial_attitude, initial_rate: the start at epoch 0 (``C_bo``,
+        start_attitude, start_rate: the start at epoch 0 (``C_bo``,
             ``omega_bi`` in rad/s), in the basin of the minimum.
-        body, reference, sigma: unit vectors as for
-            :func:`~attopt.solvers.doa.ekf.run_ekf_vectors` (``(N, S, 3)``, ``(N, S, 3)``,
-            ``(N, S)``; NaN body rows absent).
-        orbit_turns: ``N - 1`` rotations ``O_{k+1} O_k^T`` of the orbit frame.
-        wheel_momentum: ``(3,)`` or ``(N, 3)`` (N m s, body).
-        dt: step (s).
-        inertia: ``3 x 3`` (kg m^2, eq. 25).
-        tolerance: Mahalanobis length of the last step at convergence.
-        max_iterations: passes before giving up (the result is then flagged).
+        vectors: ``(body, reference, sigma)``, ``(N, S, 3)``, ``(N, S, 3)``,
+            ``(N, S)`` (NaN body rows absent;
+            :func:`~attopt.solvers.doa.vector_slots.vector_slots`).
+        dynamics: the pass's dynamics at its ``N`` epochs ``t``.
+        options: tolerance, passes and flagging.
+        method: the track's method.
+
+    Returns:
+        The trajectory from the estimated ``x_0`` at every epoch with the
+        covariance ``S_k N^-1 S_k^T`` of ``[delta_omega, delta]``, and the
+        :class:`BatchLsReport`; all epochs flagged if not converged (unless
+        ``options.flag_unconverged`` is off).
 
     Raises:
         InvalidObservationError: inconsistent shapes or bad sigmas.
@@ -184,11 +197,11 @@ def batch_least_squares(
         ConvergenceError: the start's trajectory turns more than
             :data:`~attopt.solvers.doa.ekf.MAX_STEP_ANGLE` per step.
     """
-    body, reference, weight = vector_arrays(body, reference, sigma)
+    body, reference, weight = vector_arrays(*vectors)
     n, slots = weight.shape
-    momentum = check_lengths(n, orbit_turns, wheel_momentum)
-    turns = np.concatenate([orbit_turns.as_matrix().reshape(-1, 3, 3), np.eye(3)[None]])
-    epoch = pass_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()), slots)
+    dt, momentum = dynamics.dt, dynamics.momentum
+    turns = np.concatenate([dynamics.turns, np.eye(3)[None]])
+    epoch = pass_function(dt, dynamics.inertia, slots)
 
     def run(rate: Array, attitude: Array) -> _Pass:
         outputs = accumulate(
@@ -210,13 +223,13 @@ def batch_least_squares(
             rows=int(np.rint(outputs[6][:, 0, 0].sum())),
         )
 
-    current = run(np.asarray(initial_rate, dtype=float).reshape(3), initial_attitude.as_matrix())
+    current = run(np.asarray(start_rate, dtype=float).reshape(3), start_attitude.as_matrix())
     _check_observable(current.normal)
     damping, iterations, converged = 1e-3, 1, False
-    while iterations < max_iterations:
+    while iterations < options.max_iterations:
         normal = current.normal
         step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), current.gradient)
-        final = bool(np.sqrt(step @ normal @ step) < tolerance)
+        final = bool(np.sqrt(step @ normal @ step) < options.tolerance)
         try:
             candidate = run(
                 current.rate[0] + step[:3],
@@ -235,15 +248,28 @@ def batch_least_squares(
     _check_observable(current.normal)
     spread = np.linalg.inv(current.normal)
     covariance = current.sensitivity @ spread @ np.swapaxes(current.sensitivity, 1, 2)
-    return BatchLsResult(
-        attitude=Rotation.from_matrix(current.attitude),
-        rate=current.rate,
-        covariance=0.5 * (covariance + np.swapaxes(covariance, 1, 2)),
-        cost=current.cost,
-        rows=current.rows,
-        iterations=iterations,
-        converged=converged,
-        reason="" if converged else f"not converged in {max_iterations} passes",
+    covariance = 0.5 * (covariance + np.swapaxes(covariance, 1, 2))
+    reason = "" if converged else f"not converged in {options.max_iterations} passes"
+    report = BatchLsReport(current.cost, current.rows, iterations, converged, reason)
+    valid = np.full(n, converged or not options.flag_unconverged)
+    error = np.full(n, None, dtype=object)
+    error[~valid] = ConvergenceError
+    return Track(
+        method=method,
+        quaternion=np.where(
+            valid[:, None], Rotation.from_matrix(current.attitude).as_quat(), np.nan
+        ),
+        covariance=np.where(valid[:, None, None], covariance[:, 3:, 3:], np.nan),
+        loss=np.full(n, np.nan),
+        valid=valid,
+        reason=np.where(valid, "", reason).astype(object),
+        error=error,
+        diagnostics={},
+        t=np.array(t, dtype=float),
+        rate=np.where(valid[:, None], current.rate, np.nan),
+        state_covariance=np.where(valid[:, None, None], covariance, np.nan),
+        state=("rate", "attitude"),
+        report=report,
     )
 
 

@@ -55,13 +55,27 @@ number of rows (:func:`update_function`).  An epoch without rows (``M = 0``,
 ``z = 0``) leaves the estimate exactly unchanged.  The attitude is corrected
 multiplicatively, ``A <- C(delta) A``.
 
-Two drivers share these pieces: :func:`run_ekf` loops in Python over any
-measurements; :func:`run_ekf_vectors` takes the unit vectors as arrays (fixed
-slots, NaN for absent) and runs whole epochs (:func:`epoch_function`) in
-CasADi's virtual machine with ``Function.mapaccum`` (:func:`accumulate`),
-about 30 times faster.  Both return what a fixed-interval smoother needs
-(:class:`EkfResult`); the smoother and the posterior bound of this model are
-in :mod:`attopt.solvers.doa.eks`.
+Two paths share these pieces and give the same track (to rounding).  The
+filter is a :class:`~attopt.solvers.sequential.SequentialFilter`
+(:class:`DoaEkfFilter`: its ``predict`` steps the dynamics epoch by epoch,
+its ``update`` is the information-form update above, after gating each block
+on its innovation when ``gate_probability < 1``), run by the one sequential
+loop (:func:`attopt.solvers.sequential.run_filter`, with its lost-track
+monitor) over any measurements, about 0.5 ms per epoch.  With unit vectors
+only (:class:`~attopt.formulations.attitude_measurement.VectorMeasurement`s
+with per-vector sigmas) and no gate, :func:`run_vectors` runs whole epochs
+(:func:`epoch_function`) in CasADi's virtual machine with
+``Function.mapaccum`` (:func:`accumulate`), about 30 times faster; the
+monitor would never fire there (nothing is gated).  Both keep the history a
+fixed-interval smoother needs (:func:`attopt.solvers.filters.rts.rts_smooth`);
+the posterior bound of this model is in :mod:`attopt.solvers.doa.eks`.
+
+The pass (:class:`~attopt.formulations.passes.Pass`): uniform epochs ``dt``
+apart, the :class:`~attopt.formulations.passes.RigidBody` (inertia, wheel
+momentum, orbit frames at the epochs) and a
+:class:`~attopt.formulations.passes.Prior` at epoch 0 with a rate, its
+covariance of ``[attitude, rate]`` permuted to the filter's ``[delta_omega,
+delta]`` (:func:`ekf_prior`).
 
 Noise.  ``Q = q E_6`` per step with ``q = 1e-9`` (sec. 5.2).  ``R`` comes
 with the measurement; for MUSIC DOAs the experiment uses ``R_W = sigma^2 E``
@@ -73,7 +87,6 @@ isotropic form of eq. 22, whose diagonal the seed fits to simulations.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, NamedTuple
@@ -86,9 +99,20 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, body_vectors_model
 from attopt.formulations.attitude_model import attitude_model_function, increment_matrix
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
+from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.symbolic import CASADI, namespace_of
+from attopt.solvers.doa.vector_slots import vector_arrays, vector_slots
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
-from attopt.solvers.filters.common import noise_subset, solve_noise
+from attopt.solvers.filters.common import FilterOptions, gate, noise_subset, solve_noise
+from attopt.solvers.results import Track
+from attopt.solvers.sequential import (
+    NON_FINITE,
+    EpochRecord,
+    FilterHistory,
+    SequentialFilter,
+    TrackMonitor,
+    filter_result,
+)
 
 Array = NDArray[np.float64]
 
@@ -366,55 +390,83 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     )
 
 
+EKF_FAULTS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.inf)
+"""The EKF's default fault handling: no innovation gate (as in Yang et al. 2014, so the
+lost-track monitor never fires) and no validity limit on the attitude sigma (the
+paper's prior is 60 deg)."""
+DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries")
+"""Per-epoch counts: measurement rows and blocks used, blocks gated, re-acquisitions."""
+PRIOR_ORDER = np.array([3, 4, 5, 0, 1, 2])
+"""The filter's ``[delta_omega, delta]`` from a prior's ``[attitude, rate]``."""
+UNIFORM_TOLERANCE = 1e-6
+"""Relative spread of the epochs' spacing below which they count as uniform."""
+
+
 @dataclass(frozen=True)
-class EkfPrior:
-    """Initial estimate: ``attitude`` ``C_bo``, ``rate`` ``omega_bi`` (rad/s), covariance ``6 x 6``.
-
-    The covariance is of ``[delta_omega, delta]`` (module docstring).
-    """
-
-    attitude: Rotation
-    rate: Array
-    covariance: Array
-
-
-@dataclass(frozen=True)
-class EkfResult:
-    """Estimates at every epoch, with what a fixed-interval smoother needs.
+class EkfDynamics:
+    """A pass's rigid-body dynamics as the filter steps them (module docstring).
 
     Attributes:
-        attitude: ``C_bo`` estimates after epoch ``k``'s update, ``N`` rotations.
-        rate: ``(N, 3)`` ``omega_bi`` estimates (rad/s).
-        covariance: ``(N, 6, 6)`` of ``[delta_omega, delta]`` (rad^2/s^2, rad^2).
-        updates: ``(N,)`` number of measurement rows used at each epoch.
-        predicted_attitude: ``N`` rotations, the estimate at epoch ``k``
-            before its update (the prior's at ``k = 0``).
-        predicted_rate: ``(N, 3)``, likewise.
-        predicted_covariance: ``(N, 6, 6)``, likewise.
-        transition: ``(N - 1, 6, 6)``; ``transition[k]`` maps the error state
-            after epoch ``k``'s update to epoch ``k + 1`` (``Phi``, eq. 28).
+        dt: the epoch spacing (s).
+        inertia: ``3 x 3`` inertia (kg m^2, eq. 25), flattened (a cache key).
+        turns: ``(N - 1, 3, 3)`` orbit-frame turns ``O_{k+1} O_k^T``.
+        momentum: ``(N, 3)`` wheel momentum (N m s, body).
     """
 
-    attitude: Rotation
-    rate: Array
-    covariance: Array
-    updates: NDArray[np.intp]
-    predicted_attitude: Rotation
-    predicted_rate: Array
-    predicted_covariance: Array
-    transition: Array
+    dt: float
+    inertia: tuple[float, ...]
+    turns: Array
+    momentum: Array
 
 
-def check_lengths(n: int, orbit_turns: Rotation, wheel_momentum: ArrayLike) -> Array:
-    """The ``(n, 3)`` wheel momentum after checking the orbit turns' count."""
-    if n < 1:
-        raise InvalidObservationError("need at least one epoch")
-    if len(orbit_turns) != n - 1:
-        raise InvalidObservationError(f"need {n - 1} orbit-frame turns, got {len(orbit_turns)}")
+def ekf_dynamics(pass_: Pass) -> EkfDynamics:
+    """The dynamics of ``pass_`` at its epochs.
+
+    Raises:
+        InvalidObservationError: no dynamics, epochs not uniform, or a wheel
+            momentum that is neither ``(3,)`` nor ``(N, 3)``.
+    """
+    if pass_.dynamics is None:
+        raise InvalidObservationError("Yang et al. 2014's EKF needs the pass's rigid-body dynamics")
+    t, n = pass_.t, len(pass_)
+    dt = float((t[-1] - t[0]) / (n - 1)) if n > 1 else 0.0
+    if n > 1 and not np.allclose(np.diff(t), dt, rtol=UNIFORM_TOLERANCE, atol=0.0):
+        raise InvalidObservationError("Yang et al. 2014's EKF steps uniformly spaced epochs")
     try:
-        return np.broadcast_to(np.asarray(wheel_momentum, dtype=float), (n, 3))
+        momentum = np.broadcast_to(pass_.dynamics.wheel_momentum, (n, 3))
     except ValueError:
         raise InvalidObservationError("wheel momentum must be (3,) or (N, 3)") from None
+    return EkfDynamics(
+        dt,
+        tuple(pass_.dynamics.inertia.ravel()),
+        pass_.dynamics.orbit_turns.as_matrix().reshape(-1, 3, 3),
+        momentum,
+    )
+
+
+def ekf_prior(prior: Prior | None) -> tuple[Rotation, Array, Array]:
+    """Attitude, rate and the ``[delta_omega, delta]`` covariance of a prior with a rate
+    (its ``[attitude, rate]`` covariance permuted, no arithmetic).
+
+    Raises:
+        InvalidObservationError: no prior, or one without a rate.
+    """
+    if prior is None or prior.rate is None:
+        raise InvalidObservationError(
+            "Yang et al. 2014's EKF needs a prior with a body rate: "
+            "Prior(attitude, (6, 6) covariance of [attitude, rate], rate=...)"
+        )
+    covariance = prior.covariance[np.ix_(PRIOR_ORDER, PRIOR_ORDER)]
+    return prior.attitude, np.asarray(prior.rate, dtype=float), covariance
+
+
+def ekf_monitor(options: FilterOptions, covariance: Array) -> TrackMonitor:
+    """The lost-track monitor: re-acquisition inflates the attitude covariance by
+    ``recover_sigma^2 I`` and the rate covariance by the prior's ``covariance`` block."""
+    inflation = np.zeros((6, 6))
+    inflation[:3, :3] = covariance[:3, :3]
+    inflation[3:, 3:] = options.recover_sigma**2 * np.eye(3)
+    return TrackMonitor(options.max_rejected_epochs, inflation)
 
 
 def check_steps(rate: Array, dt: float, first: int = 0) -> None:
@@ -429,202 +481,177 @@ def check_steps(rate: Array, dt: float, first: int = 0) -> None:
 
 
 def _measurement_information(
-    measurement: AttitudeMeasurement, attitude: Array
-) -> tuple[Array, Array, int]:
-    """``M = J^T R^-1 J``, ``z = J^T R^-1 nu`` and the row count of the rows with a
-    finite innovation and Jacobian."""
+    measurement: AttitudeMeasurement,
+    attitude: Array,
+    attitude_covariance: Array,
+    probability: float,
+) -> tuple[Array, Array, dict[str, float]]:
+    """``M = J^T R^-1 J``, ``z = J^T R^-1 nu`` of the rows with a finite innovation and
+    Jacobian whose block passes the gate (``S = J P_aa J^T + R``), and the counts."""
     predicted, jacobian = measurement.predict(Rotation.from_matrix(attitude))
     predicted, jacobian = predicted[0], jacobian[0]
     innovation = measurement.innovation(predicted)
     rows = np.flatnonzero(np.isfinite(innovation) & np.isfinite(jacobian).all(axis=1))
-    noise = noise_subset(np.asarray(measurement.noise_covariance, dtype=float), rows)
-    weighted = solve_noise(noise, np.column_stack([jacobian[rows], innovation[rows]]))
+    noise = np.asarray(measurement.noise_covariance, dtype=float)
+    blocks = measurement.blocks
+    accepted = gate(
+        innovation[rows],
+        jacobian[rows].T,
+        attitude_covariance,
+        noise_subset(noise, rows),
+        blocks[rows],
+        probability,
+    )
+    gated = np.unique(blocks[rows[~accepted]]).size
+    rows = rows[accepted]
+    weighted = solve_noise(
+        noise_subset(noise, rows), np.column_stack([jacobian[rows], innovation[rows]])
+    )
     information = jacobian[rows].T @ weighted[:, :3]
-    return 0.5 * (information + information.T), jacobian[rows].T @ weighted[:, 3], rows.size
+    counts = {"rows": float(rows.size), "n_used": float(np.unique(blocks[rows]).size)}
+    counts["n_gated"] = float(gated)
+    return 0.5 * (information + information.T), jacobian[rows].T @ weighted[:, 3], counts
 
 
-def run_ekf(
-    prior: EkfPrior,
-    measurements: Sequence[AttitudeMeasurement | None],
-    orbit_turns: Rotation,
-    wheel_momentum: ArrayLike,
-    dt: float,
-    inertia: ArrayLike = INERTIA_SEED003,
-    process_noise: float = PROCESS_NOISE,
-) -> EkfResult:
-    """Filter ``N`` epochs ``dt`` apart: update with epoch ``k``'s measurement, then predict.
+class DoaEkfFilter(SequentialFilter):
+    """The EKF's state and steps (module docstring), for
+    :func:`attopt.solvers.sequential.run_filter`.
 
-    Any measurement model, one epoch at a time in Python (about 0.5 ms per
-    epoch); :func:`run_ekf_vectors` is the fast form for unit vectors.
-
-    Args:
-        prior: the estimate at epoch 0, before its measurement.
-        measurements: ``N`` measurements of ``C_bo`` (None or empty: propagate only).
-        orbit_turns: ``N - 1`` rotations ``O_{k+1} O_k^T`` of the orbit frame.
-        wheel_momentum: ``(3,)`` or ``(N, 3)`` wheel momentum (N m s, body).
-        dt: step (s).
-        inertia: ``3 x 3`` (kg m^2, eq. 25).
-        process_noise: ``q`` of ``Q = q E_6`` per step.
+    State ``rate`` (``omega_bi``), ``attitude`` (``C_bo``; carried as a matrix,
+    :meth:`attitude_values`) and the covariance of ``[delta_omega, delta]``,
+    starting at epoch 0 with the prior; :meth:`predict` steps the dynamics to
+    a later epoch of the pass, :meth:`update` is the update with gating at
+    ``options.gate_probability``.
 
     Raises:
-        InvalidObservationError: inconsistent lengths.
-        ConvergenceError: an estimated rate turns more than :data:`MAX_STEP_ANGLE` per step.
+        ConvergenceError: (:meth:`predict`) an estimated rate turns more than
+            :data:`MAX_STEP_ANGLE` per step.
     """
-    n = len(measurements)
-    momentum = check_lengths(n, orbit_turns, wheel_momentum)
-    propagate = propagate_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()))
-    update = update_function()
-    turns = orbit_turns.as_matrix().reshape(-1, 3, 3)
-    state = [np.reshape(prior.rate, (3, 1)), prior.attitude.as_matrix(), prior.covariance]
-    filtered, predicted, transitions = [], [], []
-    updates = np.zeros(n, dtype=np.intp)
-    for k, measurement in enumerate(measurements):
-        if measurement is not None and measurement.z.size:
-            information, residual, updates[k] = _measurement_information(measurement, state[1])
-            state = [x.full() for x in update(*state, information, residual)]
-        filtered.append(state)
-        if k == n - 1:
-            break
-        check_steps(np.reshape(state[0], (1, 3)), dt, k)
-        *state, transition = (
-            x.full() for x in propagate(*state, momentum[k], turns[k], process_noise)
+
+    state = ("rate", "attitude")
+    diagnostics = DIAGNOSTICS
+    smoothable = True
+
+    def __init__(
+        self,
+        t: ArrayLike,
+        dynamics: EkfDynamics,
+        prior: tuple[Rotation, Array, Array],
+        process_noise: float,
+        options: FilterOptions,
+    ) -> None:
+        attitude, rate, covariance = prior
+        self.t = np.asarray(t, dtype=float)
+        self.dynamics, self.process_noise, self.options = dynamics, process_noise, options
+        self._rate = np.reshape(rate, (3, 1))
+        self._attitude = attitude.as_matrix()
+        self.covariance = covariance
+        self.k = 0
+
+    @property
+    def rate(self) -> Array:
+        """``omega_bi`` (rad/s, body)."""
+        return self._rate[:, 0]
+
+    @property
+    def attitude(self) -> Rotation:
+        """``C_bo``."""
+        return Rotation.from_matrix(self._attitude)
+
+    def attitude_values(self) -> Array:
+        return self._attitude
+
+    def predict(self, t: float) -> dict[str, float]:
+        dt = self.dynamics.dt
+        slack = UNIFORM_TOLERANCE * dt
+        stop = int(np.clip(np.searchsorted(self.t, t - slack), 0, self.t.size - 1))
+        if not abs(self.t[stop] - t) <= slack or stop < self.k:
+            raise InvalidObservationError(f"t = {t:g} s is not a later epoch of the pass")
+        propagate = propagate_function(dt, self.dynamics.inertia)
+        transition = np.eye(6) if stop == self.k else None
+        for j in range(self.k, stop):
+            check_steps(self._rate.reshape(1, 3), dt, j)
+            self._rate, self._attitude, self.covariance, step = (
+                x.full()
+                for x in propagate(
+                    self._rate,
+                    self._attitude,
+                    self.covariance,
+                    self.dynamics.momentum[j],
+                    self.dynamics.turns[j],
+                    self.process_noise,
+                )
+            )
+            transition = step if transition is None else step @ transition
+        self.transition, self.k = transition, stop
+        return {}
+
+    def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
+        if measurement is None:
+            return None
+        if not measurement.z.size:
+            return {"rows": 0.0, "n_used": 0.0, "n_gated": 0.0}
+        information, residual, counts = _measurement_information(
+            measurement, self._attitude, self.covariance[3:, 3:], self.options.gate_probability
         )
-        predicted.append(state)
-        transitions.append(transition)
-    return _result(
-        prior,
-        [[x[i] for x in filtered] for i in range(3)],
-        [[x[i] for x in predicted] for i in range(3)],
-        np.reshape(transitions, (-1, 6, 6)),
-        updates,
-    )
+        self._rate, self._attitude, self.covariance = (
+            x.full()
+            for x in update_function()(
+                self._rate, self._attitude, self.covariance, information, residual
+            )
+        )
+        return counts
 
 
-def _result(
-    prior: EkfPrior,
-    filtered: Sequence[ArrayLike],
-    predicted: Sequence[ArrayLike],
-    transition: Array,
-    updates: NDArray[np.intp],
-) -> EkfResult:
-    """An :class:`EkfResult` from ``(rates, attitudes, covariances)`` after each
-    epoch's update (``N`` each) and predicted for epochs ``1 .. N - 1``."""
-    shapes = [(-1, 3), (-1, 3, 3), (-1, 6, 6)]
-    start = [prior.rate, prior.attitude.as_matrix(), prior.covariance]
-    before = [
-        np.concatenate([np.reshape(x, shape), np.reshape(p, shape)])
-        for x, p, shape in zip(start, predicted, shapes, strict=True)
-    ]
-    after = [np.reshape(x, shape) for x, shape in zip(filtered, shapes, strict=True)]
-    return EkfResult(
-        attitude=Rotation.from_matrix(after[1]),
-        rate=after[0],
-        covariance=after[2],
-        updates=updates,
-        predicted_attitude=Rotation.from_matrix(before[1]),
-        predicted_rate=before[0],
-        predicted_covariance=before[2],
-        transition=transition,
-    )
+def run_vectors(
+    pass_: Pass,
+    dynamics: EkfDynamics,
+    prior: tuple[Rotation, Array, Array],
+    process_noise: float,
+    options: FilterOptions,
+    method: str,
+) -> Track:
+    """The filter on a pass of unit vectors with the epoch loop in CasADi (module docstring).
 
-
-def vector_arrays(
-    body: ArrayLike, reference: ArrayLike, sigma: ArrayLike
-) -> tuple[Array, Array, Array]:
-    """Unit-vector slots as :func:`epoch_function` takes them: ``(body, reference, weight)``.
-
-    ``body`` and ``reference`` ``(N, S, 3)``, ``sigma`` ``(N, S)`` (or
-    broadcastable); a slot is present where its body and reference vectors
-    are finite (:class:`~attopt.formulations.attitude_measurement.VectorMeasurement`'s
-    rule).  Each epoch's present vectors are moved to the front, in their
-    order, and the slots cut to the largest count at any epoch (at least one):
-    the epoch's cost grows with the slots, not with the stations.  Absent slots
-    get finite placeholders and weight zero; present ones ``1 / sigma^2``.
+    The same filter as :class:`DoaEkfFilter` without a gate (results equal to
+    rounding), at about 15 us per epoch (measured with up to two vectors per
+    epoch); the same track, with its history.
 
     Raises:
-        InvalidObservationError: bad shapes, or a present vector with a
-            non-positive or non-finite sigma or a zero reference.
-    """
-    body = np.asarray(body, dtype=float)
-    reference = np.asarray(reference, dtype=float)
-    if body.ndim != 3 or body.shape[-1] != 3 or reference.shape != body.shape:
-        raise InvalidObservationError(
-            f"body {body.shape} and reference {reference.shape} must both be (N, S, 3)"
-        )
-    try:
-        sigma = np.broadcast_to(np.asarray(sigma, dtype=float), body.shape[:2])
-    except ValueError:
-        raise InvalidObservationError(f"sigma must broadcast to {body.shape[:2]}") from None
-    present = np.isfinite(body).all(axis=-1) & np.isfinite(reference).all(axis=-1)
-    if not (np.all(np.isfinite(sigma[present])) and np.all(sigma[present] > 0)):
-        raise InvalidObservationError("vector standard deviations must be finite and positive")
-    if np.any(np.linalg.norm(reference[present], axis=-1) == 0):
-        raise InvalidObservationError("reference vectors must be non-zero")
-    slots = max(int(present.sum(axis=1).max(initial=0)), 1)
-    order = np.argsort(~present, axis=1, kind="stable")[:, :slots]
-    present = np.take_along_axis(present, order, axis=1)
-    weight = np.where(present, 1.0 / np.take_along_axis(sigma, order, axis=1) ** 2, 0.0)
-    placeholder = np.array([0.0, 0.0, 1.0])
-    return (
-        np.where(
-            present[..., None], np.take_along_axis(body, order[..., None], axis=1), placeholder
-        ),
-        np.where(
-            present[..., None], np.take_along_axis(reference, order[..., None], axis=1), placeholder
-        ),
-        weight,
-    )
-
-
-def run_ekf_vectors(
-    prior: EkfPrior,
-    body: ArrayLike,
-    reference: ArrayLike,
-    sigma: ArrayLike,
-    orbit_turns: Rotation,
-    wheel_momentum: ArrayLike,
-    dt: float,
-    inertia: ArrayLike = INERTIA_SEED003,
-    process_noise: float = PROCESS_NOISE,
-) -> EkfResult:
-    """:func:`run_ekf` on unit-vector measurements, with the epoch loop in CasADi.
-
-    The same filter as :func:`run_ekf` with one
-    :class:`~attopt.formulations.attitude_measurement.VectorMeasurement` of the
-    present vectors per epoch (results equal to rounding), at about 15 us
-    per epoch (measured with up to two vectors per epoch).
-
-    Args:
-        prior: the estimate at epoch 0, before its measurement.
-        body: ``(N, S, 3)`` measured unit vectors ``S_dr`` (eq. 12); a row
-            with a NaN marks an absent vector.
-        reference: ``(N, S, 3)`` reference vectors ``S_o`` (eq. 17).
-        sigma: ``(N, S)`` standard deviations, ``R_W = sigma^2 E`` (eq. 22).
-        orbit_turns: ``N - 1`` rotations ``O_{k+1} O_k^T`` of the orbit frame.
-        wheel_momentum: ``(3,)`` or ``(N, 3)`` wheel momentum (N m s, body).
-        dt: step (s).
-        inertia: ``3 x 3`` (kg m^2, eq. 25).
-        process_noise: ``q`` of ``Q = q E_6`` per step.
-
-    Raises:
-        InvalidObservationError: inconsistent shapes or bad sigmas (:func:`vector_arrays`).
+        InvalidObservationError: measurements other than unit vectors with
+            sigmas, or bad sigmas (:mod:`attopt.solvers.doa.vector_slots`).
         ConvergenceError: an estimated rate turns more than :data:`MAX_STEP_ANGLE`
             per step (reported for the first such epoch, after the pass).
     """
-    body, reference, weight = vector_arrays(body, reference, sigma)
+    body, reference, weight = vector_arrays(*vector_slots(pass_.snapshots))
     n, slots = weight.shape
-    momentum = check_lengths(n, orbit_turns, wheel_momentum)
-    turns = np.concatenate([orbit_turns.as_matrix().reshape(-1, 3, 3), np.eye(3)[None]])
-    epoch = epoch_function(float(dt), tuple(np.asarray(inertia, dtype=float).ravel()), slots)
-    initial = [prior.rate, prior.attitude.as_matrix(), prior.covariance]
+    turns = np.concatenate([dynamics.turns, np.eye(3)[None]])
+    epoch = epoch_function(dynamics.dt, dynamics.inertia, slots)
+    attitude, rate, covariance = prior
+    initial = [rate, attitude.as_matrix(), covariance]
     outputs = accumulate(
-        epoch, 3, initial, [body, reference, weight, momentum, turns, process_noise], n
+        epoch, 3, initial, [body, reference, weight, dynamics.momentum, turns, process_noise], n
     )
-    check_steps(outputs[3][:-1, :, 0], dt)
-    return _result(
-        prior,
-        outputs[3:6],
-        [x[:-1] for x in outputs[:3]],
-        outputs[6][:-1],
-        np.rint(outputs[7][:, 0, 0]).astype(np.intp),
+    check_steps(outputs[3][:-1, :, 0], dynamics.dt)
+    record = EpochRecord(n, DoaEkfFilter.state, DIAGNOSTICS)
+    filtered_attitude = outputs[4]
+    record.vector, record.covariance = outputs[3][:, :, 0], outputs[5]
+    finite = np.isfinite(filtered_attitude).all(axis=(1, 2)) & np.isfinite(record.vector).all(1)
+    finite &= np.isfinite(record.covariance).all(axis=(1, 2))
+    bad = np.flatnonzero(~finite)
+    stored = n if bad.size == 0 else int(bad[0])
+    record.quaternion[:stored] = Rotation.from_matrix(filtered_attitude[:stored]).as_quat()
+    record.vector[stored:], record.covariance[stored:] = np.nan, np.nan
+    record.reason[stored:] = NON_FINITE
+    rows = np.rint(outputs[7][:, 0, 0])
+    record.diagnostics["rows"], record.diagnostics["n_used"] = rows, rows / 3.0
+    history = FilterHistory(
+        predicted_attitude=np.concatenate([initial[1][None], outputs[1][:-1]]),
+        predicted_vector=np.concatenate([np.reshape(rate, (1, 3)), outputs[0][:-1, :, 0]]),
+        predicted_covariance=np.concatenate([covariance[None], outputs[2][:-1]]),
+        transition=np.concatenate([np.eye(6)[None], outputs[6][:-1]]),
+        filtered_attitude=filtered_attitude,
+        filtered_vector=record.vector,
+        filtered_covariance=record.covariance,
     )
+    return filter_result(method, record, options, pass_.t, history, np.zeros(n, dtype=bool))

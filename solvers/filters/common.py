@@ -1,13 +1,18 @@
-"""Pieces shared by the recursive filters: inputs, options, gyro gaps, gating, results.
+"""Pieces shared by the gyro-aided filters: options, the gyro timeline and its gaps, gating.
 
-Every filter estimates the attitude ``A`` (reference -> body, the reference
-being the frame the gyro rates are relative to) and the gyro bias from a
-:class:`~attopt.formulations.gyro.GyroSamples` record and one
-:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` (or ``None``)
-per output epoch.  The error state is ``[delta, delta_beta]`` with ``delta``
-four times the modified Rodrigues parameters of ``A_true A_est^T`` (seed 000
-eq. 28; the generalised Rodrigues parameters with ``a = 1, f = 4`` of
-USQUE), equal to the body-frame rotation vector to first order.
+Every gyro-aided estimator (the MEKF, USQUE, the online and batch smoothers)
+estimates the attitude ``A`` (reference -> body, the reference being the
+frame the gyro rates are relative to) and the gyro bias from a pass
+(:class:`~attopt.formulations.passes.Pass`: a
+:class:`~attopt.formulations.passes.GyroRecord`, one
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` or none
+per epoch, a prior at the first gyro sample; :func:`gyro_pass`).  The epochs
+need not be gyro sample times: the record is cut at them
+(:func:`attopt.solvers.gyro_timeline.gyro_timeline`) and every step is
+propagated with its own length.  The error state is ``[delta, delta_beta]``
+with ``delta`` four times the modified Rodrigues parameters of ``A_true
+A_est^T`` (seed 000 eq. 28; the generalised Rodrigues parameters with ``a =
+1, f = 4`` of USQUE), equal to the body-frame rotation vector to first order.
 
 Faults (issue 5, sec. 5), all counted in the result's diagnostics:
 
@@ -25,21 +30,22 @@ Faults (issue 5, sec. 5), all counted in the result's diagnostics:
 * a covariance that loses positive definiteness is symmetrised and its
   eigenvalues are floored (counted as ``covariance_repairs``);
 * a non-finite state stops the filter: that epoch and all later ones are
-  flagged invalid (never a NaN attitude reported as valid);
-* a lost track: after ``max_rejected_epochs`` consecutive measurement epochs
-  with at least as many gated observation blocks as used ones, epochs are
-  flagged until one is accepted, the attitude covariance is inflated by
-  ``recover_sigma^2 I`` and the bias covariance by the prior's bias
-  covariance to re-acquire (counted as ``recoveries``): the updates that led
-  the attitude astray have corrupted the bias estimate too, and with its
+  flagged invalid (never a NaN attitude reported as valid;
+  :func:`attopt.solvers.sequential.run_filter`);
+* a lost track (:class:`~attopt.solvers.sequential.TrackMonitor`): after
+  ``max_rejected_epochs`` consecutive measurement epochs with at least as
+  many gated observation blocks as used ones, epochs are flagged until one is
+  accepted, the attitude covariance is inflated by ``recover_sigma^2 I`` and
+  the bias covariance by the prior's bias covariance to re-acquire (counted
+  as ``recoveries``; :func:`gyro_monitor`): the updates that led the
+  attitude astray have corrupted the bias estimate too, and with its
   covariance left small the filter would re-acquire the attitude at the next
   accepted measurement and then drift off again with the wrong bias.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
@@ -50,14 +56,12 @@ from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.attitude_model import increment_matrix
-from attopt.formulations.errors import ConvergenceError, InvalidObservationError
-from attopt.formulations.gyro import (
-    GyroModel,
-    GyroSamples,
-    attitude_increment,
-    error_state_transition,
-)
-from attopt.solvers.results import Track
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gyro import GyroModel, attitude_increment, error_state_transition
+from attopt.formulations.passes import Pass, Prior
+from attopt.solvers.estimator import Estimator
+from attopt.solvers.gyro_timeline import COINCIDENCE, GyroTimeline, gyro_timeline
+from attopt.solvers.sequential import TrackMonitor
 
 Array = NDArray[np.float64]
 
@@ -98,23 +102,11 @@ def error_jacobian(delta: Array) -> Array:
 
 
 @dataclass(frozen=True)
-class FilterPrior:
-    """Initial estimate at the first gyro sample time.
-
-    Attributes:
-        attitude: reference -> body.
-        bias: ``(3,)`` rad/s.
-        covariance: ``(6, 6)`` of ``[delta, delta_beta]`` (rad^2, rad^2/s^2).
-    """
-
-    attitude: Rotation
-    bias: Array
-    covariance: Array
-
-
-@dataclass(frozen=True)
 class FilterOptions:
-    """Fault handling (module docstring).
+    """Fault handling of the recursive estimators (module docstring).
+
+    The gyro filters use every field; Yang et al. 2014's EKF (no gyro, no
+    iterated update) the gate, the validity limit and the lost-track ones.
 
     Attributes:
         gate_probability: chi-square probability of the innovation gate; 1 disables gating.
@@ -130,12 +122,12 @@ class FilterOptions:
         max_update_iterations: at most this many passes of that update.
         max_rejected_epochs: after this many consecutive measurement epochs
             with at least as many gated observations as used ones
-            (:func:`rejected_epoch`), epochs are flagged as a lost
-            track until an observation is accepted again, and the attitude
-            covariance is inflated by ``recover_sigma^2 I`` (repeatedly, every
-            ``max_rejected_epochs`` such epochs) so that the filter can
-            re-acquire (:class:`TrackMonitor`; the bias covariance is inflated by
-            the prior's).
+            (:func:`~attopt.solvers.sequential.rejected_epoch`), epochs are
+            flagged as a lost track until an observation is accepted again,
+            and the attitude covariance is inflated by ``recover_sigma^2 I``
+            (repeatedly, every ``max_rejected_epochs`` such epochs) so that the
+            filter can re-acquire (:class:`~attopt.solvers.sequential.TrackMonitor`;
+            the bias covariance is inflated by the prior's).
         recover_sigma: that inflation (rad).
     """
 
@@ -152,68 +144,172 @@ class FilterOptions:
 
 @dataclass(frozen=True)
 class PreparedGyro:
-    """Gyro samples with gaps filled by holding (module docstring)."""
+    """The gyro timeline with gaps filled by holding (module docstring)."""
 
+    timeline: GyroTimeline
+    """The steps the filters walk: the gyro record cut at the epochs."""
     rates: Array
-    """``(n - 1, 3)`` rates with NaN rows replaced by the last valid one (zero before any)."""
+    """``(n - 1, 3)`` step rates with NaN rows replaced by the last valid one (zero before any)."""
     hold_variance: Array
     """``(n - 1,)`` extra attitude variance per step (rad^2)."""
     gap_s: Array
     """``(n - 1,)`` time since the current gap began, at the step's end (0 outside gaps)."""
 
+    @property
+    def dt(self) -> Array:
+        """``(n - 1,)`` step lengths (s)."""
+        return self.timeline.dt
 
-def prepare_gyro(samples: GyroSamples, options: FilterOptions) -> PreparedGyro:
-    """Fill gyro gaps causally and compute their variance growth."""
-    rates = np.asarray(samples.rates, dtype=float)
+    def node(self, t: float) -> int:
+        """Index into the timeline's boundaries of time ``t`` (a gyro sample time or an epoch).
+
+        Raises:
+            InvalidObservationError: ``t`` is neither.
+        """
+        boundaries = self.timeline.t
+        slack = COINCIDENCE * self.timeline.sample_dt
+        i = int(np.clip(np.searchsorted(boundaries, t - slack), 0, boundaries.size - 1))
+        if not abs(boundaries[i] - t) <= slack:
+            raise InvalidObservationError(
+                f"t = {t:g} s is neither a gyro sample time nor an epoch of the pass"
+            )
+        return i
+
+    def gap_at(self, node: int) -> float:
+        """Time since the current gap began at boundary ``node`` (0 outside gaps)."""
+        return float(self.gap_s[node - 1]) if node > 0 else 0.0
+
+
+def prepare_gyro(timeline: GyroTimeline, options: FilterOptions) -> PreparedGyro:
+    """Fill gyro gaps causally and compute their variance growth, step by step.
+
+    On a uniform timeline the time since a gap began is ``steps x dt``; on a
+    cut one, the sum of the steps' lengths.
+    """
+    rates = np.asarray(timeline.rates, dtype=float)
     missing = ~np.isfinite(rates).all(axis=1)
     index = np.where(missing, 0, np.arange(rates.shape[0]))
     np.maximum.accumulate(index, out=index)
     filled = np.where(missing[:, None], rates[index], rates)
     filled[missing & ~np.isfinite(filled).all(axis=1)] = 0.0  # a gap at the start
-    # steps since the gap began (1 at its first step)
-    run = np.zeros(rates.shape[0], dtype=float)
-    count = 0
-    for j, gap in enumerate(missing):
-        count = count + 1 if gap else 0
-        run[j] = count
-    dt = samples.dt
     leading = np.cumsum(~missing) == 0  # no valid sample yet: the rate is unknown
     sigma = np.where(leading, options.unknown_rate_sigma, options.hold_rate_sigma)
-    hold = sigma**2 * ((run * dt) ** 2 - ((run - 1).clip(0) * dt) ** 2)
-    return PreparedGyro(filled, np.where(missing, hold, 0.0), run * dt)
+    if timeline.uniform:
+        # steps since the gap began (1 at its first step)
+        run = np.zeros(rates.shape[0], dtype=float)
+        count = 0
+        for j, gap in enumerate(missing):
+            count = count + 1 if gap else 0
+            run[j] = count
+        dt = timeline.sample_dt
+        hold = sigma**2 * ((run * dt) ** 2 - ((run - 1).clip(0) * dt) ** 2)
+        return PreparedGyro(timeline, filled, np.where(missing, hold, 0.0), run * dt)
+    end = np.zeros(rates.shape[0])  # time since the gap began at each step's end
+    begin = np.zeros(rates.shape[0])
+    for j, gap in enumerate(missing):
+        if gap:
+            begin[j] = end[j - 1] if j > 0 and missing[j - 1] else 0.0
+            end[j] = begin[j] + timeline.dt[j]
+    hold = sigma**2 * (end**2 - begin**2)
+    return PreparedGyro(timeline, filled, np.where(missing, hold, 0.0), end)
 
 
-def epoch_samples(samples: GyroSamples, t: Array) -> NDArray[np.intp]:
-    """Indices of the gyro sample times equal to the epochs ``t`` (must be among them)."""
-    t = np.asarray(t, dtype=float)
-    index = np.clip(np.searchsorted(samples.t, t - 1e-6 * samples.dt), 0, samples.t.size - 1)
-    if t.size == 0 or np.any(np.abs(samples.t[index] - t) > 1e-6 * samples.dt):
-        raise InvalidObservationError("every epoch must be a gyro sample time")
-    if np.any(np.diff(index) <= 0) or t[0] < samples.t[0]:
-        raise InvalidObservationError("epochs must increase and start at or after the gyro")
-    return index
+@dataclass(frozen=True)
+class GyroPass:
+    """A :class:`~attopt.formulations.passes.Pass` as the gyro-aided estimators use it.
+
+    Attributes:
+        gyro: the prepared timeline of the pass's gyro record cut at its epochs.
+        model: the gyro's noise model.
+        prior: ``[attitude, bias]`` at the first gyro sample.
+        t: ``(N,)`` epoch times.
+        measurements: one measurement (or ``None``) per epoch.
+    """
+
+    gyro: PreparedGyro
+    model: GyroModel
+    prior: Prior
+    t: Array
+    measurements: list[AttitudeMeasurement | None]
+
+
+def gyro_prior(prior: Prior, model: GyroModel) -> Prior:
+    """The ``[attitude, bias]`` prior of a gyro-aided estimator: ``prior`` itself, or an
+    attitude-only one with zero bias and the model's initial bias sigma.
+
+    Raises:
+        InvalidObservationError: a prior with a body rate instead of a bias.
+    """
+    if prior.rate is not None:
+        raise InvalidObservationError(
+            "a gyro-aided estimator needs an attitude or [attitude, bias] prior, not a rate"
+        )
+    return prior.with_bias_covariance(model.initial_bias_sigma)
+
+
+def check_gyro_pass(pass_: Pass, estimator: Estimator) -> None:
+    """Raise unless ``pass_`` suits a gyro-aided ``estimator``.
+
+    Raises:
+        UnsupportedMeasurementError: a measurement type ``estimator`` does not accept.
+        InvalidObservationError: no gyro record or no prior.
+    """
+    estimator.check_types(pass_.types())
+    if pass_.gyro is None:
+        raise InvalidObservationError(f"{estimator.name} needs a gyro record: the pass has none")
+    if pass_.prior is None:
+        raise InvalidObservationError(f"{estimator.name} needs a prior: the pass has none")
+
+
+def gyro_pass(pass_: Pass, estimator: Estimator, options: FilterOptions) -> GyroPass:
+    """Check ``pass_`` for a gyro-aided ``estimator`` (:func:`check_gyro_pass`) and
+    prepare its gyro timeline."""
+    check_gyro_pass(pass_, estimator)
+    model = pass_.gyro.model
+    timeline = gyro_timeline(pass_.gyro.samples, pass_.t)
+    return GyroPass(
+        prepare_gyro(timeline, options),
+        model,
+        gyro_prior(pass_.prior, model),
+        pass_.t,
+        pass_.measurements(),
+    )
+
+
+def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
+    """The gyro filters' :class:`~attopt.solvers.sequential.TrackMonitor`: re-acquisition
+    inflates the attitude covariance by ``recover_sigma^2 I`` and the bias covariance by
+    the prior's (module docstring)."""
+    inflation = np.zeros((STATE_SIZE, STATE_SIZE))
+    inflation[:3, :3] = options.recover_sigma**2 * np.eye(3)
+    inflation[3:, 3:] = prior.covariance[3:, 3:]
+    return TrackMonitor(options.max_rejected_epochs, inflation)
 
 
 def propagate_covariance(
-    covariance: Array, rates: Array, hold_variance: Array, model: GyroModel, dt: float
+    covariance: Array, rates: Array, hold_variance: Array, model: GyroModel, dt: Array
 ) -> tuple[Array, Array]:
-    """``P <- Phi_j P Phi_j^T + Q_j`` over consecutive gyro steps at the estimated
-    ``rates``, and the steps' product ``Phi``.
+    """``P <- Phi_j P Phi_j^T + Q_j`` over consecutive gyro steps of lengths ``dt`` at the
+    estimated ``rates``, and the steps' product ``Phi``.
 
     ``Phi_j`` is :func:`~attopt.formulations.gyro.error_state_transition`, ``Q_j`` the
     step's :func:`step_noise` (with the gap growth ``hold_variance``).
     """
     total = np.eye(STATE_SIZE)
     noise = step_noise(model, dt, hold_variance)
-    for phi, q in zip(error_state_transition(rates, dt), noise, strict=True):
+    for phi, q in zip(error_state_transition(rates, dt[:, None, None]), noise, strict=True):
         covariance = phi @ covariance @ phi.T + q
         total = phi @ total
     return covariance, total
 
 
-def step_noise(model: GyroModel, dt: float, hold_variance: Array) -> Array:
-    """Process noise ``(k, 6, 6)`` of ``k`` gyro steps including the gap growth."""
-    q = np.broadcast_to(model.process_noise(dt), (hold_variance.size, 6, 6)).copy()
+def step_noise(model: GyroModel, dt: Array, hold_variance: Array) -> Array:
+    """Process noise ``(k, 6, 6)`` of ``k`` gyro steps of lengths ``dt`` including the gap
+    growth (:meth:`~attopt.formulations.gyro.GyroModel.process_noise` once per length)."""
+    if dt.size == 0:
+        return np.zeros((0, STATE_SIZE, STATE_SIZE))
+    lengths, index = np.unique(dt, return_inverse=True)
+    q = np.stack([model.process_noise(float(length)) for length in lengths])[index]
     q[:, [0, 1, 2], [0, 1, 2]] += hold_variance[:, None]
     return q
 
@@ -335,225 +431,21 @@ def repair_covariance(p: Array) -> tuple[Array, bool]:
         return (vectors * np.maximum(values, floor)) @ vectors.T, True
 
 
-@dataclass
-class EpochRecord:
-    """Per-epoch outputs collected while filtering."""
-
-    n: int
-    quaternion: Array = field(init=False)
-    bias: Array = field(init=False)
-    covariance: Array = field(init=False)
-    diagnostics: dict[str, Array] = field(init=False)
-    reason: NDArray[np.object_] = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.quaternion = np.full((self.n, 4), np.nan)
-        self.bias = np.full((self.n, 3), np.nan)
-        self.covariance = np.full((self.n, 6, 6), np.nan)
-        names = ("nis", "n_used", "n_gated", "n_nan", "n_unpredictable", "gyro_gap_s")
-        names += ("update_iterations", "recoveries")
-        self.diagnostics = {name: np.zeros(self.n) for name in names}
-        self.diagnostics["nis"][:] = np.nan
-        self.diagnostics["covariance_repairs"] = np.zeros(self.n)
-        self.reason = np.full(self.n, "", dtype=object)
-
-
-NON_FINITE = "filter state became non-finite"
-
-
-def record_epoch(
-    record: EpochRecord,
-    k: int,
-    attitude: Rotation,
-    bias: Array,
-    covariance: Array,
-    counts: dict[str, float] | None = None,
-) -> bool:
-    """Store epoch ``k``'s update ``counts`` and estimate; ``False`` if the state is
-    not finite, in which case epoch ``k`` and all later ones are flagged (the
-    caller stops filtering)."""
-    for name, value in (counts or {}).items():
-        record.diagnostics[name][k] = value
-    quaternion = attitude.as_quat()
-    if not (
-        np.all(np.isfinite(quaternion))
-        and np.all(np.isfinite(bias))
-        and np.all(np.isfinite(covariance))
-    ):
-        record.reason[k:] = NON_FINITE
-        return False
-    record.quaternion[k], record.bias[k], record.covariance[k] = quaternion, bias, covariance
-    return True
-
-
-def rejected_epoch(n_gated: ArrayLike, n_used: ArrayLike) -> NDArray[np.bool_]:
-    """An epoch whose gated observation blocks are at least as many as its used ones.
-
-    With two vectors, a Sun vector rejected while the magnetometer is used
-    counts (the filter has lost the rotation about the field); with many SNRs
-    a few gated outliers do not.
-    """
-    n_gated, n_used = np.asarray(n_gated), np.asarray(n_used)
-    return (n_gated > 0) & (n_gated >= n_used)
-
-
-@dataclass
-class TrackMonitor:
-    """Detects a lost track and inflates the covariance to re-acquire (module docstring).
-
-    Counts consecutive measurement epochs that were :func:`rejected_epoch`;
-    at ``options.max_rejected_epochs`` the attitude covariance grows by
-    ``options.recover_sigma^2 I`` and the bias covariance by
-    ``bias_covariance`` (the prior's), ``recoveries`` is set in the epoch's
-    counts and the count restarts.
-    """
-
-    options: FilterOptions
-    bias_covariance: Array
-    run: int = 0
-
-    def check(self, counts: dict[str, float] | None, covariance: Array) -> Array:
-        """The covariance to carry on with after an epoch's update ``counts``."""
-        if counts is None:
-            return covariance
-        if rejected_epoch(counts.get("n_gated", 0.0), counts.get("n_used", 0.0)):
-            self.run += 1
-        elif counts.get("n_used", 0.0) > 0:
-            self.run = 0
-        if self.run < self.options.max_rejected_epochs:
-            return covariance
-        self.run = 0
-        counts["recoveries"] = 1.0
-        inflated = covariance.copy()
-        inflated[:3, :3] += self.options.recover_sigma**2 * np.eye(3)
-        inflated[3:, 3:] += self.bias_covariance
-        return inflated
-
-
-def _rejected_run(diagnostics: dict[str, Array]) -> Array:
-    """Consecutive :func:`rejected_epoch` measurement epochs, up to each epoch.
-
-    Epochs without a measurement neither extend nor reset the run.
-    """
-    rejected = rejected_epoch(diagnostics["n_gated"], diagnostics["n_used"])
-    accepted = (diagnostics["n_used"] > 0) & ~rejected
-    run = np.zeros(rejected.size)
-    count = 0.0
-    for k in range(rejected.size):
-        count = count + 1 if rejected[k] else (0.0 if accepted[k] else count)
-        run[k] = count
-    return run
-
-
-def filter_result(
-    method: str,
-    record: EpochRecord,
-    options: FilterOptions,
-    t: Array,
-    history: FilterHistory | None = None,
-) -> Track:
-    """Assemble a filter's (or smoother's) :class:`~attopt.solvers.results.Track` at the
-    epochs ``t``, flagging epochs by the module's rules.
-
-    The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
-    normalised innovation squared of the epoch's update (NaN without one);
-    diagnostics ``nis``, ``n_used``, ``n_gated``, ``n_nan``,
-    ``n_unpredictable`` (observation blocks), ``gyro_gap_s`` and
-    ``covariance_repairs``; ``bias`` the gyro bias estimates (rad/s),
-    ``state_covariance`` the ``(N, 6, 6)`` covariance of the error state
-    ``[delta, delta_beta]`` and ``history`` the inputs of a backward pass
-    (MEKF only).
-    """
-    sigma = np.sqrt(np.max(np.diagonal(record.covariance[:, :3, :3], axis1=1, axis2=2), axis=1))
-    reason = record.reason.copy()
-    long_gap = (record.diagnostics["gyro_gap_s"] > options.max_gyro_gap_s) & (reason == "")
-    reason[long_gap] = f"gyro gap longer than {options.max_gyro_gap_s:g} s"
-    with np.errstate(invalid="ignore"):
-        wide = (sigma > options.max_attitude_sigma) & (reason == "")
-    reason[wide] = (
-        f"attitude not determined: 1-sigma above {np.degrees(options.max_attitude_sigma):g} deg"
-    )
-    lost = _rejected_run(record.diagnostics) >= options.max_rejected_epochs
-    reason[lost & (reason == "")] = (
-        f"lost track: observations gated for {options.max_rejected_epochs} epochs"
-    )
-    valid = reason == ""
-    error = np.full(record.n, None, dtype=object)
-    error[~valid] = ConvergenceError
-    quaternion = np.where(valid[:, None], record.quaternion, np.nan)
-    covariance = np.where(valid[:, None, None], record.covariance, np.nan)
-    return Track(
-        method=method,
-        quaternion=quaternion,
-        covariance=covariance[:, :3, :3],
-        loss=np.where(valid, record.diagnostics["nis"], np.nan),
-        valid=valid,
-        reason=reason,
-        error=error,
-        diagnostics=record.diagnostics,
-        t=np.array(t, dtype=float),
-        bias=np.where(valid[:, None], record.bias, np.nan),
-        state_covariance=covariance,
-        state=("attitude", "bias"),
-        history=history,
-    )
-
-
-@dataclass(frozen=True)
-class FilterHistory:
-    """What a backward (RTS) pass needs, per epoch ``k``.
-
-    ``predicted_*`` is the estimate at epoch ``k`` before its update, and
-    ``transition[k]`` the error-state transition from epoch ``k - 1`` (the
-    prior for ``k = 0``) to epoch ``k``; ``filtered_*`` the estimate after it.
-    """
-
-    predicted_quaternion: Array
-    predicted_bias: Array
-    predicted_covariance: Array
-    transition: Array
-    filtered_quaternion: Array
-    filtered_bias: Array
-    filtered_covariance: Array
-
-
-def validate_inputs(
-    samples: GyroSamples,
-    t: Array,
-    measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-) -> NDArray[np.intp]:
-    """Check shapes and the prior; return the epochs' gyro sample indices."""
-    if len(measurements) != np.size(t):
-        raise InvalidObservationError(f"{len(measurements)} measurements for {np.size(t)} epochs")
-    if np.shape(samples.rates) != (samples.t.size - 1, 3):
-        raise InvalidObservationError("gyro rates must be (n - 1, 3) for n sample times")
-    p = np.asarray(prior.covariance, dtype=float)
-    if (
-        p.shape != (STATE_SIZE, STATE_SIZE)
-        or not np.all(np.isfinite(p))
-        or not np.all(np.isfinite(prior.bias))
-        or not np.all(np.isfinite(prior.attitude.as_quat()))
-    ):
-        raise InvalidObservationError("prior must be finite with a (6, 6) covariance")
-    if repair_covariance(p)[1]:
-        raise InvalidObservationError("prior covariance is not positive definite")
-    return epoch_samples(samples, t)
-
-
-def propagate_attitude(attitude: Rotation, rates: Array, dt: float) -> Rotation:
-    """Carry attitudes over consecutive steps at constant rates (seed 000 eq. 25).
+def propagate_attitude(attitude: Rotation, rates: Array, dt: ArrayLike) -> Rotation:
+    """Carry attitudes over consecutive steps at constant rates (Liu et al. 2023 eq. 25).
 
     ``rates`` is ``(k, 3)`` for one attitude or ``(K, k, 3)`` for a stack of
-    ``K``; step ``j`` applies :func:`attopt.formulations.gyro.attitude_increment`.
-    The increments' matrices are multiplied in order (later steps on the
-    left) and the product applied once.
+    ``K``; ``dt`` the step (s) or ``(k,)`` steps.  Step ``j`` applies
+    :func:`attopt.formulations.gyro.attitude_increment`.  The increments'
+    matrices are multiplied in order (later steps on the left) and the product
+    applied once.
     """
     rates = np.asarray(rates, dtype=float)
     k = rates.shape[-2]
     if k == 0:
         return attitude
-    steps = attitude_increment(rates.reshape(-1, 3), dt).as_matrix()
+    dt = np.broadcast_to(np.asarray(dt, dtype=float)[..., None], rates.shape)
+    steps = attitude_increment(rates.reshape(-1, 3), dt.reshape(-1, 3)).as_matrix()
     steps = steps.reshape(*rates.shape[:-2], k, 3, 3)
     total = steps[..., 0, :, :]
     for j in range(1, k):

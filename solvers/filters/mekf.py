@@ -3,7 +3,8 @@
 Lefferts, Markley and Shuster (1982); Markley and Crassidis (2014), ch. 6.
 Error state ``x = [delta, delta_beta]`` (:mod:`attopt.solvers.filters.common`).
 
-Propagation over each gyro step ``dt`` with the estimated rate
+Propagation over each step ``dt`` of the gyro timeline (the record cut at the
+epochs, :mod:`attopt.solvers.gyro_timeline`) with the estimated rate
 ``w = omega_measured - beta_hat`` (seed 000 eqs. 33-36): the attitude by
 ``exp(-[w x] dt)`` and the covariance by ``P <- Phi P Phi^T + Q`` with the
 closed-form :func:`~attopt.formulations.gyro.error_state_transition` and
@@ -21,40 +22,31 @@ the bias by ``delta_beta`` (eq. 59), and the error state returns to zero
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
-from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.formulations.gyro import GyroModel
+from attopt.formulations.passes import Prior
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
-    EpochRecord,
-    FilterHistory,
     FilterOptions,
-    FilterPrior,
     PreparedGyro,
-    TrackMonitor,
     apply_error,
     error_jacobian,
-    filter_result,
     gate,
     kalman_gain,
     linearised,
     noise_sandwich,
     noise_subset,
-    prepare_gyro,
     propagate_attitude,
     propagate_covariance,
-    record_epoch,
     repair_covariance,
     solve_noise,
     usable_rows,
-    validate_inputs,
 )
-from attopt.solvers.results import Track
+from attopt.solvers.sequential import SequentialFilter
 
 
 def propagate(
@@ -64,10 +56,10 @@ def propagate(
     gyro: PreparedGyro,
     steps: slice,
     model: GyroModel,
-    dt: float,
 ) -> tuple[Rotation, Array, Array]:
     """Attitude, covariance and the transition ``Phi`` over gyro steps ``steps``."""
     rates = gyro.rates[steps] - bias
+    dt = gyro.dt[steps]
     covariance, total = propagate_covariance(
         covariance, rates, gyro.hold_variance[steps], model, dt
     )
@@ -186,57 +178,38 @@ def update(
     return apply_error(state[:3], attitude), bias + state[3:], covariance, counts
 
 
-def mekf(
-    samples: GyroSamples,
-    t: Array,
-    measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-    model: GyroModel,
-    options: FilterOptions | None = None,
-    method: str = "mekf",
-) -> Track:
-    """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
-    its measurement (``None``: propagation only).  The result keeps a
-    :class:`~attopt.solvers.filters.common.FilterHistory` for
-    :func:`~attopt.solvers.filters.rts.rts_smooth`.
+class MekfFilter(SequentialFilter):
+    """The MEKF's state and steps (module docstring), for
+    :func:`attopt.solvers.sequential.run_filter`.
+
+    Starts at the first gyro sample with ``prior`` (``[attitude, bias]``);
+    :meth:`predict` propagates over the gyro steps to a sample time or an
+    epoch of the timeline, :meth:`update` is :func:`update`.
     """
-    options = options or FilterOptions()
-    index = validate_inputs(samples, t, measurements, prior)
-    gyro = prepare_gyro(samples, options)
-    n = index.size
-    record = EpochRecord(n)
-    predicted = EpochRecord(n)
-    transition = np.full((n, STATE_SIZE, STATE_SIZE), np.nan)
-    attitude, bias = prior.attitude, np.asarray(prior.bias, dtype=float)
-    covariance = np.asarray(prior.covariance, dtype=float)
-    monitor = TrackMonitor(options, covariance[3:, 3:].copy())
-    start = 0
-    for k, (stop, measurement) in enumerate(zip(index, measurements, strict=True)):
-        attitude, covariance, transition[k] = propagate(
-            attitude, bias, covariance, gyro, slice(start, stop), model, samples.dt
+
+    smoothable = True
+
+    def __init__(
+        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
+    ) -> None:
+        self.gyro, self.model, self.options = gyro, model, options
+        self.attitude = prior.attitude
+        self.bias = np.asarray(prior.bias, dtype=float)
+        self.covariance = np.asarray(prior.covariance, dtype=float)
+        self.node = 0
+
+    def predict(self, t: float) -> dict[str, float]:
+        stop = self.gyro.node(t)
+        self.attitude, self.covariance, self.transition = propagate(
+            self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
-        record.diagnostics["gyro_gap_s"][k] = gyro.gap_s[stop - 1] if stop > 0 else 0.0
-        predicted.quaternion[k], predicted.bias[k], predicted.covariance[k] = (
-            attitude.as_quat(),
-            bias,
-            covariance,
+        self.node = stop
+        return {"gyro_gap_s": self.gyro.gap_at(stop)}
+
+    def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
+        if measurement is None:
+            return None
+        self.attitude, self.bias, self.covariance, counts = update(
+            self.attitude, self.bias, self.covariance, measurement, self.options
         )
-        counts = None
-        if measurement is not None:
-            attitude, bias, covariance, counts = update(
-                attitude, bias, covariance, measurement, options
-            )
-            covariance = monitor.check(counts, covariance)
-        if not record_epoch(record, k, attitude, bias, covariance, counts):
-            break
-        start = stop
-    history = FilterHistory(
-        predicted_quaternion=predicted.quaternion,
-        predicted_bias=predicted.bias,
-        predicted_covariance=predicted.covariance,
-        transition=transition,
-        filtered_quaternion=record.quaternion,
-        filtered_bias=record.bias,
-        filtered_covariance=record.covariance,
-    )
-    return filter_result(method, record, options, t, history)
+        return counts

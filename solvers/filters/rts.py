@@ -1,4 +1,4 @@
-"""Multiplicative Rauch-Tung-Striebel smoothing: the backward pass and the MEKF's smoother.
+"""Multiplicative Rauch-Tung-Striebel smoothing: one backward pass for every filter's track.
 
 :func:`rts_backward` is the fixed-interval backward pass of a multiplicative
 error-state filter, on arrays.  With ``P_k`` the filtered covariance,
@@ -24,10 +24,16 @@ whole pass runs in CasADi's virtual machine
 makes ``P^s_k <= P_k``: the smoothed covariance never exceeds the filtered one.
 
 The pass knows only where the attitude block sits.  :func:`rts_smooth` runs it
-on the output epochs of :func:`attopt.solvers.filters.mekf.mekf` (the filter-based
-smoothing baseline; state ``[delta, delta_beta]``, ``a = 0:3``); the seed-003
-EKF's smoother (:func:`attopt.solvers.doa.eks.rts_smooth_ekf`, state ``[delta_omega,
-delta]``) with ``a = 3:6``.
+on a filter's :class:`~attopt.solvers.results.Track` with its
+:class:`~attopt.solvers.sequential.FilterHistory`, the attitude block found
+from the track's ``state``: the gyro MEKF's (state ``[delta, delta_beta]``,
+``a = 0:3``; the filter-based smoothing baseline ``rts``) and Yang et al.
+2014's EKF's (state ``[delta_omega, delta]``, ``a = 3:6``; ``rts_seed003``).
+For the EKF this is its own error: :func:`~attopt.solvers.filters.common.apply_error`
+is its update's retraction ``C(delta) A``
+(:func:`~attopt.formulations.attitude_model.increment_matrix`) and ``Phi``
+maps first-order body-frame rotation vectors, which the error vector is to
+first order.
 """
 
 from __future__ import annotations
@@ -38,18 +44,12 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
-from attopt.solvers.filters.common import (
-    EpochRecord,
-    FilterOptions,
-    apply_error,
-    error_vector,
-    filter_result,
-)
+from attopt.solvers.filters.common import FilterOptions, apply_error, error_vector
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import EpochRecord, filter_result, rotations
 
 Array = NDArray[np.float64]
 
@@ -156,38 +156,46 @@ def rts_backward(
     )
 
 
-def rts_smooth(filtered: Track, options: FilterOptions | None = None, method: str = "rts") -> Track:
-    """Smoothed estimates at the filter's epochs: :func:`rts_backward` up to the last
-    finite epoch (epochs after a divergence stay invalid)."""
+def rts_smooth(filtered: Track, options: FilterOptions, method: str) -> Track:
+    """Smoothed estimates at a smoothable filter's epochs: :func:`rts_backward` up to the
+    last finite epoch (epochs after a divergence stay invalid, and so do the epochs the
+    filter flagged), with ``options``' validity rules.
+
+    Raises:
+        InvalidObservationError: ``filtered`` has no history (not a smoothable filter's).
+    """
     history = filtered.history
     if history is None:
-        raise ValueError("the RTS pass needs a filter result with its history (an MEKF's)")
-    record = EpochRecord(history.filtered_quaternion.shape[0])
+        raise InvalidObservationError(
+            "the RTS pass needs a filter track with its history (an MEKF's or an EKF's)"
+        )
+    n = len(filtered)
+    record = EpochRecord(n, filtered.state, tuple(filtered.diagnostics))
     record.diagnostics = dict(filtered.diagnostics)
     record.reason = np.where(filtered.valid, "", filtered.reason)
-    finite = np.flatnonzero(np.isfinite(history.filtered_quaternion).all(axis=1))
+    attitude = filtered.block("attitude")
+    other = next(name for name in filtered.state if name != "attitude")
+    vector = filtered.block(other)
+    values = np.asarray(history.filtered_attitude).reshape(n, -1)
+    finite = np.flatnonzero(np.isfinite(values).all(axis=1))
     if finite.size == 0:
-        return filter_result(method, record, options or FilterOptions(), filtered.t)
+        return filter_result(method, record, options, filtered.t)
     end = finite[-1] + 1
-    after = Rotation.from_quat(history.filtered_quaternion[:end])
-    correction = np.concatenate(
-        [
-            error_vector(after, Rotation.from_quat(history.predicted_quaternion[:end])),
-            history.filtered_bias[:end] - history.predicted_bias[:end],
-        ],
-        axis=1,
-    )
+    after = rotations(history.filtered_attitude[:end])
+    correction = np.zeros((end, 3 * len(filtered.state)))
+    correction[:, attitude] = error_vector(after, rotations(history.predicted_attitude[:end]))
+    correction[:, vector] = history.filtered_vector[:end] - history.predicted_vector[:end]
     offset, covariance = rts_backward(
         history.filtered_covariance[:end],
         history.predicted_covariance[:end],
         history.transition[1:end],
         correction,
-        attitude_start=0,
+        attitude_start=attitude.start,
     )
-    record.quaternion = history.filtered_quaternion.copy()
-    record.quaternion[: end - 1] = apply_error(offset[:-1, :3], after[:-1]).as_quat()
-    record.bias = history.filtered_bias.copy()
-    record.bias[:end] += offset[:, 3:]
-    record.covariance = history.filtered_covariance.copy()
+    record.quaternion = filtered.quaternion.copy()
+    record.quaternion[: end - 1] = apply_error(offset[:-1, attitude], after[:-1]).as_quat()
+    record.vector = np.array(getattr(filtered, other), dtype=float)
+    record.vector[:end] += offset[:, vector]
+    record.covariance = np.array(filtered.state_covariance, dtype=float)
     record.covariance[:end] = covariance
-    return filter_result(method, record, options or FilterOptions(), filtered.t)
+    return filter_result(method, record, options, filtered.t)

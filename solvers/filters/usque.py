@@ -5,9 +5,11 @@ estimation", JGCD 26(4) 536-542 ("CM"; its text is not among the project's
 sources, so the equations below are numbered (U1)-(U9) here rather than by
 CM's numbering).  Seed 004 sec. V.B runs this filter on SNR measurements
 with the multiplicative body-frame error of its eq. 26.  Same inputs,
-outputs, diagnostics and fault handling as :func:`attopt.solvers.filters.mekf.mekf`
-and the same measurement interface, of which only the predicted values are
-used: no Jacobian is evaluated.
+outputs, diagnostics and fault handling as the MEKF
+(:mod:`attopt.solvers.filters.mekf`; both run by
+:func:`attopt.solvers.sequential.run_filter`) and the same measurement
+interface, of which only the predicted values are used: no Jacobian is
+evaluated.
 
 State and sigma points.  The filter carries the attitude estimate ``A``
 (reference -> body), the bias ``beta`` and the ``6 x 6`` covariance ``P`` of
@@ -122,38 +124,30 @@ Deviations from CM:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
-from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.formulations.gyro import GyroModel
+from attopt.formulations.passes import Prior
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
-    EpochRecord,
     FilterOptions,
-    FilterPrior,
     PreparedGyro,
-    TrackMonitor,
     apply_error,
     error_jacobian,
     error_vector,
-    filter_result,
     gate,
     kalman_gain,
     linearised,
     noise_subset,
-    prepare_gyro,
     propagate_attitude,
     propagate_covariance,
-    record_epoch,
     repair_covariance,
     usable_rows,
-    validate_inputs,
 )
-from attopt.solvers.results import Track
+from attopt.solvers.sequential import SequentialFilter
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -192,9 +186,10 @@ def carried(covariance: Array, state: Array) -> Array:
     return reset @ covariance @ reset.T
 
 
-def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: float) -> Array:
-    """Process noise (U4) accumulated over consecutive gyro steps at the mean ``rates``,
-    with the gap growth ``hold_variance`` (:func:`~attopt.solvers.filters.common.step_noise`)."""
+def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: Array) -> Array:
+    """Process noise (U4) accumulated over consecutive gyro steps of lengths ``dt`` at the
+    mean ``rates``, with the gap growth ``hold_variance``
+    (:func:`~attopt.solvers.filters.common.step_noise`)."""
     zero = np.zeros((STATE_SIZE, STATE_SIZE))
     return propagate_covariance(zero, rates, hold_variance, model, dt)[0]
 
@@ -206,11 +201,10 @@ def propagate(
     gyro: PreparedGyro,
     steps: slice,
     model: GyroModel,
-    dt: float,
 ) -> tuple[Rotation, Array, Array, bool]:
     """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in; the
     last item says whether the covariance was repaired to draw the sigma points."""
-    rates = gyro.rates[steps]
+    rates, dt = gyro.rates[steps], gyro.dt[steps]
     if rates.shape[0] == 0:
         return attitude, bias, covariance, False
     offsets, repaired = sigma_offsets(covariance)
@@ -344,40 +338,37 @@ def update(
     return apply_error(state[:3], attitude), bias + state[3:], posterior, counts  # (U9)
 
 
-def usque(
-    samples: GyroSamples,
-    t: Array,
-    measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-    model: GyroModel,
-    options: FilterOptions | None = None,
-    method: str = "usque",
-) -> Track:
-    """Filter a pass: estimates at the epochs ``t`` (gyro sample times), each after
-    its measurement (``None``: propagation only).  Same result as
-    :func:`~attopt.solvers.filters.mekf.mekf` without the history (no RTS pass)."""
-    options = options or FilterOptions()
-    index = validate_inputs(samples, t, measurements, prior)
-    gyro = prepare_gyro(samples, options)
-    record = EpochRecord(index.size)
-    attitude, bias = prior.attitude, np.asarray(prior.bias, dtype=float)
-    covariance = np.asarray(prior.covariance, dtype=float)
-    monitor = TrackMonitor(options, covariance[3:, 3:].copy())
-    start = 0
-    for k, (stop, measurement) in enumerate(zip(index, measurements, strict=True)):
-        attitude, bias, covariance, repaired = propagate(
-            attitude, bias, covariance, gyro, slice(start, stop), model, samples.dt
+class UsqueFilter(SequentialFilter):
+    """USQUE's state and steps (module docstring), for
+    :func:`attopt.solvers.sequential.run_filter`.
+
+    Starts at the first gyro sample with ``prior`` (``[attitude, bias]``);
+    :meth:`predict` is the unscented prediction (U1)-(U5) over the gyro steps
+    to a sample time or an epoch of the timeline, :meth:`update` the
+    unscented update (U6)-(U9) (none while the covariance is not finite).
+    """
+
+    def __init__(
+        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
+    ) -> None:
+        self.gyro, self.model, self.options = gyro, model, options
+        self.attitude = prior.attitude
+        self.bias = np.asarray(prior.bias, dtype=float)
+        self.covariance = np.asarray(prior.covariance, dtype=float)
+        self.node = 0
+
+    def predict(self, t: float) -> dict[str, float]:
+        stop = self.gyro.node(t)
+        self.attitude, self.bias, self.covariance, repaired = propagate(
+            self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
-        record.diagnostics["gyro_gap_s"][k] = gyro.gap_s[stop - 1] if stop > 0 else 0.0
-        counts = {"covariance_repairs": float(repaired)}
-        if measurement is not None and finite(covariance):
-            attitude, bias, covariance, update_counts = update(
-                attitude, bias, covariance, measurement, options
-            )
-            update_counts["covariance_repairs"] += counts["covariance_repairs"]
-            counts = update_counts
-            covariance = monitor.check(counts, covariance)
-        if not record_epoch(record, k, attitude, bias, covariance, counts):
-            break
-        start = stop
-    return filter_result(method, record, options, t)
+        self.node = stop
+        return {"gyro_gap_s": self.gyro.gap_at(stop), "covariance_repairs": float(repaired)}
+
+    def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
+        if measurement is None or not finite(self.covariance):
+            return None
+        self.attitude, self.bias, self.covariance, counts = update(
+            self.attitude, self.bias, self.covariance, measurement, self.options
+        )
+        return counts

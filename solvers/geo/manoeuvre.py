@@ -30,14 +30,16 @@ by the smallest rotation that moves its boresight onto ``B``
 ``sigma_B^2`` about the two axes across the boresight and a large
 ``sigma_yaw^2`` about it.  After a manoeuvre the assumed rate is wrong by a
 roughly constant body rate, which the bias state absorbs: its prior sigma is
-reset to :attr:`DetectionOptions.bias_sigma`.  The filter is then restarted
-at ``k_d`` and the test resumes once a whole window lies after the restart.
+reset to :attr:`DetectionOptions.bias_sigma`.  The filter (the registry's
+``usque``) is then restarted on the rest of the pass, from the last gyro
+sample at or before ``k_d`` (``k_d`` itself when the epochs are sample times),
+and the test resumes once a whole window lies after the restart.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,12 +47,12 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_link import BORESIGHT_BODY
-from attopt.formulations.gyro import GyroModel, GyroSamples
-from attopt.solvers.filters import FilterOptions, FilterPrior, usque
-from attopt.solvers.filters.common import epoch_samples, propagate_attitude
+from attopt.formulations.passes import GyroRecord, Pass, Prior
+from attopt.solvers.filters import FilterOptions, Usque
+from attopt.solvers.filters.common import propagate_attitude
+from attopt.solvers.gyro_timeline import COINCIDENCE, gyro_timeline
 from attopt.solvers.results import Track
 
 Array = NDArray[np.float64]
@@ -112,7 +114,7 @@ def boresight_prior(
     boresight: ArrayLike,
     bias: ArrayLike,
     options: DetectionOptions,
-) -> FilterPrior:
+) -> Prior:
     """``reference`` (ECI -> body) turned so that its boresight is ``boresight`` (module docstring).
 
     The smallest rotation ``Q`` (reference frame) taking ``A^T z`` to ``B``
@@ -130,7 +132,7 @@ def boresight_prior(
     covariance = np.zeros((6, 6))
     covariance[:3, :3] = attitude_cov
     covariance[3:, 3:] = options.bias_sigma**2 * np.eye(3)
-    return FilterPrior(reference * turn.inv(), np.asarray(bias, dtype=float), covariance)
+    return Prior(reference * turn.inv(), covariance, bias=np.asarray(bias, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -146,11 +148,6 @@ class ManoeuvreRun:
     result: Track
     detections: tuple[int, ...]
     p_value: Array
-
-
-def _tail(samples: GyroSamples, index: int) -> GyroSamples:
-    """The gyro record from sample ``index`` on."""
-    return GyroSamples(samples.t[index:], samples.rates[index:], samples.dt)
 
 
 def _splice(head: Track, tail: Track, k: int) -> Track:
@@ -177,11 +174,7 @@ def _splice(head: Track, tail: Track, k: int) -> Track:
 
 
 def detect_and_reinitialise(
-    samples: GyroSamples,
-    t: Array,
-    measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-    model: GyroModel,
+    pass_: Pass,
     boresight: Callable[[int], Array],
     options: DetectionOptions | None = None,
     filter_options: FilterOptions | None = None,
@@ -189,15 +182,20 @@ def detect_and_reinitialise(
 ) -> ManoeuvreRun:
     """USQUE over the pass, restarted at each detected manoeuvre (module docstring).
 
+    ``pass_`` has the (assumed-rate) gyro record and the prior;
     ``boresight(k)``: the snapshot boresight (reference frame) of epoch ``k``.
-    ``filter_options`` are used with the gate off.  No restart is made (and the
-    search stops) when the estimate before the failing window is invalid.
+    ``filter_options`` are used with the gate off.  No restart is made (and
+    the search stops) when the estimate before the failing window is invalid,
+    or when no gyro step is left after the restart's sample.
     """
     options = options or DetectionOptions()
-    filter_options = dataclasses.replace(filter_options or FilterOptions(), gate_probability=1.0)
-    t = np.asarray(t, dtype=float)
-    index = epoch_samples(samples, t)
-    result = usque(samples, t, measurements, prior, model, filter_options, method)
+    faults = dataclasses.replace(filter_options or FilterOptions(), gate_probability=1.0)
+    usque = Usque(filter=faults)
+    gyro = pass_.gyro
+    if gyro is None:
+        raise InvalidObservationError("manoeuvre detection runs USQUE: the pass needs a gyro")
+    timeline = gyro_timeline(gyro.samples, pass_.t)
+    result = usque.solve(pass_)
     detections: list[int] = []
     start = 0
     while len(detections) < options.max_restarts:
@@ -205,29 +203,30 @@ def detect_and_reinitialise(
         if k is None:
             break
         before = max(k - options.window, start)
-        if not result.valid[before]:
+        # the last gyro sample at or before epoch k, and its place in the timeline
+        sample = int(np.searchsorted(gyro.t, pass_.t[k] + COINCIDENCE * gyro.model.dt, "right"))
+        sample -= 1
+        if not result.valid[before] or sample >= gyro.t.size - 1:
             break
+        node = int(np.searchsorted(timeline.t, gyro.t[sample]))
+        steps = slice(timeline.epochs[before], node)
         bias = result.bias[before]
         reference = propagate_attitude(
             Rotation.from_quat(result.quaternion[before]),
-            samples.rates[index[before] : index[k]] - bias,
-            samples.dt,
+            timeline.rates[steps] - bias,
+            timeline.dt[steps],
         )
-        restart = boresight_prior(reference, boresight(k), bias, options)
-        tail = usque(
-            _tail(samples, index[k]),
-            t[k:],
-            measurements[k:],
-            restart,
-            model,
-            filter_options,
-            method,
+        tail = Pass(
+            pass_.t[k:],
+            pass_.snapshots[k:],
+            GyroRecord(gyro.t[sample:], gyro.rates[sample:], gyro.model),
+            boresight_prior(reference, boresight(k), bias, options),
         )
-        result = _splice(result, tail, k)
+        result = _splice(result, usque.solve(tail), k)
         detections.append(k)
         start = k
     diagnostics = result.diagnostics
     p = windowed_nis_test(
         diagnostics["nis"], diagnostics["n_used"], options.window, options.false_alarm
     )
-    return ManoeuvreRun(result, tuple(detections), p)
+    return ManoeuvreRun(dataclasses.replace(result, method=method), tuple(detections), p)

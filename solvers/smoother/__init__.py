@@ -1,4 +1,8 @@
-"""Whole-pass factor-graph smoother over attitude and gyro bias (GTSAM; ``docs/smoother.md``)."""
+"""Factor-graph smoothers over attitude and gyro bias (GTSAM; ``docs/smoother.md``).
+
+Registry estimators (:mod:`attopt.solvers.smoother.estimators`): ``fg_online``.
+The whole-pass batch smoother is :func:`~attopt.solvers.smoother.batch.smooth`.
+"""
 
 from attopt.solvers.smoother.batch import (
     SmootherOptions,
@@ -7,15 +11,20 @@ from attopt.solvers.smoother.batch import (
     single_frame_initial,
     smooth,
 )
-from attopt.solvers.smoother.online import OnlineOptions, OnlineReport, smooth_online
+from attopt.solvers.smoother.estimators import OnlineSmoother
+from attopt.solvers.smoother.online import OnlineOptions, OnlineReport
+
+ESTIMATORS = (OnlineSmoother(),)
+"""The package's registry estimators with their default options."""
 
 __all__ = [
+    "ESTIMATORS",
     "OnlineOptions",
     "OnlineReport",
+    "OnlineSmoother",
     "SmootherOptions",
     "SmootherProblem",
     "SmootherReport",
     "single_frame_initial",
     "smooth",
-    "smooth_online",
 ]

@@ -1,9 +1,9 @@
 """Batch factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
 
 Variables: one ``gtsam.Rot3`` (``R = A^T``, :mod:`attopt.solvers.smoother.conventions`)
-and one bias 3-vector per node; the nodes are the output epochs (gyro sample
-times, as for the filters) and, when the first epoch is later than the first
-gyro sample, one more node there carrying the prior.
+and one bias 3-vector per node; the nodes are the output epochs (anywhere in the
+gyro record, which is cut at them as for the filters) and, when the first
+epoch is later than the first gyro sample, one more node there carrying the prior.
 
 Factors: the prior with its full ``6 x 6`` covariance, ``gtsam.AHRSFactor``
 and ``BetweenFactorVector`` between consecutive nodes
@@ -83,21 +83,21 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
 from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
 from attopt.solvers.filters.common import (
     STATE_SIZE,
-    EpochRecord,
     FilterOptions,
-    FilterPrior,
     PreparedGyro,
-    filter_result,
+    gyro_prior,
     prepare_gyro,
     propagate_attitude,
     repair_covariance,
-    validate_inputs,
 )
-from attopt.solvers.filters.mekf import mekf
+from attopt.solvers.filters.estimators import Mekf
 from attopt.solvers.filters.rts import rts_smooth
+from attopt.solvers.gyro_timeline import gyro_timeline
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import EpochRecord, filter_result
 from attopt.solvers.smoother.chain_marginals import sequential_marginals
 from attopt.solvers.smoother.conventions import (
     Array,
@@ -258,22 +258,22 @@ class SmootherReport:
 
 
 def _initial_estimate(
-    samples: GyroSamples,
+    gyro: GyroRecord,
     t: Array,
     measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-    model: GyroModel,
+    prior: Prior,
     options: SmootherOptions,
     initial: Track | None,
 ) -> tuple[Array, Array, Array, str]:
     """Quaternions, biases and ``6 x 6`` covariances at the epochs (NaN where undetermined)."""
     if initial is None:
+        filter_ = Mekf(filter=options.filter)
         if options.initialisation == "mekf":
-            forward = mekf(samples, t, measurements, prior, model, options.filter)
-            initial = rts_smooth(forward, options.filter)
+            forward = filter_.solve(Pass(t, epoch_snapshots(measurements, t), gyro, prior))
+            initial = rts_smooth(forward, options.filter, "rts")
             label = "mekf+rts"
         else:
-            forward = mekf(samples, t, [None] * len(measurements), prior, model, options.filter)
+            forward = filter_.solve(Pass(t, (None,) * len(measurements), gyro, prior))
             initial = forward
             label = "gyro"
         history = forward.history
@@ -288,13 +288,13 @@ def _initial_estimate(
     p = np.array(initial.state_covariance, dtype=float)
     if history is not None:  # epochs the result flags keep the filter's raw estimate
         missing = ~np.isfinite(q).all(axis=1)
-        q[missing] = history.filtered_quaternion[missing]
-        b[missing] = history.filtered_bias[missing]
+        q[missing] = history.filtered_attitude[missing]
+        b[missing] = history.filtered_vector[missing]
         p[missing] = history.filtered_covariance[missing]
     return q, b, p, label
 
 
-def single_frame_initial(solution: Track, prior: FilterPrior) -> Track:
+def single_frame_initial(solution: Track, prior: Prior) -> Track:
     """A starting estimate for :func:`smooth` from single-epoch solutions (issue 6
     sec. 1): their attitudes (same reference frame as the smoother's) where valid,
     the prior's bias everywhere; :func:`smooth` fills the other epochs by gyro
@@ -317,7 +317,7 @@ def single_frame_initial(solution: Track, prior: FilterPrior) -> Track:
 
 
 def _fill_nodes(
-    q: Array, b: Array, p: Array, nodes: Array, gyro: PreparedGyro, prior: FilterPrior, dt: float
+    q: Array, b: Array, p: Array, nodes: Array, gyro: PreparedGyro, prior: Prior
 ) -> tuple[Rotation, Array, Array]:
     """Node estimates with undetermined ones filled by gyro integration from the previous node."""
     n = nodes.size
@@ -335,7 +335,9 @@ def _fill_nodes(
         else:
             start, stop = nodes[k - 1], nodes[k]
             a = propagate_attitude(
-                Rotation.from_quat(attitudes[k - 1]), gyro.rates[start:stop] - bias[k - 1], dt
+                Rotation.from_quat(attitudes[k - 1]),
+                gyro.rates[start:stop] - bias[k - 1],
+                gyro.dt[start:stop],
             )
             attitudes[k], bias[k] = a.as_quat(), bias[k - 1]
         if not np.isfinite(covariance[k]).all():
@@ -591,7 +593,7 @@ def smooth(
     samples: GyroSamples,
     t: Array,
     measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
+    prior: Prior,
     model: GyroModel,
     options: SmootherOptions | None = None,
     initial: Track | None = None,
@@ -599,14 +601,15 @@ def smooth(
 ) -> Track:
     """Smoothed attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
 
-    Inputs as for :func:`attopt.solvers.filters.mekf.mekf`: gyro record, epochs
-    ``t`` (gyro sample times), one measurement or ``None`` per epoch, the
-    prior at the first gyro sample and the gyro model.  ``initial``: a
+    Inputs: gyro record, epochs ``t`` (in the record, not necessarily sample
+    times: :mod:`attopt.solvers.gyro_timeline`), one measurement or ``None`` per
+    epoch, the prior at the first gyro sample (attitude, or attitude and bias)
+    and the gyro model.  ``initial``: a
     filter's result on the same epochs to start from (else
     ``options.initialisation``).  See the module docstring.
 
     The result is a filter's :class:`~attopt.solvers.results.Track`
-    (:func:`~attopt.solvers.filters.common.filter_result`) with the
+    (:func:`~attopt.solvers.sequential.filter_result`) with the
     optimiser's :class:`SmootherReport` as ``report``.  Its ``loss``
     (diagnostic ``nis``) is the epoch's normalised residual squared at the
     solution, ``nu^T R^-1 nu`` over its used rows; diagnostics ``n_used``,
@@ -616,19 +619,23 @@ def smooth(
     """
     options = options or SmootherOptions()
     begin = time.perf_counter()
-    index = validate_inputs(samples, t, measurements, prior)
+    if len(measurements) != np.size(t):
+        raise InvalidObservationError(f"{len(measurements)} measurements for {np.size(t)} epochs")
+    record = GyroRecord(samples.t, samples.rates, model)  # checks shapes and the sample rate
+    prior = gyro_prior(prior, model)
     check_model(model)
-    gyro = prepare_gyro(samples, options.filter)
+    gyro = prepare_gyro(gyro_timeline(samples, t), options.filter)
+    index = gyro.timeline.epochs
     offset = int(index[0] > 0)
     nodes = np.concatenate([[0], index]) if offset else index
-    n, dt = nodes.size, samples.dt
+    n = nodes.size
 
-    q, b, p, label = _initial_estimate(samples, t, measurements, prior, model, options, initial)
+    q, b, p, label = _initial_estimate(record, t, measurements, prior, options, initial)
     if offset:
         q = np.vstack([prior.attitude.as_quat(), q])
         b = np.vstack([prior.bias, b])
         p = np.concatenate([np.asarray(prior.covariance)[None], p])
-    attitudes, bias, covariance = _fill_nodes(q, b, p, nodes, gyro, prior, dt)
+    attitudes, bias, covariance = _fill_nodes(q, b, p, nodes, gyro, prior)
     seconds = {"initialisation": time.perf_counter() - begin}
 
     start = time.perf_counter()
@@ -656,7 +663,7 @@ def smooth(
     seconds["factors"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    intervals = gyro_intervals(nodes, gyro, model, dt, options.filter.max_gyro_gap_s)
+    intervals = gyro_intervals(nodes, gyro, model, options.filter.max_gyro_gap_s)
     problem = SmootherProblem(
         gtsam.NonlinearFactorGraph(),
         JointPrior(prior),
@@ -676,7 +683,7 @@ def smooth(
 
     def rebuild(bias_hat: Array) -> None:
         problem.bias_hat = np.array(bias_hat)
-        problem.graph = gyro_graph(intervals, gyro, dt, problem.bias_hat)
+        problem.graph = gyro_graph(intervals, gyro, problem.bias_hat)
         problem.graph.push_back(fixed_priors)
 
     rebuild(bias)
@@ -723,7 +730,7 @@ def smooth(
     record = EpochRecord(len(measurements))
     epoch_attitudes = outcome.attitudes[offset:]
     record.quaternion = epoch_attitudes.as_quat()
-    record.bias = outcome.bias[offset:].copy()
+    record.vector = outcome.bias[offset:].copy()
     repairs = np.zeros(len(measurements))
     for k in range(len(measurements)):
         if np.isfinite(node_covariance[k]).all():
@@ -745,9 +752,7 @@ def smooth(
     if marginals_error:
         record.reason[:] = marginals_error
     # no lost-track rule, and a long gyro gap splits the pass instead of being flagged
-    own_rules = replace(
-        options.filter, max_rejected_epochs=np.iinfo(np.int64).max, max_gyro_gap_s=np.inf
-    )
+    own_rules = replace(options.filter, max_gyro_gap_s=np.inf)
     result = filter_result(method, record, own_rules, t)
     message = outcome.message
     if not outcome.converged:
@@ -788,7 +793,7 @@ def smooth(
         initialisation=label,
         seconds=seconds,
         quaternion=record.quaternion.copy(),
-        bias=record.bias.copy(),
+        bias=record.vector.copy(),
         offset_ids=offset_ids,
         offsets=outcome.offsets,
         offset_sigmas=np.sqrt(offset_variances),

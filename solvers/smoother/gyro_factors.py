@@ -1,11 +1,12 @@
 """Gyro, bias and prior factors of the smoother (built-in GTSAM factors).
 
-Between consecutive nodes ``i`` and ``i + 1`` (gyro sample times ``t_i``,
-``t_{i+1}``, ``T = t_{i+1} - t_i``):
+Between consecutive nodes ``i`` and ``i + 1`` (boundaries ``t_i``, ``t_{i+1}``
+of the gyro timeline, :mod:`attopt.solvers.gyro_timeline`: gyro sample times or
+epochs between them; ``T = t_{i+1} - t_i``):
 
 * ``gtsam.AHRSFactor(x_i, x_{i+1}, b_i, pim)`` with the
-  ``PreintegratedAhrsMeasurements`` of the samples in ``[t_i, t_{i+1})``:
-  ``Delta R = prod_j Exp((omega_j - b_hat) dt)``, zero error when ``R_{i+1}
+  ``PreintegratedAhrsMeasurements`` of the timeline's steps in ``[t_i, t_{i+1})``:
+  ``Delta R = prod_j Exp((omega_j - b_hat) dt_j)``, zero error when ``R_{i+1}
   = R_i Delta R(b_i)`` (first-order bias correction about ``b_hat``).  With
   ``R = A^T`` this is ``A_{i+1} = prod_j exp(-[(omega_j - b) x] dt) A_i``,
   exactly :func:`attopt.formulations.gyro.attitude_increment` step by step (pinned
@@ -30,9 +31,9 @@ Between consecutive nodes ``i`` and ``i + 1`` (gyro sample times ``t_i``,
 * bias random walk: ``gtsam.BetweenFactorVector(b_i, b_{i+1}, 0,
   sigma_u sqrt(T))`` (seed 000 eq. 24).
 
-The prior (:class:`JointPrior`) is the full ``6 x 6`` covariance of
-:class:`~attopt.solvers.filters.common.FilterPrior`, attitude-bias cross terms
-included: the errors of ``gtsam.PriorFactorRot3`` and ``PriorFactorVector``
+The prior (:class:`JointPrior`) is the full ``6 x 6`` covariance of the
+``[attitude, bias]`` :class:`~attopt.formulations.passes.Prior`, attitude-bias
+cross terms included: the errors of ``gtsam.PriorFactorRot3`` and ``PriorFactorVector``
 (linearised by GTSAM) whitened jointly.  ``PriorFactorRot3``'s error is
 ``Logmap(R_prior^-1 R) = -rotvec(A A_prior^T)``, the opposite of attopt's
 ``delta``, so its covariance is ``T P T`` with ``T = diag(-I, I)``.
@@ -49,7 +50,8 @@ from scipy.linalg import solve_triangular
 
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gyro import GyroModel
-from attopt.solvers.filters.common import FilterPrior, PreparedGyro
+from attopt.formulations.passes import Prior
+from attopt.solvers.filters.common import PreparedGyro
 from attopt.solvers.smoother.conventions import SIGN, Array, attitude_key, bias_key, rot3
 
 UNIT3 = gtsam.noiseModel.Unit.Create(3)
@@ -68,7 +70,7 @@ class GyroIntervals:
     """The gyro steps between consecutive nodes and their extra variances."""
 
     nodes: Array
-    """``(n,)`` gyro sample index of each node."""
+    """``(n,)`` index of each node into the gyro timeline's boundaries."""
     duration: Array
     """``(n - 1,)`` interval lengths ``T`` (s)."""
     attitude_variance: Array
@@ -96,12 +98,12 @@ def long_gap_steps(gyro: PreparedGyro, max_gap_s: float) -> NDArray[np.bool_]:
 
 
 def gyro_intervals(
-    nodes: Array, gyro: PreparedGyro, model: GyroModel, dt: float, max_gap_s: float = np.inf
+    nodes: Array, gyro: PreparedGyro, model: GyroModel, max_gap_s: float = np.inf
 ) -> GyroIntervals:
     """Noise of each interval's factors (module docstring); intervals that contain a
     step of a gyro gap longer than ``max_gap_s`` are broken."""
     nodes = np.asarray(nodes)
-    duration = np.diff(nodes) * dt
+    duration = gyro.timeline.durations(nodes)
     hold = (
         np.add.reduceat(gyro.hold_variance[: nodes[-1]], nodes[:-1])
         if nodes.size > 1
@@ -118,7 +120,7 @@ def gyro_intervals(
 
 
 def gyro_graph(
-    intervals: GyroIntervals, gyro: PreparedGyro, dt: float, bias_hat: Array
+    intervals: GyroIntervals, gyro: PreparedGyro, bias_hat: Array
 ) -> gtsam.NonlinearFactorGraph:
     """AHRS and bias random-walk factors between all consecutive nodes (no AHRS
     factor over a broken interval: the gyro says nothing there, so the attitude
@@ -138,7 +140,8 @@ def gyro_graph(
             params[density] = p
         if not intervals.broken[i]:
             pim = gtsam.PreintegratedAhrsMeasurements(params[density], np.asarray(bias_hat[i]))
-            for rate in gyro.rates[nodes[i] : nodes[i + 1]]:
+            steps = slice(nodes[i], nodes[i + 1])
+            for rate, dt in zip(gyro.rates[steps], gyro.dt[steps], strict=True):
                 pim.integrateMeasurement(rate, dt)
             graph.add(gtsam.AHRSFactor(attitude_key(i), attitude_key(i + 1), bias_key(i), pim))
         graph.add(
@@ -155,7 +158,7 @@ def gyro_graph(
 class JointPrior:
     """The prior on node 0's attitude and bias with its full ``6 x 6`` covariance."""
 
-    def __init__(self, prior: FilterPrior) -> None:
+    def __init__(self, prior: Prior) -> None:
         self.attitude = prior.attitude
         self.bias = np.asarray(prior.bias, dtype=float)
         self.rotation_factor = gtsam.PriorFactorRot3(attitude_key(0), rot3(prior.attitude), UNIT3)

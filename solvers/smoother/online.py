@@ -8,11 +8,17 @@ The estimate reported at epoch ``k`` is node ``k``'s estimate right after
 the update that added it, with its iSAM2 marginal covariance: it uses only the
 gyro samples up to ``t_k`` and the measurements of epochs ``0 .. k``.
 
-Per node ``i`` (the epochs, plus a prior node at the first gyro sample when the
-first epoch is later, as in the batch):
+The smoother is a :class:`~attopt.solvers.sequential.SequentialFilter`
+(:class:`OnlineFilter`) run by :func:`attopt.solvers.sequential.run_filter`:
+its :meth:`~OnlineFilter.predict` is step 1 below and its
+:meth:`~OnlineFilter.update` steps 2-6 (with or without a measurement: every
+epoch is a node).  Per node ``i`` (the epochs, plus a prior node at the first
+gyro sample when the first epoch is later, as in the batch, added when the
+filter is made):
 
 1. prediction: the previous node's estimate and ``6 x 6`` error-state
-   covariance propagated over the gyro steps as the MEKF propagates them
+   covariance propagated over the steps of the gyro timeline (the record cut
+   at the epochs, which need not be sample times) as the MEKF propagates them
    (:func:`attopt.solvers.filters.mekf.propagate`: held rate across gaps, the
    filters' hold variance);
 2. the epoch's measurement factor is prepared at the predicted attitude by
@@ -35,9 +41,9 @@ first epoch is later, as in the batch):
    one Gauss-Newton step of iSAM2, relinearising the variables whose step
    exceeds the threshold) while the new node's step is not linearised by the
    MEKF's rule (:func:`~attopt.solvers.filters.common.linearised`,
-   ``filter.relinearise_fraction``) and exceeds the relinearisation
-   threshold, at most ``filter.max_update_iterations`` in all: the iterated
-   update of the MEKF after a large correction;
+   ``FilterOptions.relinearise_fraction``) and exceeds the relinearisation
+   threshold, at most ``FilterOptions.max_update_iterations`` in all: the
+   iterated update of the MEKF after a large correction;
 5. an AHRS factor whose start node's bias estimate has moved by more than
    ``bias_relinearise_angle / T`` from the bias it was preintegrated about is
    removed and added again preintegrated about the current estimate (the
@@ -54,44 +60,39 @@ factor at the point where it was prepared reuses that evaluation.
 
 Faults as in the batch and the filters: bad input raises
 :class:`~attopt.formulations.errors.InvalidObservationError`; epochs in a gyro gap
-longer than ``filter.max_gyro_gap_s``, with a 1-sigma above
-``filter.max_attitude_sigma`` or after ``filter.max_rejected_epochs``
-consecutive gated epochs (a lost track: the online smoother has no
-re-acquisition inflation) are flagged by
-:func:`~attopt.solvers.filters.common.filter_result`; a non-finite estimate flags
-that epoch and all later ones.  No Huber loss (GTSAM's robust noise models
+longer than ``max_gyro_gap_s``, with a 1-sigma above ``max_attitude_sigma``
+or after ``max_rejected_epochs`` consecutive gated epochs (a lost track,
+detected by the loop's :class:`~attopt.solvers.sequential.TrackMonitor`; the
+online smoother has no re-acquisition: its monitor never inflates) are
+flagged by :func:`~attopt.solvers.sequential.filter_result`; a non-finite
+estimate flags that epoch and all later ones.  No Huber loss (GTSAM's robust noise models
 act on a factor's whole residual, not per block).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
-from attopt.formulations.gyro import GyroModel, GyroSamples
+from attopt.formulations.gyro import GyroModel
+from attopt.formulations.passes import Prior
 from attopt.solvers.filters.common import (
     STATE_SIZE,
-    EpochRecord,
     FilterOptions,
-    FilterPrior,
     PreparedGyro,
-    filter_result,
     kalman_gain,
     linearised,
     noise_subset,
-    prepare_gyro,
-    record_epoch,
     repair_covariance,
-    validate_inputs,
 )
 from attopt.solvers.filters.mekf import propagate
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import SequentialFilter
 from attopt.solvers.smoother.conventions import (
     Array,
     attitude,
@@ -113,7 +114,7 @@ from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, pre
 
 @dataclass(frozen=True)
 class OnlineOptions:
-    """Options of :func:`smooth_online` (module docstring).
+    """The iSAM2 window of the online smoother (module docstring).
 
     Attributes:
         lag_s: nodes older than the newest by more than this (s) are
@@ -127,8 +128,6 @@ class OnlineOptions:
         bias_relinearise_angle: an AHRS factor is preintegrated again when
             ``|b - b_hat| T`` exceeds this (rad).
         cross_covariance: joint attitude-bias marginal (else block-diagonal).
-        filter: gating, gyro-gap and validity rules shared with the filters;
-            ``max_update_iterations`` bounds the iSAM2 updates per epoch.
     """
 
     lag_s: float = 3.0
@@ -137,13 +136,12 @@ class OnlineOptions:
     relinearise_skip: int = 1
     bias_relinearise_angle: float = 1e-5
     cross_covariance: bool = True
-    filter: FilterOptions = field(default_factory=FilterOptions)
 
     def __post_init__(self) -> None:
         if not (self.lag_s > 0 and self.attitude_threshold > 0 and self.bias_threshold > 0):
             raise ValueError("lag_s and the relinearisation thresholds must be positive")
-        if self.relinearise_skip < 1 or self.filter.max_update_iterations < 1:
-            raise ValueError("need relinearise_skip >= 1 and filter.max_update_iterations >= 1")
+        if self.relinearise_skip < 1:
+            raise ValueError("need relinearise_skip >= 1")
 
 
 @dataclass(frozen=True)
@@ -234,7 +232,7 @@ def prior_factor(prior: JointPrior) -> gtsam.CustomFactor:
 
 
 def interval_factors(
-    intervals: GyroIntervals, i: int, gyro: PreparedGyro, dt: float, bias_hat: Array
+    intervals: GyroIntervals, i: int, gyro: PreparedGyro, bias_hat: Array
 ) -> tuple[gtsam.NonlinearFactor, gtsam.NonlinearFactor]:
     """AHRS and bias random-walk factors between nodes ``i`` and ``i + 1``, the AHRS one
     preintegrated about ``bias_hat`` (:func:`~attopt.solvers.smoother.gyro_factors.gyro_graph`
@@ -246,7 +244,7 @@ def interval_factors(
         intervals.bias_sigma[i : i + 1],
         intervals.broken[i : i + 1],
     )
-    graph = gyro_graph(one, gyro, dt, np.asarray(bias_hat, dtype=float)[None])
+    graph = gyro_graph(one, gyro, np.asarray(bias_hat, dtype=float)[None])
     keys = {
         attitude_key(0): attitude_key(i),
         attitude_key(1): attitude_key(i + 1),
@@ -263,10 +261,8 @@ def interval_factors(
 class _GyroChain:
     """The AHRS factors of the window and the biases they are preintegrated about (step 5)."""
 
-    def __init__(
-        self, intervals: GyroIntervals, gyro: PreparedGyro, dt: float, angle: float
-    ) -> None:
-        self.intervals, self.gyro, self.dt, self.angle = intervals, gyro, dt, angle
+    def __init__(self, intervals: GyroIntervals, gyro: PreparedGyro, angle: float) -> None:
+        self.intervals, self.gyro, self.angle = intervals, gyro, angle
         self.factors: dict[int, tuple[int, Array]] = {}  # interval -> (iSAM2 index, b_hat)
         self.preintegrations = 0
 
@@ -303,7 +299,7 @@ class _GyroChain:
     def _factors(
         self, i: int, bias_hat: Array
     ) -> tuple[gtsam.NonlinearFactor, gtsam.NonlinearFactor]:
-        return interval_factors(self.intervals, i, self.gyro, self.dt, bias_hat)
+        return interval_factors(self.intervals, i, self.gyro, bias_hat)
 
 
 def _isam2_params(options: OnlineOptions) -> gtsam.ISAM2Params:
@@ -323,12 +319,15 @@ def _node_covariance(isam: gtsam.ISAM2, node: int, cross: bool) -> Array:
 
 
 def _settle(
-    smoother: gtsam.IncrementalFixedLagSmoother, node: int, options: OnlineOptions
+    smoother: gtsam.IncrementalFixedLagSmoother,
+    node: int,
+    options: OnlineOptions,
+    faults: FilterOptions,
 ) -> tuple[int, int, Array, bool]:
     """Further updates while the new node's step is not linearised (module docstring, step 4).
 
     The MEKF's rule (:func:`~attopt.solvers.filters.common.linearised`: the step's
-    second-order term against ``filter.relinearise_fraction`` of the smallest
+    second-order term against ``faults.relinearise_fraction`` of the smallest
     attitude standard deviation of the node's marginal), for a step iSAM2
     would relinearise (above the thresholds).  Returns the further updates,
     the variables they relinearised, and the node's final error-state
@@ -347,8 +346,8 @@ def _settle(
         )
         if (
             not above
-            or more + 1 >= options.filter.max_update_iterations
-            or linearised(step, covariance, options.filter.relinearise_fraction)
+            or more + 1 >= faults.max_update_iterations
+            or linearised(step, covariance, faults.relinearise_fraction)
         ):
             return more, relinearised, covariance, repaired
         smoother.update()
@@ -364,138 +363,152 @@ def _epoch_nis(factor: EpochFactor, covariance: Array) -> float:
     return kalman_gain(covariance, h, noise_subset(noise, factor.rows), factor.innovation)[1]
 
 
-def smooth_online(
-    samples: GyroSamples,
-    t: Array,
-    measurements: Sequence[AttitudeMeasurement | None],
-    prior: FilterPrior,
-    model: GyroModel,
-    options: OnlineOptions | None = None,
-    method: str = "fg_online",
-) -> Track:
-    """Causal attitudes (reference -> body), biases and ``6 x 6`` covariances at the epochs.
+class OnlineFilter(SequentialFilter):
+    """The online smoother's state and steps (module docstring).
 
-    Inputs as for :func:`attopt.solvers.smoother.smooth` and the filters; the estimate
-    at epoch ``k`` uses the gyro up to ``t[k]`` and the measurements of epochs
-    ``0 .. k`` only (module docstring).
-
-    The result is a filter's :class:`~attopt.solvers.results.Track`
-    (:func:`~attopt.solvers.filters.common.filter_result`) with the pass's
-    :class:`OnlineReport` as ``report``.  Its ``loss`` (diagnostic ``nis``) is
-    the epoch's normalised innovation squared against the predicted
-    covariance, as the MEKF's; diagnostics ``n_used``, ``n_gated``, ``n_nan``,
-    ``n_unpredictable`` count observation blocks, ``update_iterations`` the
-    iSAM2 updates of the epoch.
+    Starts at the first gyro sample with ``prior`` (``[attitude, bias]``;
+    the prior node is added here when the first epoch ``t[0]`` is later).
+    :meth:`predict` is the MEKF prediction to an epoch of the timeline and
+    stages its node with the gyro factors from the previous one;
+    :meth:`update` adds the epoch's measurement factor (if any), runs iSAM2 and
+    reads the new node's estimate and marginal.  :meth:`report` summarises
+    the pass.
     """
-    options = options or OnlineOptions()
-    begin = time.perf_counter()
-    index = validate_inputs(samples, t, measurements, prior)
-    check_model(model)
-    gyro = prepare_gyro(samples, options.filter)
-    offset = int(index[0] > 0)
-    nodes = np.concatenate([[0], index]) if offset else index
-    dt = samples.dt
-    intervals = gyro_intervals(nodes, gyro, model, dt)
-    node_time = np.asarray(samples.t, dtype=float)[nodes]
 
-    smoother = gtsam.IncrementalFixedLagSmoother(options.lag_s, _isam2_params(options))
-    callbacks: list[MeasurementCallback] = []
-    callback_epoch: list[int] = []
-    chain = _GyroChain(intervals, gyro, dt, options.bias_relinearise_angle)
-    record = EpochRecord(len(measurements))
-    seconds = dict.fromkeys(("factors", "update"), 0.0)
-    updates = extra = relinearised = max_window = 0
-    estimate_attitude, estimate_bias = prior.attitude, np.asarray(prior.bias, dtype=float)
-    covariance = np.asarray(prior.covariance, dtype=float)
-    values_now = gtsam.Values()
+    def __init__(
+        self,
+        gyro: PreparedGyro,
+        model: GyroModel,
+        prior: Prior,
+        t: Array,
+        online: OnlineOptions,
+        faults: FilterOptions,
+    ) -> None:
+        check_model(model)
+        self.begin = time.perf_counter()
+        self.gyro, self.model, self.prior = gyro, model, prior
+        self.online, self.faults = online, faults
+        index = np.array([gyro.node(float(epoch)) for epoch in t], dtype=np.intp)
+        self.offset = int(index[0] > 0)
+        self.nodes = np.concatenate([[0], index]) if self.offset else index
+        self.node_time = gyro.timeline.t[self.nodes]
+        self.smoother = gtsam.IncrementalFixedLagSmoother(online.lag_s, _isam2_params(online))
+        self.callbacks: list[MeasurementCallback] = []
+        self.callback_epoch: list[int] = []
+        self.chain = _GyroChain(
+            gyro_intervals(self.nodes, gyro, model), gyro, online.bias_relinearise_angle
+        )
+        self.seconds = dict.fromkeys(("factors", "update"), 0.0)
+        self.updates = self.extra = self.relinearised = self.max_window = 0
+        self.attitude = prior.attitude
+        self.bias = np.asarray(prior.bias, dtype=float)
+        self.covariance = np.asarray(prior.covariance, dtype=float)
+        self.values = gtsam.Values()
+        self.estimates = (np.full((index.size, 4), np.nan), np.full((index.size, 3), np.nan))
+        self.i = -1
+        if self.offset:  # the prior node at the first gyro sample
+            self.predict(float(self.node_time[0]))
+            self.update(None)
 
-    for i in range(nodes.size):
+    def predict(self, t: float) -> dict[str, float]:
         start = time.perf_counter()
-        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        removed: list[int] = []
-        positions: dict[int, int] = {}
+        self.i += 1
+        i = self.i
+        if self.gyro.node(t) != self.nodes[i]:
+            raise ValueError(f"the online smoother's next node is at t = {self.node_time[i]:g} s")
+        self.graph, self.new_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        self.removed: list[int] = []
+        self.positions: dict[int, int] = {}
         if i == 0:
-            predicted, predicted_covariance = estimate_attitude, covariance
-            graph.add(prior_factor(JointPrior(prior)))
+            self.graph.add(prior_factor(JointPrior(self.prior)))
         else:
-            predicted, predicted_covariance, _ = propagate(
-                estimate_attitude,
-                estimate_bias,
-                covariance,
-                gyro,
-                slice(nodes[i - 1], nodes[i]),
-                model,
-                dt,
+            self.attitude, self.covariance, _ = propagate(
+                self.attitude,
+                self.bias,
+                self.covariance,
+                self.gyro,
+                slice(self.nodes[i - 1], self.nodes[i]),
+                self.model,
             )
-            removed, positions = chain.extend(graph, values_now, i, estimate_bias)
-        values.insert(attitude_key(i), rot3(predicted))
-        values.insert(bias_key(i), np.array(estimate_bias))
+            self.removed, self.positions = self.chain.extend(self.graph, self.values, i, self.bias)
+        self.new_values.insert(attitude_key(i), rot3(self.attitude))
+        self.new_values.insert(bias_key(i), np.array(self.bias))
+        self.seconds["factors"] += time.perf_counter() - start
+        return {"gyro_gap_s": self.gyro.gap_at(int(self.nodes[i]))}
 
-        k = i - offset
+    def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float]:
+        start = time.perf_counter()
+        i, predicted, predicted_covariance = self.i, self.attitude, self.covariance
         counts = dict.fromkeys(COUNTS, 0.0)
         counts["nis"] = np.nan
-        measurement = measurements[k] if k >= 0 else None
         if measurement is not None:
             factor, epoch_counts = prepare_factor(
                 i,
                 measurement,
                 predicted,
                 predicted_covariance[:3, :3],
-                options.filter.gate_probability,
+                self.faults.gate_probability,
             )
             counts |= epoch_counts
             if factor is not None:
                 counts["nis"] = _epoch_nis(factor, predicted_covariance)
                 callback = MeasurementCallback(factor, predicted)
-                callbacks.append(callback)
-                callback_epoch.append(k)
-                graph.add(callback.custom_factor())
-        seconds["factors"] += time.perf_counter() - start
+                self.callbacks.append(callback)
+                self.callback_epoch.append(i - self.offset)
+                self.graph.add(callback.custom_factor())
+        self.seconds["factors"] += time.perf_counter() - start
 
         start = time.perf_counter()
-        stamps = {attitude_key(i): node_time[i], bias_key(i): node_time[i]}
-        smoother.update(graph, values, stamps, removed)
-        result = smoother.getISAM2Result()
-        chain.added(positions, list(result.getNewFactorsIndices()))
-        relinearised += result.getVariablesRelinearized()
-        more, more_relinearised, covariance, repaired = _settle(smoother, i, options)
-        updates += 1 + more
-        extra += more
-        relinearised += more_relinearised
-        values_now = smoother.calculateEstimate()
-        max_window = max(max_window, values_now.size())
-        estimate_attitude = attitude(values_now.atRot3(attitude_key(i)))
-        estimate_bias = values_now.atVector(bias_key(i))
-        seconds["update"] += time.perf_counter() - start
-        if k < 0:
-            continue
+        stamps = {attitude_key(i): self.node_time[i], bias_key(i): self.node_time[i]}
+        self.smoother.update(self.graph, self.new_values, stamps, self.removed)
+        result = self.smoother.getISAM2Result()
+        self.chain.added(self.positions, list(result.getNewFactorsIndices()))
+        self.relinearised += result.getVariablesRelinearized()
+        more, more_relinearised, self.covariance, repaired = _settle(
+            self.smoother, i, self.online, self.faults
+        )
+        self.updates += 1 + more
+        self.extra += more
+        self.relinearised += more_relinearised
+        self.values = self.smoother.calculateEstimate()
+        self.max_window = max(self.max_window, self.values.size())
+        self.attitude = attitude(self.values.atRot3(attitude_key(i)))
+        self.bias = self.values.atVector(bias_key(i))
+        self.seconds["update"] += time.perf_counter() - start
+        k = i - self.offset
+        if k >= 0:
+            quaternion = self.attitude.as_quat()
+            if all(np.all(np.isfinite(x)) for x in (quaternion, self.bias, self.covariance)):
+                self.estimates[0][k], self.estimates[1][k] = quaternion, self.bias
         counts["update_iterations"] = float(1 + more)
         counts["covariance_repairs"] = float(repaired)
-        if not record_epoch(record, k, estimate_attitude, estimate_bias, covariance, counts):
-            break
+        return counts
 
-    for callback, k in zip(callbacks, callback_epoch, strict=True):
-        record.diagnostics["n_unpredictable"][k] += len(callback.lost)
-    record.diagnostics["gyro_gap_s"] = np.where(index > 0, gyro.gap_s[index - 1], 0.0)
-    result = filter_result(method, record, options.filter, t)
-    seconds["total"] = time.perf_counter() - begin
-    diagnostics = record.diagnostics
-    report = OnlineReport(
-        lag_s=options.lag_s,
-        updates=updates,
-        extra_updates=extra,
-        evaluations=sum(c.evaluations for c in callbacks),
-        reused=sum(c.reused for c in callbacks),
-        relinearised=relinearised,
-        preintegrations=chain.preintegrations,
-        n_gated=int(diagnostics["n_gated"].sum()),
-        n_nan=int(diagnostics["n_nan"].sum()),
-        n_unpredictable=int(diagnostics["n_unpredictable"].sum()),
-        n_lost=int(sum(len(c.lost) for c in callbacks)),
-        measurement_rows=int(sum(c.factor.rows.size for c in callbacks)),
-        max_window=max_window,
-        seconds=seconds,
-        quaternion=record.quaternion.copy(),
-        bias=record.bias.copy(),
-    )
-    return replace(result, report=report)
+    def report(self, track: Track) -> Track:
+        """``track`` (this filter's) with the blocks zeroed at some relinearisation point
+        counted as unpredictable and the pass's :class:`OnlineReport`."""
+        diagnostics = dict(track.diagnostics)
+        unpredictable = diagnostics["n_unpredictable"].copy()
+        for callback, k in zip(self.callbacks, self.callback_epoch, strict=True):
+            unpredictable[k] += len(callback.lost)
+        diagnostics["n_unpredictable"] = unpredictable
+        seconds = {**self.seconds, "total": time.perf_counter() - self.begin}
+        report = OnlineReport(
+            lag_s=self.online.lag_s,
+            updates=self.updates,
+            extra_updates=self.extra,
+            evaluations=sum(c.evaluations for c in self.callbacks),
+            reused=sum(c.reused for c in self.callbacks),
+            relinearised=self.relinearised,
+            preintegrations=self.chain.preintegrations,
+            n_gated=int(diagnostics["n_gated"].sum()),
+            n_nan=int(diagnostics["n_nan"].sum()),
+            n_unpredictable=int(unpredictable.sum()),
+            n_lost=int(sum(len(c.lost) for c in self.callbacks)),
+            measurement_rows=int(sum(c.factor.rows.size for c in self.callbacks)),
+            max_window=self.max_window,
+            seconds=seconds,
+            quaternion=self.estimates[0],
+            bias=self.estimates[1],
+        )
+        return replace(track, diagnostics=diagnostics, report=report)

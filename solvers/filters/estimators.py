@@ -1,0 +1,139 @@
+"""The gyro-aided filters as registry estimators: ``mekf``, ``usque`` and ``rts``.
+
+Each takes a :class:`~attopt.formulations.passes.Pass` with a gyro record
+and a prior (an attitude-only prior gets zero bias with the gyro model's
+initial bias sigma, :func:`~attopt.solvers.filters.common.gyro_prior`) and
+any :class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement`s,
+and returns the :class:`~attopt.solvers.results.Track` of
+:func:`attopt.solvers.sequential.run_filter` (state ``("attitude", "bias")``).
+The epochs need not be gyro sample times.
+
+Example::
+
+    >>> import numpy as np
+    >>> from scipy.spatial.transform import Rotation
+    >>> from attopt.formulations.gyro import MEMS_GYRO
+    >>> from attopt.formulations.passes import GyroRecord, Pass, Prior
+    >>> t = np.arange(10.0) + 0.05  # between the 10 Hz gyro's samples
+    >>> gyro = GyroRecord(np.arange(0.0, 10.01, 0.1), np.zeros((100, 3)), MEMS_GYRO)
+    >>> body = reference = np.tile(np.eye(3)[:2], (10, 1, 1))
+    >>> prior = Prior(Rotation.identity(), np.radians(1.0) ** 2 * np.eye(3))
+    >>> pass_ = Pass.from_vectors(t, body, reference, 1e-3, gyro, prior)
+    >>> track = Mekf().solve(pass_)
+    >>> bool(track.valid.all()), track.state
+    (True, ('attitude', 'bias'))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.passes import Pass
+from attopt.solvers.estimator import PassEstimator
+from attopt.solvers.filters.common import (
+    FilterOptions,
+    check_gyro_pass,
+    gyro_monitor,
+    gyro_pass,
+)
+from attopt.solvers.filters.mekf import MekfFilter
+from attopt.solvers.filters.rts import rts_smooth
+from attopt.solvers.filters.usque import UsqueFilter
+from attopt.solvers.results import Track
+from attopt.solvers.sequential import run_filter
+
+
+@dataclass(frozen=True, repr=False)
+class Mekf(PassEstimator):
+    """The multiplicative EKF with gyro bias (:mod:`attopt.solvers.filters.mekf`).
+
+    Attributes:
+        filter: fault handling (gating, gyro gaps, validity, lost track).
+    """
+
+    filter: FilterOptions = field(default_factory=FilterOptions)
+
+    name: ClassVar[str] = "mekf"
+    description: ClassVar[str] = (
+        "multiplicative EKF with gyro bias (Liu et al. 2023 secs. 4.2-4.5, Joseph form)"
+    )
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+
+    def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
+        """The filtered track, with the history an RTS pass needs (``initial`` unused)."""
+        inputs = gyro_pass(pass_, self, self.filter)
+        return run_filter(
+            MekfFilter(inputs.gyro, inputs.model, inputs.prior, self.filter),
+            inputs.t,
+            inputs.measurements,
+            gyro_monitor(self.filter, inputs.prior),
+            self.filter,
+            self.name,
+        )
+
+
+@dataclass(frozen=True, repr=False)
+class Usque(PassEstimator):
+    """The unscented quaternion estimator with gyro bias (:mod:`attopt.solvers.filters.usque`).
+
+    Attributes:
+        filter: fault handling (gating, gyro gaps, validity, lost track).
+    """
+
+    filter: FilterOptions = field(default_factory=FilterOptions)
+
+    name: ClassVar[str] = "usque"
+    description: ClassVar[str] = (
+        "unscented quaternion estimator with gyro bias (Crassidis and Markley 2003; "
+        "Pimienta-Penalver and Crassidis sec. V.B)"
+    )
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+
+    def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
+        """The filtered track (``initial`` unused; no history: no RTS pass)."""
+        inputs = gyro_pass(pass_, self, self.filter)
+        return run_filter(
+            UsqueFilter(inputs.gyro, inputs.model, inputs.prior, self.filter),
+            inputs.t,
+            inputs.measurements,
+            gyro_monitor(self.filter, inputs.prior),
+            self.filter,
+            self.name,
+        )
+
+
+@dataclass(frozen=True, repr=False)
+class Rts(PassEstimator):
+    """The multiplicative RTS backward pass over an MEKF track (:mod:`attopt.solvers.filters.rts`).
+
+    Attributes:
+        forward: the MEKF it runs when not given one's track; its fault
+            handling is also the smoothed track's validity rules.
+    """
+
+    forward: Mekf = field(default_factory=Mekf)
+
+    name: ClassVar[str] = "rts"
+    description: ClassVar[str] = "multiplicative Rauch-Tung-Striebel smoother over the MEKF"
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+    starts_from: ClassVar[tuple[str, ...]] = ("mekf",)
+
+    def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
+        """The smoothed track of ``initial`` (an MEKF's on this pass), else of the forward
+        MEKF run here.
+
+        Raises:
+            InvalidObservationError: no gyro record or prior, or ``initial`` has another
+                number of epochs or no history.
+        """
+        check_gyro_pass(pass_, self)
+        if initial is None:
+            initial = self.forward.solve(pass_)
+        if len(initial) != len(pass_):
+            raise InvalidObservationError(
+                f"the track to smooth has {len(initial)} epochs, the pass {len(pass_)}"
+            )
+        return rts_smooth(initial, self.forward.filter, self.name)

@@ -1,0 +1,407 @@
+"""The one sequential loop of every recursive estimator: predict, update, monitor, record.
+
+A recursive estimator is a :class:`SequentialFilter`, an object holding its
+state in the manner of filterpy's filters: the attitude ``A`` (reference ->
+body) as :attr:`~SequentialFilter.attitude`, one more 3-vector named by its
+``state`` (``bias`` for the gyro-aided filters, ``rate`` for Yang et al.
+2014's EKF) and the error-state :attr:`~SequentialFilter.covariance`, with two
+steps:
+
+* :meth:`~SequentialFilter.predict` ``(t)`` propagates the state to time ``t``
+  (and sets :attr:`~SequentialFilter.transition`, the error-state transition
+  an RTS pass needs);
+* :meth:`~SequentialFilter.update` ``(measurement)`` processes one epoch's
+  measurement and returns its counts (``None``: no measurement, nothing to
+  count; as in filterpy, ``update(None)`` is allowed and leaves the
+  prediction).
+
+The MEKF, USQUE (:mod:`attopt.solvers.filters`), the online smoother
+(:mod:`attopt.solvers.smoother.online`) and Yang et al. 2014's EKF
+(:mod:`attopt.solvers.doa.ekf`) are such objects; their modules hold only the
+equations of the two steps.  :func:`run_filter` walks the epochs of a pass
+with one of them::
+
+    for each epoch k:
+        predict to t_k, record the prediction and its transition (for RTS)
+        update with the epoch's measurement
+        TrackMonitor: lost-track detection, covariance inflation
+        record the estimate; stop at a non-finite state
+
+and assembles the :class:`~attopt.solvers.results.Track` with the validity
+rules of :func:`filter_result`.  The same steps by hand, e.g. with the MEKF
+(:class:`attopt.solvers.filters.mekf.MekfFilter`; ``gyro`` the pass's prepared
+gyro timeline, :func:`attopt.solvers.filters.common.gyro_pass`)::
+
+    f = MekfFilter(gyro, model, prior, FilterOptions())
+    f.predict(t[0])
+    counts = f.update(measurement)
+    f.attitude, f.bias, f.covariance
+
+Lost track (:class:`TrackMonitor`): after ``max_rejected_epochs`` consecutive
+measurement epochs with at least as many gated observation blocks as used
+ones (:func:`rejected_epoch`), epochs are flagged as a lost track until one
+is accepted; a monitor with an ``inflation`` then adds it to the covariance
+(repeatedly, every ``max_rejected_epochs`` such epochs) to re-acquire,
+counted as ``recoveries`` (the gyro filters inflate the attitude by
+``recover_sigma^2 I`` and the bias by the prior's bias covariance,
+:mod:`attopt.solvers.filters.common`).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import ConvergenceError
+from attopt.solvers.results import Track
+
+if TYPE_CHECKING:
+    from attopt.solvers.filters.common import FilterOptions
+
+Array = NDArray[np.float64]
+
+DIAGNOSTICS = (
+    "nis",
+    "n_used",
+    "n_gated",
+    "n_nan",
+    "n_unpredictable",
+    "gyro_gap_s",
+    "update_iterations",
+    "recoveries",
+    "covariance_repairs",
+)
+"""Per-epoch counts of the gyro-aided filters (:func:`filter_result`)."""
+NON_FINITE = "filter state became non-finite"
+
+
+class SequentialFilter(ABC):
+    """A recursive estimator's state and its predict and update steps (module docstring).
+
+    Attributes:
+        state: names of the error state's three-component blocks, e.g.
+            ``("attitude", "bias")``; the non-attitude one is an attribute too.
+        diagnostics: names of the counts its steps report.
+        smoothable: whether :attr:`transition` is set (an RTS pass can follow).
+        attitude: the estimate ``A`` (reference -> body).
+        covariance: ``(6, 6)`` covariance of the error state.
+        transition: after :meth:`predict`, the error-state transition from the
+            previous time (``None`` for filters without one).
+    """
+
+    state: ClassVar[tuple[str, str]] = ("attitude", "bias")
+    diagnostics: ClassVar[tuple[str, ...]] = DIAGNOSTICS
+    smoothable: ClassVar[bool] = False
+
+    attitude: Rotation
+    covariance: Array
+    transition: Array | None = None
+
+    @abstractmethod
+    def predict(self, t: float) -> dict[str, float]:
+        """Propagate the state to time ``t``; the propagation's counts."""
+
+    @abstractmethod
+    def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
+        """Process one epoch's measurement (``None``: none); its counts, or ``None`` when
+        there is nothing to count."""
+
+    @property
+    def vector(self) -> Array:
+        """The state's non-attitude block (the ``bias`` or ``rate`` attribute)."""
+        return getattr(self, next(name for name in self.state if name != "attitude"))
+
+    def attitude_values(self) -> Array:
+        """The attitude as the filter carries it, recorded exactly for a backward pass:
+        a scalar-last quaternion ``(4,)`` (or a ``(3, 3)`` matrix, :func:`rotations`)."""
+        return self.attitude.as_quat()
+
+
+def rotations(values: ArrayLike) -> Rotation:
+    """Rotations from attitudes recorded by :meth:`SequentialFilter.attitude_values`:
+    ``(..., 4)`` quaternions (normalised by ``Rotation.from_quat``) or ``(..., 3, 3)``
+    matrices."""
+    values = np.asarray(values, dtype=float)
+    return Rotation.from_quat(values) if values.shape[-1] == 4 else Rotation.from_matrix(values)
+
+
+def stored_rotations(quaternion: ArrayLike) -> Rotation:
+    """Rotations of a track's unit quaternions exactly as stored.
+
+    ``Rotation.from_quat`` normalises them again, which changes the last bit of
+    about a third; an estimate handed from one estimator to another (a start)
+    keeps its bits this way.
+    """
+    return Rotation(np.asarray(quaternion, dtype=float), normalize=False)
+
+
+def rejected_epoch(n_gated: float, n_used: float) -> bool:
+    """An epoch whose gated observation blocks are at least as many as its used ones.
+
+    With two vectors, a Sun vector rejected while the magnetometer is used
+    counts (the filter has lost the rotation about the field); with many SNRs
+    a few gated outliers do not.
+    """
+    return n_gated > 0 and n_gated >= n_used
+
+
+@dataclass
+class TrackMonitor:
+    """Detects a lost track and inflates the covariance to re-acquire (module docstring).
+
+    Attributes:
+        max_rejected_epochs: consecutive :func:`rejected_epoch` measurement
+            epochs after which the track counts as lost.
+        inflation: added to the covariance every ``max_rejected_epochs`` such
+            epochs (``recoveries`` is set in that epoch's counts); ``None``:
+            never (the online smoother, which has no re-acquisition).
+        rejected: consecutive rejected epochs so far (an accepted one resets it).
+        since_inflation: those since the last inflation.
+    """
+
+    max_rejected_epochs: int
+    inflation: Array | None = None
+    rejected: int = 0
+    since_inflation: int = 0
+
+    @property
+    def lost(self) -> bool:
+        """Whether the track is lost (epochs without a measurement keep the state)."""
+        return self.rejected >= self.max_rejected_epochs
+
+    def check(self, counts: dict[str, float], covariance: Array) -> Array:
+        """The covariance to carry on with after an epoch's update ``counts``."""
+        n_used = counts.get("n_used", 0.0)
+        if rejected_epoch(counts.get("n_gated", 0.0), n_used):
+            self.rejected += 1
+            self.since_inflation += 1
+        elif n_used > 0:
+            self.rejected = self.since_inflation = 0
+        if self.inflation is None or self.since_inflation < self.max_rejected_epochs:
+            return covariance
+        self.since_inflation = 0
+        counts["recoveries"] = 1.0
+        return covariance + self.inflation
+
+
+@dataclass
+class EpochRecord:
+    """Per-epoch outputs collected while filtering (what :func:`filter_result` assembles).
+
+    Attributes:
+        n: epochs.
+        state: the error state's blocks (:attr:`SequentialFilter.state`).
+        names: the diagnostics recorded; ``nis`` starts NaN, the others zero.
+        quaternion: ``(n, 4)`` estimates (NaN until stored).
+        vector: ``(n, 3)`` the non-attitude block's estimates (bias or rate).
+        covariance: ``(n, 6, 6)`` error-state covariances.
+        diagnostics: name -> ``(n,)``.
+        reason: ``(n,)`` why an epoch is not valid (empty so far).
+    """
+
+    n: int
+    state: tuple[str, ...] = ("attitude", "bias")
+    names: tuple[str, ...] = DIAGNOSTICS
+    quaternion: Array = field(init=False)
+    vector: Array = field(init=False)
+    covariance: Array = field(init=False)
+    diagnostics: dict[str, Array] = field(init=False)
+    reason: NDArray[np.object_] = field(init=False)
+
+    def __post_init__(self) -> None:
+        size = 3 * len(self.state)
+        self.quaternion = np.full((self.n, 4), np.nan)
+        self.vector = np.full((self.n, 3), np.nan)
+        self.covariance = np.full((self.n, size, size), np.nan)
+        self.diagnostics = {name: np.zeros(self.n) for name in self.names}
+        if "nis" in self.diagnostics:
+            self.diagnostics["nis"][:] = np.nan
+        self.reason = np.full(self.n, "", dtype=object)
+
+    def store(
+        self, k: int, filter: SequentialFilter, counts: dict[str, float] | None = None
+    ) -> bool:
+        """Store epoch ``k``'s ``counts`` and the filter's estimate; ``False`` if the state
+        is not finite, in which case epoch ``k`` and all later ones are flagged (the
+        loop stops)."""
+        for name, value in (counts or {}).items():
+            self.diagnostics[name][k] = value
+        values, vector, covariance = filter.attitude_values(), filter.vector, filter.covariance
+        if not (
+            np.all(np.isfinite(values))
+            and np.all(np.isfinite(vector))
+            and np.all(np.isfinite(covariance))
+        ):
+            self.reason[k:] = NON_FINITE
+            return False
+        self.quaternion[k] = filter.attitude.as_quat()
+        self.vector[k], self.covariance[k] = vector, covariance
+        return True
+
+
+@dataclass(frozen=True)
+class FilterHistory:
+    """What a backward (RTS) pass needs, per epoch ``k``.
+
+    ``predicted_*`` is the estimate at epoch ``k`` before its update,
+    ``transition[k]`` the error-state transition from epoch ``k - 1`` (the
+    prior for ``k = 0``) to epoch ``k``; ``filtered_*`` the estimate after it.
+    Attitudes are as the filter carries them (quaternions or matrices,
+    :func:`rotations`), ``*_vector`` the non-attitude block (bias or rate).
+    """
+
+    predicted_attitude: Array
+    predicted_vector: Array
+    predicted_covariance: Array
+    transition: Array
+    filtered_attitude: Array
+    filtered_vector: Array
+    filtered_covariance: Array
+
+
+class _HistoryRecorder:
+    """Collects a :class:`FilterHistory` during :func:`run_filter`."""
+
+    def __init__(self, n: int, filter: SequentialFilter) -> None:
+        shape = np.shape(filter.attitude_values())
+        size = filter.covariance.shape[0]
+        self.predicted_attitude = np.full((n, *shape), np.nan)
+        self.filtered_attitude = np.full((n, *shape), np.nan)
+        self.predicted_vector = np.full((n, 3), np.nan)
+        self.predicted_covariance = np.full((n, size, size), np.nan)
+        self.transition = np.full((n, size, size), np.nan)
+
+    def predicted(self, k: int, filter: SequentialFilter) -> None:
+        self.predicted_attitude[k] = filter.attitude_values()
+        self.predicted_vector[k] = filter.vector
+        self.predicted_covariance[k] = filter.covariance
+        self.transition[k] = filter.transition
+
+    def history(self, record: EpochRecord) -> FilterHistory:
+        return FilterHistory(
+            predicted_attitude=self.predicted_attitude,
+            predicted_vector=self.predicted_vector,
+            predicted_covariance=self.predicted_covariance,
+            transition=self.transition,
+            filtered_attitude=self.filtered_attitude,
+            filtered_vector=record.vector,
+            filtered_covariance=record.covariance,
+        )
+
+
+def _merged(predicted: dict[str, float], updated: dict[str, float]) -> dict[str, float]:
+    """An epoch's counts: the update's, and the propagation's (counts of one name add up)."""
+    out = dict(updated)
+    for name, value in predicted.items():
+        out[name] = out[name] + value if name in out else value
+    return out
+
+
+def run_filter(
+    filter: SequentialFilter,
+    t: ArrayLike,
+    measurements: Sequence[AttitudeMeasurement | None],
+    monitor: TrackMonitor,
+    options: FilterOptions,
+    method: str,
+) -> Track:
+    """Walk the epochs ``t`` with ``filter`` (module docstring) and assemble the track.
+
+    At each epoch: :meth:`~SequentialFilter.predict` to ``t[k]``, the
+    prediction recorded (smoothable filters), :meth:`~SequentialFilter.update`
+    with ``measurements[k]``, the ``monitor``'s check of its counts, the
+    estimate recorded; a non-finite state flags that epoch and all later ones
+    and stops the loop.  The track (:func:`filter_result` with ``options``'
+    validity rules) keeps a :class:`FilterHistory` for smoothable filters.
+    """
+    t = np.asarray(t, dtype=float)
+    record = EpochRecord(t.size, filter.state, filter.diagnostics)
+    history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
+    lost = np.zeros(t.size, dtype=bool)
+    for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
+        counts = filter.predict(float(time))
+        if history is not None:
+            history.predicted(k, filter)
+        updated = filter.update(measurement)
+        if updated is not None:
+            counts = _merged(counts, updated)
+            filter.covariance = monitor.check(counts, filter.covariance)
+        lost[k] = monitor.lost
+        if not record.store(k, filter, counts):
+            break
+        if history is not None:
+            history.filtered_attitude[k] = filter.attitude_values()
+    return filter_result(
+        method, record, options, t, None if history is None else history.history(record), lost
+    )
+
+
+def filter_result(
+    method: str,
+    record: EpochRecord,
+    options: FilterOptions,
+    t: ArrayLike | None,
+    history: FilterHistory | None = None,
+    lost: NDArray[np.bool_] | None = None,
+) -> Track:
+    """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
+    epochs ``t``, flagging epochs by these rules (in this order of precedence):
+
+    * a non-finite state (set in ``record``);
+    * a gyro gap longer than ``options.max_gyro_gap_s`` (when the record has
+      ``gyro_gap_s``);
+    * an attitude 1-sigma above ``options.max_attitude_sigma``;
+    * a lost track (``lost``, from the :class:`TrackMonitor`).
+
+    The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
+    normalised innovation squared of the epoch's update (``nis``; NaN without
+    one); ``bias`` or ``rate`` (the record's vector, by ``record.state``),
+    ``state_covariance`` the error state's covariance and ``history`` the
+    inputs of a backward pass (smoothable filters).
+    """
+    attitude = 3 * record.state.index("attitude")
+    block = slice(attitude, attitude + 3)
+    variance = np.diagonal(record.covariance[:, block, block], axis1=1, axis2=2)
+    sigma = np.sqrt(np.max(variance, axis=1))
+    reason = record.reason.copy()
+    if "gyro_gap_s" in record.diagnostics:
+        long_gap = (record.diagnostics["gyro_gap_s"] > options.max_gyro_gap_s) & (reason == "")
+        reason[long_gap] = f"gyro gap longer than {options.max_gyro_gap_s:g} s"
+    with np.errstate(invalid="ignore"):
+        wide = (sigma > options.max_attitude_sigma) & (reason == "")
+    reason[wide] = (
+        f"attitude not determined: 1-sigma above {np.degrees(options.max_attitude_sigma):g} deg"
+    )
+    if lost is not None:
+        reason[lost & (reason == "")] = (
+            f"lost track: observations gated for {options.max_rejected_epochs} epochs"
+        )
+    valid = reason == ""
+    error = np.full(record.n, None, dtype=object)
+    error[~valid] = ConvergenceError
+    quaternion = np.where(valid[:, None], record.quaternion, np.nan)
+    covariance = np.where(valid[:, None, None], record.covariance, np.nan)
+    nis = record.diagnostics.get("nis", np.full(record.n, np.nan))
+    vector = next(name for name in record.state if name != "attitude")
+    return Track(
+        method=method,
+        quaternion=quaternion,
+        covariance=covariance[:, block, block],
+        loss=np.where(valid, nis, np.nan),
+        valid=valid,
+        reason=reason,
+        error=error,
+        diagnostics=record.diagnostics,
+        t=None if t is None else np.array(t, dtype=float),
+        state_covariance=covariance,
+        state=record.state,
+        history=history,
+        **{vector: np.where(valid[:, None], record.vector, np.nan)},
+    )
