@@ -13,6 +13,9 @@ solver needs a start in the basin of the global minimum.
   the fixed set :data:`START_ATTITUDES` around nadir pointing, keeping the
   converged solve of lowest loss.
 
+:func:`multistart` takes any problem, local solver and set of starts (the
+MAP NLP, :mod:`attopt.solvers.map_nlp`, starts from well-spread attitudes).
+
 :class:`Initialised` records which start won (``source``: 0 prior,
 1 deterministic, 2 multi-start; ``start_index`` into :data:`START_ATTITUDES`),
 how many starts converged and to how many distinct minima (attitudes more
@@ -24,6 +27,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TypeVar
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -78,8 +82,9 @@ class LocalResult:
     acceptable: bool = False
 
 
-LocalSolve = Callable[[SnrEpoch, Rotation], LocalResult]
-"""A local solver: epoch and start attitude -> :class:`LocalResult`."""
+Problem = TypeVar("Problem")
+LocalSolve = Callable[[Problem, Rotation], LocalResult]
+"""A local solver: problem (an epoch) and start attitude -> :class:`LocalResult`."""
 
 
 @dataclass(frozen=True)
@@ -130,13 +135,19 @@ def count_distinct(attitudes: list[Rotation], tolerance: float = DISTINCT_MINIMU
     return len(representatives)
 
 
-def multistart(problem: SnrEpoch, local_solve: LocalSolve, already: int = 0) -> Initialised:
-    """Local solves from every :data:`START_ATTITUDES`; the converged one of lowest loss wins.
+def multistart(
+    problem: Problem,
+    local_solve: LocalSolve[Problem],
+    already: int = 0,
+    starts: Rotation = START_ATTITUDES,
+) -> Initialised:
+    """Local solves from every one of ``starts``; the converged one of lowest loss wins.
 
     If none converges, the result is the (failed) solve of lowest loss, or the
-    first, so that its status explains the failure.
+    first, so that its status explains the failure.  ``already``: local solves
+    run before (counted in :attr:`Initialised.local_solves`).
     """
-    results = [local_solve(problem, START_ATTITUDES[i]) for i in range(len(START_ATTITUDES))]
+    results = [local_solve(problem, starts[i]) for i in range(len(starts))]
     converged = [i for i, r in enumerate(results) if r.converged and np.isfinite(r.loss)]
     finite = [i for i, r in enumerate(results) if np.isfinite(r.loss)]
     candidates = converged or finite or [0]
@@ -151,7 +162,9 @@ def multistart(problem: SnrEpoch, local_solve: LocalSolve, already: int = 0) -> 
     )
 
 
-def initialise(problem: SnrEpoch, local_solve: LocalSolve, prior: Rotation | None) -> Initialised:
+def initialise(
+    problem: SnrEpoch, local_solve: LocalSolve[SnrEpoch], prior: Rotation | None
+) -> Initialised:
     """The local solve of an epoch, started as the module docstring describes.
 
     If no start converges, the result is the failed solve of the first start
