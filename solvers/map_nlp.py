@@ -23,8 +23,8 @@ Start.  From the prior (a :class:`~scipy.spatial.transform.Rotation` is a
 start only, a ``Prior`` adds its term to the epochs that start from it: the
 first of a sequence), in a sequence from the most recent valid estimate
 (:class:`~attopt.solvers.snapshot_sequence.WarmStart`, a start only); without
-one, or if that solve fails, by
-:func:`~attopt.solvers.snr.initialisation.multistart` from the elements of a
+one, or if that solve fails, by the multi-start of
+:func:`~attopt.solvers.snr.initialisation.initialise` from the elements of a
 rotation group (:class:`StartOptions`: the 24 rotations of the octahedral
 group by default, no attitude farther than 62.8 deg from one of them), the
 converged solve of lowest loss winning.  Diagnostics are those of
@@ -45,7 +45,7 @@ at the estimate.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any, ClassVar, Literal
 
@@ -60,7 +60,7 @@ from attopt.formulations.errors import (
     UnsupportedMeasurementError,
 )
 from attopt.formulations.map_problem import MapTerm, map_loss, parameter_vector
-from attopt.formulations.passes import Prior
+from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.snapshot import Snapshot, StackedMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound
 from attopt.formulations.snr_problem import EpochIssue
@@ -71,10 +71,8 @@ from attopt.solvers.results import Track
 from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
 from attopt.solvers.snr.initialisation import (
     INITIALISATION_DIAGNOSTICS,
-    Initialised,
     LocalResult,
-    StartSource,
-    multistart,
+    initialise,
 )
 
 
@@ -127,9 +125,8 @@ def _parts(measurements: Iterable[AttitudeMeasurement]) -> list[AttitudeMeasurem
 
 @dataclass(frozen=True, eq=False)
 class _Epoch:
-    """A validated snapshot: its measurements and, for the prior term, ``(A_p, P^-1)``."""
+    """A validated snapshot's measurements and, for the prior term, ``(A_p, P^-1)``."""
 
-    snapshot: Snapshot
     measurements: list[AttitudeMeasurement]
     prior: tuple[Rotation, np.ndarray] | None
 
@@ -175,13 +172,18 @@ class MapNlp(SnapshotEstimator):
             self._estimate,
         )
 
+    def solve_pass(self, pass_: Pass) -> Track:
+        """:meth:`solve_sequence` over a pass's snapshots with its whole
+        :class:`~attopt.formulations.passes.Prior` (attitude and covariance)."""
+        return replace(self.solve_sequence(pass_.snapshots, pass_.prior), t=pass_.t.copy())
+
     def _estimate(self, snapshot: Snapshot, start: Rotation | Prior | None) -> EpochEstimate:
         prior = None
         if isinstance(start, Prior):
             prior = (start.attitude, np.linalg.inv(start.covariance[:3, :3]))
             start = start.attitude
-        epoch = _Epoch(snapshot, _parts(snapshot.measurements), prior)
-        init = self._initialise(epoch, start)
+        epoch = _Epoch(_parts(snapshot.measurements), prior)
+        init = initialise(epoch, self._local_solve, start, None, self.starts.attitudes)
         diagnostics = init.diagnostics()
         if not init.result.converged:
             return EpochEstimate.failed(f"IPOPT: {init.result.status}", diagnostics)
@@ -190,26 +192,6 @@ class MapNlp(SnapshotEstimator):
         if prior is not None:
             information = information + prior[1]
         return EpochEstimate(attitude, cramer_rao_bound(information), init.result.loss, diagnostics)
-
-    def _initialise(self, epoch: _Epoch, start: Rotation | None) -> Initialised:
-        failed = None
-        if start is not None:
-            result = self._local_solve(epoch, start)
-            if result.converged:
-                return Initialised(result, StartSource.PRIOR)
-            failed = result
-        started = multistart(
-            epoch, self._local_solve, already=int(failed is not None), starts=self.starts.attitudes
-        )
-        if started.result.converged or failed is None:
-            return started
-        return Initialised(
-            failed,
-            StartSource.PRIOR,
-            starts_converged=0,
-            distinct_minima=0,
-            local_solves=started.local_solves,
-        )
 
     def _local_solve(self, epoch: _Epoch, start: Rotation) -> LocalResult:
         """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""

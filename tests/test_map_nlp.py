@@ -27,7 +27,7 @@ from attopt.formulations.errors import (
     UnsupportedMeasurementError,
 )
 from attopt.formulations.map_problem import MapTerm, map_loss, parameter_vector, prior_error
-from attopt.formulations.passes import Prior
+from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.snapshot import Snapshot, StackedMeasurement
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.bounds import crb, snapshot_information
@@ -212,6 +212,17 @@ def test_prior_term_adds_its_information_and_pulls_towards_the_prior():
     )
     error = (pulled.attitude * truth.inv()).as_rotvec()
     np.testing.assert_allclose(error, tilt / 2.0, atol=1e-8)
+
+
+def test_a_pass_prior_gives_its_covariance():
+    truth = Rotation.from_rotvec([0.1, 0.2, 0.3])
+    reference = np.array([[0.0, 0.6, 0.8]])
+    snapshot = Snapshot.of(VectorMeasurement(truth.apply(reference), reference, 1e-3))
+    pass_ = Pass(np.array([0.0, 1.0]), (snapshot, snapshot), prior=Prior(truth, 1e-4 * np.eye(3)))
+    track = MAP_NLP.solve_pass(pass_)
+    np.testing.assert_array_equal(track.t, [0.0, 1.0])
+    assert np.all(np.isfinite(track.covariance[0]))  # the prior term at the first epoch
+    assert np.isinf(np.diag(track.covariance[1])).all()  # a start only at the second
 
 
 def test_prior_error_is_the_mrp_error_relative_to_the_prior():

@@ -83,12 +83,12 @@ from attopt.formulations.passes import Prior
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound
-from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, content_issue
+from attopt.formulations.snr_problem import SnrEpoch, content_issue
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.results import Track
 from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
 from attopt.solvers.snr.boresight import estimate_boresight
-from attopt.solvers.snr.driver import snr_epoch, start_attitude
+from attopt.solvers.snr.driver import snr_epochs, start_attitude
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
 
 Array = NDArray[np.float64]
@@ -246,14 +246,9 @@ class BoresightEstimator(SnapshotEstimator):
         self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None
     ) -> Track:
         """Each epoch on its own; ``prior`` gives the yaw about the boresight."""
-        epochs: list[SnrEpoch | EpochIssue | None] = []
-        for snapshot in snapshots:
-            if snapshot is not None:
-                self.check_types(snapshot.types)
-            epochs.append(None if snapshot is None else snr_epoch(snapshot))
         return solve_in_sequence(
             self.name,
-            epochs,
+            snr_epochs(self, snapshots),
             start_attitude(prior),
             WarmStart(enabled=False),
             self.diagnostic_names,

@@ -40,7 +40,7 @@ from attopt.formulations.passes import Prior
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
-from attopt.solvers.estimator import SnapshotEstimator
+from attopt.solvers.estimator import Estimator, SnapshotEstimator
 from attopt.solvers.results import Track
 from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
 
@@ -54,6 +54,19 @@ def snr_epoch(snapshot: Snapshot) -> SnrEpoch | EpochIssue:
             InvalidObservationError,
         )
     return measurements[0].epoch
+
+
+def snr_epochs(
+    estimator: Estimator, snapshots: Sequence[Snapshot | None]
+) -> list[SnrEpoch | EpochIssue | None]:
+    """Each snapshot's :func:`snr_epoch` (``None``: no measurement), after ``estimator``
+    checked the snapshot's measurement types."""
+    epochs: list[SnrEpoch | EpochIssue | None] = []
+    for snapshot in snapshots:
+        if snapshot is not None:
+            estimator.check_types(snapshot.types)
+        epochs.append(None if snapshot is None else snr_epoch(snapshot))
+    return epochs
 
 
 def start_attitude(prior: Rotation | Prior | None) -> Rotation | None:
@@ -90,12 +103,7 @@ class SnrSolver(SnapshotEstimator):
     ) -> Track:
         """Consecutive epochs (module docstring); ``prior`` is the first epoch's a-priori
         attitude (of a :class:`~attopt.formulations.passes.Prior`, its attitude)."""
-        epochs: list[SnrEpoch | EpochIssue | None] = []
-        for snapshot in snapshots:
-            if snapshot is not None:
-                self.check_types(snapshot.types)
-            epochs.append(None if snapshot is None else snr_epoch(snapshot))
-        return self.solve_epochs(epochs, start_attitude(prior))
+        return self.solve_epochs(snr_epochs(self, snapshots), start_attitude(prior))
 
     def solve_epochs(
         self, problems: Sequence[SnrEpoch | EpochIssue | None], prior: Rotation | None = None

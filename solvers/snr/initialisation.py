@@ -13,8 +13,10 @@ solver needs a start in the basin of the global minimum.
   the fixed set :data:`START_ATTITUDES` around nadir pointing, keeping the
   converged solve of lowest loss.
 
-:func:`multistart` takes any problem, local solver and set of starts (the
-MAP NLP, :mod:`attopt.solvers.map_nlp`, starts from well-spread attitudes).
+:func:`initialise` and :func:`multistart` take any problem and local solver,
+with the direct start and the multi-start set as arguments (the MAP NLP,
+:mod:`attopt.solvers.map_nlp`, has no direct start and multi-starts from
+well-spread attitudes).
 
 :class:`Initialised` records which start won (``source``: 0 prior,
 1 deterministic, 2 multi-start; ``start_index`` into :data:`START_ATTITUDES`),
@@ -162,13 +164,24 @@ def multistart(
     )
 
 
+def two_step_start(problem: SnrEpoch) -> Rotation | None:
+    """The deterministic two-step solution of seed 000 sec. 3.2, if it is valid."""
+    return two_step(problem).attitude
+
+
 def initialise(
-    problem: SnrEpoch, local_solve: LocalSolve[SnrEpoch], prior: Rotation | None
+    problem: Problem,
+    local_solve: LocalSolve[Problem],
+    prior: Rotation | None,
+    direct_start: Callable[[Problem], Rotation | None] | None = two_step_start,
+    starts: Rotation = START_ATTITUDES,
 ) -> Initialised:
     """The local solve of an epoch, started as the module docstring describes.
 
+    ``direct_start`` gives the start tried after the prior (for SNR epochs
+    :func:`two_step_start`; ``None``: none), ``starts`` the multi-start set.
     If no start converges, the result is the failed solve of the first start
-    tried (the prior, else the two-step solution, else the best multi-start),
+    tried (the prior, else the direct start, else the best multi-start),
     whose status then explains the failure.
     """
     failed: list[tuple[LocalResult, StartSource]] = []
@@ -177,13 +190,13 @@ def initialise(
         if result.converged:
             return Initialised(result, StartSource.PRIOR)
         failed.append((result, StartSource.PRIOR))
-    deterministic = two_step(problem)
-    if deterministic.valid:
-        result = local_solve(problem, deterministic.attitude)
+    direct = None if direct_start is None else direct_start(problem)
+    if direct is not None:
+        result = local_solve(problem, direct)
         if result.converged:
             return Initialised(result, StartSource.DETERMINISTIC, local_solves=len(failed) + 1)
         failed.append((result, StartSource.DETERMINISTIC))
-    started = multistart(problem, local_solve, already=len(failed))
+    started = multistart(problem, local_solve, already=len(failed), starts=starts)
     if started.result.converged or not failed:
         return started
     first, source = failed[0]

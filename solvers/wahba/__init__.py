@@ -81,16 +81,22 @@ class WahbaSolver(SnapshotEstimator):
         weights: ArrayLike,
         present: ArrayLike | None = None,
     ) -> Track:
-        """Solve ``N`` epochs of ``(N, n, 3)`` vectors with weights ``(N, n)`` (module
-        docstring: what the weights mean); ``present`` ``(N, n)`` masks absent vectors.
-        Invalid epochs are flagged, not raised."""
+        """Solve ``N`` epochs of ``(N, n, 3)`` vectors with weights ``(N, n)``; ``present``
+        ``(N, n)`` masks absent vectors.  Invalid epochs are flagged, not raised.
+
+        The weights are read as inverse variances ``a_i = 1 / sigma_i^2`` (rad^-2)
+        of isotropic direction noise: the covariance is the attitude error's (rad^2)
+        for those, and scales by ``1 / c`` when every weight is scaled by ``c``
+        (the attitude does not change).
+        """
         obs = prepare_observations(
             body, reference, weights, present, parallel_tolerance=self.parallel_tolerance
         )
         return solve_prepared(self.name, self.estimate, obs)
 
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
-        """Solve one epoch (``(n, 3)`` vectors); raises a specific error on bad input."""
+        """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
+        specific error on bad input."""
         obs = prepare_observations(
             body, reference, weights, parallel_tolerance=self.parallel_tolerance
         )
