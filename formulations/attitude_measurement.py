@@ -15,6 +15,16 @@ differentiated by CasADi
 (:func:`attopt.formulations.attitude_model.attitude_model_function`): the attitude
 enters as ``C(v) A`` (:func:`attopt.formulations.attitude_model.increment_matrix`,
 seed 000 eq. 28), whose derivative at ``v = 0`` is the body-frame Jacobian.
+:meth:`AttitudeMeasurement.symbolic` returns that model with its parameter
+values and its symbolic innovation
+(:class:`~attopt.formulations.measurement_model.SymbolicModel`); the default
+:meth:`~AttitudeMeasurement.predict` and :meth:`~AttitudeMeasurement.innovation`
+evaluate it, so a new measurement type only writes :meth:`~AttitudeMeasurement.symbolic`,
+and the generic estimators (the MAP NLP, :mod:`attopt.solvers.map_nlp`, and
+the Cramer-Rao bound, :mod:`attopt.solvers.bounds`) use it as well.  The
+types below keep their own ``predict`` where it has a faster numpy path or
+masks unpredictable rows; their AD values and Jacobians come from the same
+symbolic model.
 
 Implementations: :class:`EulerAngleMeasurement` (seed 000 eqs. 41-46, the
 "paper MEKF" observation), :class:`VectorMeasurement` (unit vectors, seed 002
@@ -25,7 +35,9 @@ attitude relative to another reference frame.
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
+from abc import ABC
+from collections.abc import Callable
+from functools import lru_cache
 from typing import Any
 
 import casadi as ca
@@ -34,9 +46,14 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
 from attopt.formulations.conventions import euler321_from_attitude
-from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.errors import InvalidObservationError, UnsupportedMeasurementError
+from attopt.formulations.measurement_model import (
+    SymbolicModel,
+    difference,
+    geodesic_difference,
+    wrapped_difference,
+)
 from attopt.formulations.symbolic import CASADI
 
 Array = NDArray[np.float64]
@@ -56,19 +73,51 @@ class AttitudeMeasurement(ABC):
     def size(self) -> int:
         return int(self.z.shape[0])
 
-    @abstractmethod
+    def symbolic(self) -> SymbolicModel:
+        """The model ``h(A)`` written symbolically, with its parameter values and innovation.
+
+        Types without one raise
+        :class:`~attopt.formulations.errors.UnsupportedMeasurementError`
+        (they must then implement :meth:`predict`); the generic estimators
+        accept only types that have one.
+        """
+        raise UnsupportedMeasurementError(f"{type(self).__name__} has no symbolic model")
+
+    def symbolic_model(self) -> SymbolicModel:
+        """:meth:`symbolic`, built once per measurement (not pickled: models may be closures)."""
+        model = self.__dict__.get("_symbolic_model")
+        if model is None:
+            model = self.__dict__["_symbolic_model"] = self.symbolic()
+        return model
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state.pop("_symbolic_model", None)
+        return state
+
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         """Predictions ``(N, m)`` and Jacobians ``(N, m, 3)`` at ``N`` stacked attitudes.
 
         Rows the model cannot evaluate at some of the attitudes (for example an
         observation outside the antenna's main lobe) are NaN for every attitude.
-        With ``jacobian=False`` the values come from the model's numpy
-        evaluation and the Jacobian is ``None`` (sigma-point filters).
+        With ``jacobian=False`` the Jacobian is ``None`` (sigma-point filters)
+        and types with a numpy evaluation of their model use it.  By default
+        both come from :meth:`symbolic` by CasADi AD.
         """
+        h, jac = self.symbolic_model().evaluate(attitude)
+        return h, (jac if jacobian else None)
 
     def innovation(self, predicted: Array) -> Array:
-        """``z - h`` for predictions ``(..., m)`` (angles wrapped where the model has them)."""
-        return self.z - predicted
+        """``z - h`` for predictions ``(..., m)`` (angles wrapped where the model has them).
+
+        By default the innovation of :meth:`symbolic`, evaluated on the arrays.
+        """
+        if type(self).symbolic is AttitudeMeasurement.symbolic:
+            return self.z - predicted
+        model = self.symbolic_model()
+        if model.innovation is difference:
+            return self.z - predicted
+        return model.innovation_values(self.z, predicted)
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
         """``R`` at an attitude (models whose noise depends on it override this)."""
@@ -130,12 +179,16 @@ class EulerAngleMeasurement(AttitudeMeasurement):
             raise InvalidObservationError("Euler angles must be (3,) with a (3, 3) covariance")
         self.blocks = np.zeros(3, dtype=np.intp)
 
+    def symbolic(self) -> SymbolicModel:
+        """:func:`euler321_model`; every angle's difference is wrapped."""
+        return SymbolicModel(
+            euler321_model, innovation=wrapped_difference, innovation_parameters=(np.ones(3),)
+        )
+
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         if not jacobian:
             return euler321_from_attitude(attitude).reshape(-1, 3), None
-        return evaluate_at_attitudes(
-            attitude_model_function(euler321_model, ()), attitude.as_matrix()
-        )
+        return super().predict(attitude)
 
     def innovation(self, predicted: Array) -> Array:
         return _wrap(self.z - predicted)
@@ -217,13 +270,16 @@ class VectorMeasurement(AttitudeMeasurement):
         self.sigma = np.sqrt(np.einsum("kij,kjl,kli->k", perpendicular, c, perpendicular) / 2.0)
         self.noise_covariance = block_diag(*c) if c.shape[0] else np.zeros((0, 0))
 
+    def symbolic(self) -> SymbolicModel:
+        """:func:`body_vectors_model` of the reference vectors; geodesic innovation."""
+        return SymbolicModel(body_vectors_model, (self.reference,), innovation=geodesic_difference)
+
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         k = self.reference.shape[0]
         if not jacobian:
             body = np.einsum("nij,kj->nki", attitude.as_matrix().reshape(-1, 3, 3), self.reference)
             return body.reshape(-1, 3 * k), None
-        function = attitude_model_function(body_vectors_model, ((k, 3),))
-        return evaluate_at_attitudes(function, attitude.as_matrix(), self.reference)
+        return super().predict(attitude)
 
     def innovation(self, predicted: Array) -> Array:
         h = predicted.reshape(*predicted.shape[:-1], -1, 3)
@@ -236,6 +292,17 @@ class VectorMeasurement(AttitudeMeasurement):
             geodesic = np.arctan2(sine, cosine) * perpendicular / sine
         geodesic = np.where(sine > 0, geodesic, np.where(cosine > 0, 0.0, np.nan))
         return geodesic.reshape(predicted.shape)
+
+
+@lru_cache(maxsize=32)
+def referenced_model(model: Callable[..., Any]) -> Callable[..., Any]:
+    """``(A, F, *params) -> model(A F, *params)``: a model of ``A_bo`` as one of ``A_bi``."""
+
+    def referenced(attitude: Any, frame_inverse: Any, *parameters: Any) -> Any:
+        return model(attitude @ frame_inverse, *parameters)
+
+    referenced.__name__ = f"referenced_{model.__name__}"
+    return referenced
 
 
 class ReferencedMeasurement(AttitudeMeasurement):
@@ -255,6 +322,17 @@ class ReferencedMeasurement(AttitudeMeasurement):
         self.noise_covariance = inner.noise_covariance
         self.blocks = inner.blocks
         self.sources = inner.sources
+
+    def symbolic(self) -> SymbolicModel:
+        """The inner model at ``A F`` with ``F = A_oi^T`` as a leading parameter."""
+        inner = self.inner.symbolic_model()
+        return SymbolicModel(
+            referenced_model(inner.model),
+            (self.frame_inverse.as_matrix(), *inner.parameters),
+            inner.rows,
+            inner.innovation,
+            inner.innovation_parameters,
+        )
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         return self.inner.predict(attitude * self.frame_inverse, jacobian)

@@ -44,9 +44,9 @@ from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
-from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
 from attopt.formulations.doa_array import doa_from_unit_vector, doa_jacobian, doa_unit_vector
 from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.measurement_model import SymbolicModel, wrapped_difference
 
 AXIS_THRESHOLD = float(np.radians(5.0))
 """Measured polar angle below which a station is measured by direction cosines (rad)."""
@@ -136,19 +136,23 @@ class DoaMeasurement(AttitudeMeasurement):
         self._rows = np.column_stack([first, first + 1]).ravel()
         self._wrapped = np.column_stack([np.zeros(len(z), bool), ~self.near_axis]).ravel()
 
+    def symbolic(self) -> SymbolicModel:
+        """:func:`doa_model`'s measured rows (angles, or direction cosines near the axis);
+        azimuth differences wrapped."""
+        return SymbolicModel(
+            doa_model,
+            (self.line_of_sight, self.lever_arm, self.mounting.as_matrix()),
+            rows=tuple(self._rows),
+            innovation=wrapped_difference,
+            innovation_parameters=(self._wrapped.astype(float),),
+        )
+
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         k = self.line_of_sight.shape[0]
         if k == 0:
             n = attitude.as_matrix().reshape(-1, 3, 3).shape[0]
             return np.empty((n, 0)), (np.empty((n, 0, 3)) if jacobian else None)
-        function = attitude_model_function(doa_model, ((k, 3), (3, 1), (3, 3)))
-        h, jac = evaluate_at_attitudes(
-            function,
-            attitude.as_matrix(),
-            self.line_of_sight,
-            self.lever_arm,
-            self.mounting.as_matrix(),
-        )
+        h, jac = self.symbolic_model().evaluate_outputs(attitude)
         behind = np.repeat(~(h[:, 0::_ROWS_PER_STATION] < np.pi / 2).all(axis=0), 2)
         h, jac = h[:, self._rows], jac[:, self._rows]
         h[:, behind] = np.nan

@@ -262,15 +262,22 @@ def elevation_rad(station_km: ArrayLike, station_up: ArrayLike, satellite_km: Ar
     return np.arcsin(np.clip(sine / np.linalg.norm(relative, axis=-1), -1.0, 1.0))
 
 
-def attitude_pointing(boresight: ArrayLike) -> Rotation:
+def attitude_pointing(boresight: ArrayLike, reference: Rotation | None = None) -> Rotation:
     """An attitude whose boresight (body ``+z``) points along ``boresight`` (positions' frame).
 
-    The smallest rotation taking ``boresight`` to body ``+z`` (scipy
-    ``align_vectors``); the rotation about the boresight, which no SNR
-    observes, is that of the smallest rotation.
+    Without ``reference``: the smallest rotation taking ``boresight`` to body
+    ``+z`` (scipy ``align_vectors``); the rotation about the boresight, which
+    no SNR observes, is that of the smallest rotation.  With ``reference``:
+    ``reference`` turned by the smallest rotation ``Q`` (positions' frame)
+    taking its boresight ``A^T z`` to ``boresight``, ``A' = A Q^T``, which
+    keeps the yaw of ``reference``.
     """
     b = np.asarray(boresight, dtype=float)
     if b.shape != (3,) or not np.all(np.isfinite(b)) or not np.any(b):
         raise InvalidObservationError(f"boresight must be a finite non-zero 3-vector, got {b}")
-    rotation, _ = Rotation.align_vectors(BORESIGHT_BODY[None], (b / np.linalg.norm(b))[None])
-    return rotation
+    b = b / np.linalg.norm(b)
+    if reference is None:
+        rotation, _ = Rotation.align_vectors(BORESIGHT_BODY[None], b[None])
+        return rotation
+    turn, _ = Rotation.align_vectors(b[None], reference.inv().apply(BORESIGHT_BODY)[None])
+    return reference * turn.inv()

@@ -40,7 +40,13 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import GainPattern
-from attopt.formulations.snr_model import observation_mask, predict_snr, snr_db
+from attopt.formulations.measurement_model import SymbolicModel
+from attopt.formulations.snr_model import (
+    observation_mask,
+    pattern_snr_model,
+    predict_snr,
+    snr_db,
+)
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
 from attopt.formulations.symbolic import CASADI
@@ -109,6 +115,15 @@ class SnrMeasurement(AttitudeMeasurement):
             epoch.pattern,
         )
         return values
+
+    def symbolic(self) -> SymbolicModel:
+        """:func:`~attopt.formulations.snr_model.snr_db` (or the truncated mean) of the epoch's
+        lines of sight, receiving antennas' boresights, ``10 lg P0`` and noise power."""
+        epoch = self.epoch
+        model = self._model or pattern_snr_model(epoch.pattern)
+        return SymbolicModel(
+            model, (epoch.unit_los, epoch.boresight_rows, epoch.p0_dbw, epoch.noise_dbw)
+        )
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         matrices = attitude.as_matrix().reshape(-1, 3, 3)

@@ -220,8 +220,9 @@ _INPUT_NAMES = ["v", "attitude_ref", "los_orbit", "boresight_body", "p0_dbw", "n
 
 
 @lru_cache(maxsize=16)
-def _snr_model(pattern: GainPattern) -> Callable[..., Any]:
-    """:func:`snr_db` with ``pattern`` bound, for :func:`attitude_model_function`."""
+def pattern_snr_model(pattern: GainPattern) -> Callable[..., Any]:
+    """:func:`snr_db` with ``pattern`` bound, a model for :func:`attitude_model_function`
+    (arguments: attitude, lines of sight, boresights, ``p0``, noise power)."""
 
     def snr_model(attitude: Any, los: Any, boresight: Any, p0: Any, noise: Any) -> Any:
         return snr_db(attitude, los, boresight, p0, noise, pattern)
@@ -304,7 +305,9 @@ def predict_snr(
     los = np.where(use_k, np.broadcast_to(los, (*shape, 3)).reshape(rows, 3), los_filler)
     offset = np.where(use, np.broadcast_to(offset, shape), 0.0).reshape(rows)
     snr, jac = evaluate_at_attitudes(
-        attitude_model_function(model or _snr_model(pattern), ((1, 3), (1, 3), (1, 1), (1, 1))),
+        attitude_model_function(
+            model or pattern_snr_model(pattern), ((1, 3), (1, 3), (1, 1), (1, 1))
+        ),
         a,
         los,
         bore,

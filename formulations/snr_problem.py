@@ -37,7 +37,9 @@ Policy on bad input (mirrors :mod:`attopt.formulations.vector_observations`):
     with ``min_per_antenna`` observations each.
 
   An off-boresight angle beyond the pattern's main lobe *at some attitude* is
-  not an input error: the attitude is the unknown.
+  not an input error: the attitude is the unknown.  :func:`content_issue`
+  applies the first group alone (estimators of the pointing only, for which
+  one antenna suffices: :mod:`attopt.solvers.geo.boresight`).
 """
 
 from __future__ import annotations
@@ -237,7 +239,7 @@ def _finite_nonzero(vectors: Array) -> NDArray[np.bool_]:
     return np.isfinite(vectors).all(axis=-1) & np.any(vectors != 0, axis=-1)
 
 
-def _content_issue(problem: SnrEpoch) -> EpochIssue | None:
+def content_issue(problem: SnrEpoch) -> EpochIssue | None:
     """The first malformed value of the epoch (:class:`InvalidObservationError`)."""
     y = problem.snr_db
     checks = [
@@ -290,7 +292,7 @@ def epoch_issue(problem: SnrEpoch, *, min_per_antenna: int | None = None) -> Epo
     applies the two-step rule (sec. 3.2): at least two non-parallel antennas
     with ``min_per_antenna`` observations or more each.
     """
-    issue = _content_issue(problem)
+    issue = content_issue(problem)
     if issue is not None:
         return issue
     if problem.m < MIN_OBSERVATIONS:

@@ -4,14 +4,16 @@
 eqs. 22-26) as a cvxpy ``Parameter``.  ``X = q q^T`` for the optimal Shuster
 quaternion whenever ``lambda_max(K)`` is simple, so the relaxation is tight and
 its value equals ``lambda_max(K)``.  The problem is DPP: repeated solves with a
-new ``K`` reuse the compiled problem.  Its dual is ``min nu  s.t.  nu I - K PSD``,
-so the multiplier of ``tr X = 1`` is a certificate of optimality.
+new ``K`` reuse the compiled problem, with whichever installed conic solver
+that handles semidefinite cones is asked for (Clarabel, SCS).  Its dual is
+``min nu  s.t.  nu I - K PSD``, so the multiplier of ``tr X = 1`` is a certificate of optimality.
 """
 
 from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import cvxpy as cp
 import numpy as np
@@ -29,27 +31,31 @@ class SDPSolution:
 
 
 class WahbaSDP:
-    """The compiled-once relaxation; call :meth:`solve` with each ``K``."""
+    """The relaxation, built once; :meth:`solve` it with each ``K`` and any conic solver.
 
-    def __init__(self, solver: str = cp.CLARABEL, tolerance: float = 1e-12) -> None:
+    cvxpy compiles the problem for a solver on its first solve and reuses that
+    compilation while the solver stays the same (the problem is DPP), so keep
+    one instance per solver and option set
+    (:func:`attopt.solvers.wahba.sdp.relaxation`).
+    """
+
+    def __init__(self) -> None:
         self.k = cp.Parameter((4, 4), symmetric=True)
         self.x = cp.Variable((4, 4), symmetric=True)
         self.unit_trace = cp.trace(self.x) == 1
         self.problem = cp.Problem(
             cp.Maximize(cp.trace(self.k @ self.x)), [self.unit_trace, self.x >> 0]
         )
-        self.solver = solver
-        # Clarabel's default tolerances (1e-8) leave X rank one only to ~1e-6
-        # when the eigen-gap of K is small; tight ones cost about 2 iterations.
-        self.options = {"tol_gap_abs": tolerance, "tol_gap_rel": tolerance, "tol_feas": tolerance}
 
-    def solve(self, k: NDArray[np.float64]) -> SDPSolution:
-        """Solve for one (symmetric) Davenport matrix ``k``."""
+    def solve(
+        self, k: NDArray[np.float64], solver: str = cp.CLARABEL, **solver_options: Any
+    ) -> SDPSolution:
+        """Solve for one (symmetric) Davenport matrix ``k`` with ``solver`` (a cvxpy name)."""
         self.k.value = 0.5 * (k + k.T)
         with warnings.catch_warnings():
             # "optimal_inaccurate" is reported in ``status``; callers check the certificate.
             warnings.filterwarnings("ignore", message="Solution may be inaccurate")
-            self.problem.solve(solver=self.solver, **self.options)
+            self.problem.solve(solver=solver, **solver_options)
         x = self.x.value
         dual = self.unit_trace.dual_value
         return SDPSolution(

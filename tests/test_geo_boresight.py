@@ -12,14 +12,21 @@ from attopt.experiments.geo_snr_stations.scenario import (
     stations_ecef_km,
 )
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
-from attopt.formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db
+from attopt.formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db, geo_snr_epoch
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.bounds import crb
+from attopt.solvers.geo import ESTIMATORS
 from attopt.solvers.geo.boresight import (
+    GEO_CONE,
+    GEO_LSQ,
     StationCones,
     boresight_error_rad,
-    cone_intersection,
-    least_squares_boresight,
+    check_elevations,
+    estimated_boresight,
+    intersect_cones,
     rf_sensitivity,
-    station_cones,
 )
 from attopt.solvers.geo.los import (
     _belt_snr_function,
@@ -34,48 +41,99 @@ def scenario():
     return build_geo_snr_scenario(3600.0, 300.0, manoeuvre=True)
 
 
-def _cones(scenario, k, stations, snr=None):
+def _snapshot(scenario, k, stations, snr=None) -> Snapshot:
     y = scenario.true_snr_db[k, stations] if snr is None else snr
-    return station_cones(
-        y,
-        scenario.satellite_eci_km[k],
-        scenario.stations_eci_km[k, stations],
-        scenario.stations_up_eci[k, stations],
-        SNR_SIGMA_DB,
+    epoch = geo_snr_epoch(
+        y, scenario.satellite_eci_km[k], scenario.stations_eci_km[k, stations], SNR_SIGMA_DB
     )
+    return Snapshot.of(SnrMeasurement(epoch))
+
+
+def test_registry_names():
+    assert [e.name for e in ESTIMATORS] == ["geo_cone", "geo_lsq"]
 
 
 def test_noise_free_snrs_recover_the_boresight(scenario):
     for k in range(scenario.t.size):
         heard = np.flatnonzero(scenario.heard[k])
         assert heard.size >= 3
-        for solve, stations in ((cone_intersection, heard[:3]), (least_squares_boresight, heard)):
-            solution = solve(_cones(scenario, k, stations))
-            assert not solution.fell_back
-            error = boresight_error_rad(solution.direction, scenario.boresight_eci[k])
-            assert error < 1e-8, (k, solve.__name__, error)
+        for estimator, stations in ((GEO_CONE, heard[:3]), (GEO_LSQ, heard)):
+            solution = estimator.solve(_snapshot(scenario, k, stations))
+            assert solution.diagnostics.get("fell_back", 0.0) == 0.0
+            direction = [solution.diagnostics[f"boresight_{a}"] for a in "xyz"]
+            error = boresight_error_rad(direction, scenario.boresight_eci[k])
+            assert error < 1e-8, (k, estimator.name, error)
+            # The attitude points the body z axis along the estimated boresight.
+            pointing = solution.attitude.inv().apply([0.0, 0.0, 1.0])
+            assert boresight_error_rad(pointing, direction) < 1e-12
+            assert solution.loss < 1e-12
+
+
+def test_the_covariance_is_infinite_about_the_boresight_and_the_crb_across_it(scenario):
+    heard = np.flatnonzero(scenario.heard[0])
+    snapshot = _snapshot(scenario, 0, heard)
+    solution = GEO_LSQ.solve(snapshot, prior=scenario.truth[0])
+    # With the truth's yaw as reference, noise-free SNRs give the true attitude itself.
+    assert np.linalg.norm((solution.attitude * scenario.truth[0].inv()).as_rotvec()) < 1e-8
+    covariance = solution.covariance
+    assert covariance[2, 2] == np.inf and np.all(np.isfinite(covariance[:2, :2]))
+    np.testing.assert_array_equal(covariance[:2, 2], 0.0)
+    # Noise free, at the truth: the first-order covariance of the cones is the SNRs' CRB.
+    bound = crb(snapshot, scenario.truth[0])
+    assert bound[2, 2] == np.inf
+    np.testing.assert_allclose(covariance[:2, :2], bound[:2, :2], rtol=1e-5)
+    frame = solution.to_dataframe(scenario.truth[:1])
+    assert np.isnan(frame["sigma_z_deg"][0]) and np.isnan(frame["err_z_deg"][0])
+    assert np.isfinite(frame[["sigma_x_deg", "sigma_y_deg", "nees"]].to_numpy()).all()
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS, ids=lambda e: e.name)
+def test_covariance_across_the_boresight_matches_monte_carlo(scenario, estimator):
+    rng = np.random.default_rng(12)
+    heard = np.flatnonzero(scenario.heard[0])
+    stations = heard[:3] if estimator is GEO_CONE else heard
+    truth = scenario.truth[0]
+    trials = 300
+    errors = np.empty((trials, 2))
+    reported = np.zeros((2, 2))
+    for i in range(trials):
+        y = scenario.simulate_snr(rng)[0, stations]
+        solution = estimator.solve(_snapshot(scenario, 0, stations, y), prior=truth)
+        errors[i] = (solution.attitude * truth.inv()).as_rotvec()[:2]
+        reported += solution.covariance[:2, :2] / trials
+    scatter = errors.T @ errors / trials
+    assert np.trace(scatter) == pytest.approx(np.trace(reported), rel=0.2)
+    assert np.linalg.norm(scatter - reported) < 0.25 * np.trace(reported)
 
 
 def test_noisy_snrs_give_small_errors_and_least_squares_is_better(scenario):
     rng = np.random.default_rng(11)
-    errors = {"cone_intersection": [], "least_squares": []}
-    for _ in range(20):
-        y = scenario.simulate_snr(rng)
-        heard = np.flatnonzero(scenario.heard[0])
-        cones = _cones(scenario, 0, heard, y[0, heard])
-        for solution in (cone_intersection(cones), least_squares_boresight(cones)):
-            key = "least_squares" if solution.fell_back else solution.method
-            errors[key].append(boresight_error_rad(solution.direction, scenario.boresight_eci[0]))
+    errors = {"cone": [], "lsq": []}
+    heard = np.flatnonzero(scenario.heard[0])
+    snapshots = [
+        _snapshot(scenario, 0, heard, scenario.simulate_snr(rng)[0, heard]) for _ in range(20)
+    ]
+    for estimator in ESTIMATORS:
+        track = estimator.solve_sequence(snapshots)
+        assert track.valid.all()
+        fell_back = track.diagnostics.get("fell_back", np.zeros(len(track))) == 1.0
+        for direction, back in zip(estimated_boresight(track), fell_back, strict=True):
+            key = "lsq" if back or estimator is GEO_LSQ else "cone"
+            errors[key].append(boresight_error_rad(direction, scenario.boresight_eci[0]))
     rms = {key: np.sqrt(np.mean(np.square(value))) for key, value in errors.items()}
-    assert rms["least_squares"] < rms["cone_intersection"] < np.radians(0.01)
+    assert rms["lsq"] < rms["cone"] < np.radians(0.01)
 
 
 def test_fewer_than_three_stations_is_unobservable(scenario):
-    cones = _cones(scenario, 0, [2, 3])
+    snapshot = _snapshot(scenario, 0, [2, 3])
     with pytest.raises(UnobservableError, match="needs three"):
-        cone_intersection(cones)
+        GEO_CONE.solve(snapshot)
     with pytest.raises(UnobservableError, match="three cones"):
-        least_squares_boresight(cones)
+        GEO_LSQ.solve(snapshot)
+    track = GEO_LSQ.solve_sequence([snapshot, None, _snapshot(scenario, 0, [2, 3, 6])])
+    np.testing.assert_array_equal(track.valid, [False, False, True])
+    assert "three cones" in track.reason[0] and track.error[0] is UnobservableError
+    assert np.isnan(estimated_boresight(track)[0]).all()
 
 
 def test_non_intersecting_cones_fall_back_to_least_squares_with_a_flag():
@@ -83,10 +141,10 @@ def test_non_intersecting_cones_fall_back_to_least_squares_with_a_flag():
     axes = np.array([[0.0, 0.0, 1.0], [np.sin(0.035), 0.0, np.cos(0.035)], [0.0, 0.02, 1.0]])
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     cosine = np.cos(np.radians([0.5, 0.5, 1.0]))
-    solution = cone_intersection(StationCones(axes, cosine, np.full(3, 1e-6), 0))
-    assert solution.fell_back and solution.method == "least_squares"
-    assert "do not intersect" in solution.reason
-    assert np.linalg.norm(solution.direction) == pytest.approx(1.0)
+    fit = intersect_cones(StationCones(axes, cosine, np.full(3, 1e-6), 0))
+    assert fit.diagnostics["fell_back"] == 1.0 and np.isnan(fit.diagnostics["selection_margin"])
+    assert fit.cones.los.shape == (3, 3)  # least squares over the three stations
+    assert np.linalg.norm(fit.direction) == pytest.approx(1.0)
 
 
 def test_station_below_the_horizon_is_rejected(scenario):
@@ -94,13 +152,25 @@ def test_station_below_the_horizon_is_rejected(scenario):
     up = scenario.stations_up_eci[0, stations].copy()
     up[1] *= -1.0  # the satellite is now below station 1's horizon
     with pytest.raises(InvalidObservationError, match=r"station\(s\) \[1\].*below the horizon"):
-        station_cones(
-            scenario.true_snr_db[0, stations],
-            scenario.satellite_eci_km[0],
-            scenario.stations_eci_km[0, stations],
-            up,
-            SNR_SIGMA_DB,
-        )
+        check_elevations(scenario.stations_eci_km[0, stations], up, scenario.satellite_eci_km[0])
+
+
+def test_lines_of_sight_must_be_unit_vectors_and_other_types_are_refused(scenario):
+    epoch = _snapshot(scenario, 0, [2, 3, 6]).measurements[0].epoch
+    longer = SnrEpoch(
+        epoch.snr_db,
+        2.0 * epoch.los_orbit,
+        epoch.antenna,
+        epoch.boresights_body,
+        epoch.p0_dbw,
+        epoch.noise_dbw,
+        epoch.pattern,
+        threshold_db=epoch.threshold_db,
+    )
+    with pytest.raises(InvalidObservationError, match="unit lines of sight"):
+        GEO_CONE.solve(Snapshot.of(SnrMeasurement(longer)))
+    with pytest.raises(InvalidObservationError, match="one SnrMeasurement"):
+        GEO_LSQ.solve(Snapshot.of(SnrMeasurement(epoch), SnrMeasurement(epoch)))
 
 
 def test_wrong_rf_parameters_bias_the_boresight(scenario):

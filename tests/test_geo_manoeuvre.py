@@ -18,7 +18,7 @@ from attopt.experiments.geo_snr_stations.experiment import (
     PARAMETERS,
     assumed_rates,
     detection_window,
-    epoch_cones,
+    epoch_snapshot,
     pointing_error,
     rate_model,
 )
@@ -29,7 +29,7 @@ from attopt.experiments.geo_snr_stations.scenario import (
 )
 from attopt.formulations.geo_link import BORESIGHT_BODY
 from attopt.formulations.passes import GyroRecord, Pass, epoch_snapshots
-from attopt.solvers.geo.boresight import cone_intersection
+from attopt.solvers.geo.boresight import GEO_CONE, estimated_boresight
 from attopt.solvers.geo.manoeuvre import (
     DetectionOptions,
     ManoeuvreRun,
@@ -53,7 +53,8 @@ def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSn
     measurements = [scenario.measurement(k, row) for k, row in enumerate(used)]
 
     def boresight(k: int) -> np.ndarray:
-        return cone_intersection(epoch_cones(scenario, snr, k, stations)).direction
+        snapshot = epoch_snapshot(scenario, snr, k, stations)
+        return estimated_boresight(GEO_CONE.solve_sequence([snapshot]))[0]
 
     setting = {**PARAMETERS, "step_s": step_s}
     model = rate_model(setting)

@@ -12,24 +12,35 @@ from __future__ import annotations
 import math
 import pickle
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
-from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
+from attopt.formulations.errors import (
+    ConvergenceError,
+    InvalidObservationError,
+    UnobservableError,
+    UnsupportedMeasurementError,
+)
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.passes import Prior
+from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_euler import euler321_matrix_function, snr_euler_jacobian_function
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound, fisher_information, predict_snr, snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.symbolic import NUMPY
+from attopt.solvers.ipopt import IpoptOptions
 from attopt.solvers.results import Track
+from attopt.solvers.snapshot_sequence import WarmStart
 from attopt.solvers.snr import (
-    SNR_SOLVERS,
+    ESTIMATORS,
     DeterministicSolver,
-    IpoptOptions,
     LmOptions,
     NlpSolver,
     NlseSolver,
@@ -49,6 +60,7 @@ BORESIGHTS = np.array(
 BUDGET = LinkBudget()
 TRUTH = attitude_from_euler321(*np.radians([10.0, -4.0, 6.0]))
 ONE_STEP = ["nlse", "nlp"]
+SOLVERS = {solver.name: solver for solver in ESTIMATORS}
 
 
 def _geometry(rng, truth, per_antenna=(10, 10), pattern=SEED000_HELIX, min_snr=10.0, inner=0.0):
@@ -97,6 +109,14 @@ def _epoch(geometry, snr=None, pattern=SEED000_HELIX, **kwargs) -> SnrEpoch:
     los, antenna, ranges, true_snr, _ = geometry
     y = true_snr if snr is None else snr
     return SnrEpoch.from_ranges(y, los, antenna, BORESIGHTS, ranges, pattern, BUDGET, **kwargs)
+
+
+def _snapshot(problem: SnrEpoch) -> Snapshot:
+    return Snapshot.of(SnrMeasurement(problem))
+
+
+def _snapshots(problems) -> list[Snapshot]:
+    return [_snapshot(p) for p in problems]
 
 
 def _error(solution, truth) -> float:
@@ -209,7 +229,7 @@ def test_noise_free_snr_recovers_attitude(name, prior):
     truth = attitude_from_euler321(*np.radians([-35.0, 7.0, -9.0]))
     problem = _epoch(_geometry(rng, truth, (9, 13)))
     start = None if prior is None else Rotation.from_rotvec(np.radians([3.0, -3.0, 2.5])) * truth
-    solution = SNR_SOLVERS[name].solve(problem, prior=start)
+    solution = SOLVERS[name].solve(_snapshot(problem), prior=start)
     # The two-step method is exact too: noise-free cones meet in the true boresight.
     assert _error(solution, truth) < 1e-8
     assert solution.loss < 1e-12
@@ -226,7 +246,7 @@ def test_noise_free_recovery_with_other_patterns(name, pattern_name):
     geometry = _geometry(rng, TRUTH, (6, 6), pattern=pattern, min_snr=-np.inf)
     problem = _epoch(geometry, pattern=pattern, threshold_db=-np.inf)
     prior = Rotation.from_rotvec(np.radians([2.0, 1.0, -2.0])) * TRUTH
-    assert _error(SNR_SOLVERS[name].solve(problem, prior=prior), TRUTH) < 1e-8
+    assert _error(SOLVERS[name].solve(_snapshot(problem), prior=prior), TRUTH) < 1e-8
 
 
 @pytest.mark.parametrize("name", ONE_STEP)
@@ -237,8 +257,8 @@ def test_multistart_without_prior_when_two_step_is_unavailable(name):
     truth = attitude_from_euler321(*np.radians([130.0, 5.0, -8.0]))
     problem = _epoch(_geometry(rng, truth, (12, 2)))
     with pytest.raises(UnobservableError, match="two-step"):
-        SNR_SOLVERS["deterministic"].solve(problem)
-    solution = SNR_SOLVERS[name].solve(problem)
+        SOLVERS["deterministic"].solve(_snapshot(problem))
+    solution = SOLVERS[name].solve(_snapshot(problem))
     assert _error(solution, truth) < 1e-8
     d = solution.diagnostics
     assert d["start_source"] == StartSource.MULTISTART
@@ -254,16 +274,16 @@ def test_two_observations_per_antenna_two_fold_resolved_by_prior():
     truth = attitude_from_euler321(*np.radians([4.0, -3.0, 5.0]))
     problem = _epoch(_geometry(rng, truth, (2, 2)))
     with pytest.raises(UnobservableError, match="at least 3 observations each"):
-        SNR_SOLVERS["deterministic"].solve(problem)
+        SOLVERS["deterministic"].solve(_snapshot(problem))
     solver = DeterministicSolver(min_per_antenna=2)
     # A prior 1 deg from the truth (e.g. the previous epoch) picks the true intersections.
     prior = Rotation.from_rotvec(np.radians([0.6, -0.5, 0.6])) * truth
-    solution = solver.solve(problem, prior=prior)
+    solution = solver.solve(_snapshot(problem), prior=prior)
     assert solution.diagnostics["two_fold_antennas"] == 2
     assert _error(solution, truth) < 1e-8
     # The nominal attitude (default prior) is 7 deg off; for this geometry antenna 2's
     # candidates are within 3 deg of equally far from it: the fragile choice is reported.
-    nominal = solver.solve(problem)
+    nominal = solver.solve(_snapshot(problem))
     assert nominal.diagnostics["two_fold_margin_deg"] < 3.0
     assert _error(nominal, truth) > 0.01
 
@@ -275,8 +295,8 @@ def test_nlp_and_nlse_agree_on_a_noisy_problem():
     rng = np.random.default_rng(8)
     geometry = _geometry(rng, TRUTH, (10, 10))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=20))
-    nlp = SNR_SOLVERS["nlp"].solve(problem)
-    nlse = SNR_SOLVERS["nlse"].solve(problem)
+    nlp = SOLVERS["nlp"].solve(_snapshot(problem))
+    nlse = SOLVERS["nlse"].solve(_snapshot(problem))
     # IPOPT stops at |grad| < 1e-6 (Newton, quadratic); LM at a relative loss change of
     # 1e-12 (linear convergence on a non-zero-residual problem): both ~1e-7 rad or better.
     assert float(np.linalg.norm(attitude_error(nlp.attitude, nlse.attitude))) < 1e-6
@@ -289,7 +309,7 @@ def test_nlse_covariance_is_eq22_in_euler_angles_mapped_to_the_body_frame():
     rng = np.random.default_rng(9)
     geometry = _geometry(rng, TRUTH, (8, 8))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=16))
-    solution = SNR_SOLVERS["nlse"].solve(problem)
+    solution = SOLVERS["nlse"].solve(_snapshot(problem))
     z = solution.attitude.inv().as_euler("ZYX")
     f = snr_euler_jacobian_function(SEED000_HELIX, problem.m)
     _, jac_z = f(z, problem.unit_los, problem.boresight_rows, problem.p0_dbw, problem.noise_dbw)
@@ -316,12 +336,12 @@ def test_monte_carlo_covariance_matches_the_cramer_rao_bound():
     geometry = _geometry(rng, TRUTH, (20, 20), inner=0.5)
     crb = cramer_rao_bound(fisher_information(geometry[4]))
     trials = 300
-    errors = {name: np.empty((trials, 3)) for name in SNR_SOLVERS}
-    reported = {name: np.zeros((3, 3)) for name in SNR_SOLVERS}
+    errors = {name: np.empty((trials, 3)) for name in SOLVERS}
+    reported = {name: np.zeros((3, 3)) for name in SOLVERS}
     for k in range(trials):
         problem = _epoch(geometry, geometry[3] + rng.normal(size=40))
-        for name, solver in SNR_SOLVERS.items():
-            solution = solver.solve(problem, prior=TRUTH)
+        for name, solver in SOLVERS.items():
+            solution = solver.solve(_snapshot(problem), prior=TRUTH)
             errors[name][k] = attitude_error(solution.attitude, TRUTH)
             reported[name] += solution.covariance / trials
     scatter = {name: np.cov(e.T) for name, e in errors.items()}
@@ -367,10 +387,11 @@ def test_warm_start_reduces_ipopt_iterations_on_a_slowly_moving_sequence(sigma_d
         )
         noisy = snr + sigma_db * rng.normal(size=20)
         problems.append(_epoch((los, base[1], base[2], snr, None), noisy))
-    solver = SNR_SOLVERS["nlp"]
+    solver = SOLVERS["nlp"]
     nominal = Rotation.identity()  # 12 deg from the truth
-    warm = solver.solve_sequence(problems, prior=nominal)
-    cold = solver.solve_sequence(problems, prior=nominal, warm_start=False)
+    warm = solver.solve_sequence(_snapshots(problems), prior=nominal)
+    cold = replace(solver, warm_start=WarmStart(enabled=False))
+    cold = cold.solve_sequence(_snapshots(problems), prior=nominal)
     assert warm.valid.all() and cold.valid.all()
     np.testing.assert_array_equal(warm.diagnostics["warm_started"], [0.0] + [1.0] * 14)
     np.testing.assert_array_equal(cold.diagnostics["warm_started"], 0.0)
@@ -386,11 +407,12 @@ def test_sequence_reinitialises_after_a_gap():
     geometry = _geometry(rng, TRUTH, (6, 6))
     good = _epoch(geometry, geometry[3] + rng.normal(size=12))
     bad = _epoch(geometry, np.full(12, np.nan))
-    result = SNR_SOLVERS["nlp"].solve_sequence([good, bad, bad, good], max_prior_age=2)
+    solver = replace(SOLVERS["nlp"], warm_start=WarmStart(max_prior_age=2))
+    result = solver.solve_sequence(_snapshots([good, bad, bad, good]))
     np.testing.assert_array_equal(result.valid, [True, False, False, True])
     np.testing.assert_array_equal(result.diagnostics["warm_started"][[0, 3]], [0.0, 0.0])
     assert result.diagnostics["start_source"][3] == StartSource.DETERMINISTIC
-    again = SNR_SOLVERS["nlp"].solve_sequence([good, bad, good], max_prior_age=2)
+    again = solver.solve_sequence(_snapshots([good, bad, good]))
     assert again.diagnostics["start_source"][2] == StartSource.PRIOR
 
 
@@ -404,8 +426,8 @@ def test_ipopt_failure_is_flagged_with_its_status():
     solver = NlpSolver(options=IpoptOptions(max_iter=1))
     prior = Rotation.from_rotvec([0.1, -0.1, 0.05]) * TRUTH
     with pytest.raises(ConvergenceError, match="IPOPT: Maximum_Iterations_Exceeded"):
-        solver.solve(problem, prior=prior)
-    batch = solver.solve_sequence([problem, problem], prior=prior)
+        solver.solve(_snapshot(problem), prior=prior)
+    batch = solver.solve_sequence(_snapshots([problem, problem]), prior=prior)
     assert not batch.valid.any()
     assert np.isnan(batch.quaternion).all() and np.isnan(batch.covariance).all()
     assert all(r == "IPOPT: Maximum_Iterations_Exceeded" for r in batch.reason)
@@ -418,9 +440,9 @@ def test_ipopt_acceptable_level_is_accepted_and_flagged():
     geometry = _geometry(rng, TRUTH, (10, 10))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=20))
     options = IpoptOptions(tol=1e-300, acceptable_tol=1e-3, acceptable_iter=1)
-    solution = NlpSolver(options=options).solve(problem, prior=TRUTH)
+    solution = NlpSolver(options=options).solve(_snapshot(problem), prior=TRUTH)
     assert solution.diagnostics["acceptable"] == 1.0
-    reference = SNR_SOLVERS["nlp"].solve(problem, prior=TRUTH)
+    reference = SOLVERS["nlp"].solve(_snapshot(problem), prior=TRUTH)
     assert reference.diagnostics["acceptable"] == 0.0
     assert float(np.linalg.norm(attitude_error(solution.attitude, reference.attitude))) < 1e-4
 
@@ -430,7 +452,7 @@ def test_nlse_failure_is_flagged_with_its_message():
     geometry = _geometry(rng, TRUTH, (10, 10))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=20))
     with pytest.raises(ConvergenceError, match="least_squares"):
-        NlseSolver(options=LmOptions(max_nfev=1)).solve(problem, prior=TRUTH)
+        NlseSolver(options=LmOptions(max_nfev=1)).solve(_snapshot(problem), prior=TRUTH)
 
 
 # --- bad input ----------------------------------------------------------------------------
@@ -503,16 +525,16 @@ BAD = _bad_cases()
 
 
 @pytest.mark.parametrize("case", sorted(BAD))
-@pytest.mark.parametrize("name", sorted(SNR_SOLVERS))
+@pytest.mark.parametrize("name", sorted(SOLVERS))
 def test_bad_input_raises_single_and_flags_in_a_sequence(case, name):
     problem, error, text = BAD[case]
-    solver = SNR_SOLVERS[name]
+    solver = SOLVERS[name]
     with pytest.raises(error, match=re.escape(text)):
-        solver.solve(problem)
+        solver.solve(_snapshot(problem))
     rng = np.random.default_rng(18)
     geometry = _geometry(rng, TRUTH, (6, 6))
     good = _epoch(geometry, geometry[3] + rng.normal(size=12))
-    batch = solver.solve_sequence([good, problem, good])
+    batch = solver.solve_sequence(_snapshots([good, problem, good]))
     np.testing.assert_array_equal(batch.valid, [True, False, True])
     assert text in batch.reason[1] and batch.error[1] is error
     assert np.isnan(batch.quaternion[1]).all() and np.isnan(batch.loss[1])
@@ -554,16 +576,18 @@ def test_observations_outside_the_lobe_at_the_reference_attitude_are_not_an_erro
     problem = _epoch(geometry)
     assert fit_at(problem, Rotation.identity()).outside_lobe > 0
     for name in ONE_STEP:
-        assert _error(SNR_SOLVERS[name].solve(problem, prior=Rotation.identity()), truth) < 1e-8
+        assert (
+            _error(SOLVERS[name].solve(_snapshot(problem), prior=Rotation.identity()), truth) < 1e-8
+        )
 
 
 def test_registry_contract():
-    assert list(SNR_SOLVERS) == ["deterministic", "nlse", "nlp", "nlp_truncated"]
+    assert list(SOLVERS) == ["deterministic", "nlse", "nlp", "nlp_truncated"]
     rng = np.random.default_rng(20)
     geometry = _geometry(rng, TRUTH, (7, 7))
     problems = [_epoch(geometry, geometry[3] + rng.normal(size=14)) for _ in range(3)]
-    for name, solver in SNR_SOLVERS.items():
-        batch = solver.solve_sequence(problems)
+    for name, solver in SOLVERS.items():
+        batch = solver.solve_sequence(_snapshots(problems))
         assert isinstance(batch, Track) and batch.method == name == solver.name
         assert batch.valid.all() and len(batch) == 3
         assert set(batch.diagnostics) == {*solver.diagnostic_names, "warm_started"}
@@ -585,9 +609,39 @@ def test_an_unused_antenna_does_not_affect_the_epoch():
     bores = np.vstack([[np.nan, np.nan, np.nan], BORESIGHTS])
     problem = SnrEpoch.from_ranges(snr, los, antenna + 1, bores, ranges, SEED000_HELIX, BUDGET)
     without = SnrEpoch.from_ranges(snr, los, antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET)
-    for name, solver in SNR_SOLVERS.items():
-        solution = solver.solve(problem)
-        assert _error(solution, solver.solve(without).attitude) < 1e-8, name
+    for name, solver in SOLVERS.items():
+        solution = solver.solve(_snapshot(problem))
+        assert _error(solution, solver.solve(_snapshot(without)).attitude) < 1e-8, name
         # Noise-free SNRs are the eq. 19 methods' optimum; the truncated ML's optimum moves.
         if getattr(solver, "objective", "least_squares") == "least_squares":
             assert _error(solution, TRUTH) < 1e-8, name
+
+
+def test_snapshot_contract_of_the_snr_solvers():
+    """Snapshots of one SnrMeasurement; the epoch-level path gives the same track; other
+    types raise, a missing or doubled measurement is flagged, a Prior gives its attitude."""
+    rng = np.random.default_rng(22)
+    geometry = _geometry(rng, TRUTH, (6, 6))
+    problems = [_epoch(geometry, geometry[3] + rng.normal(size=12)) for _ in range(2)]
+    doubled = Snapshot.of(SnrMeasurement(problems[0]), SnrMeasurement(problems[1]))
+    prior = Prior(Rotation.from_rotvec([0.01, 0.02, -0.01]) * TRUTH, 1e-4 * np.eye(3))
+    vectors = VectorMeasurement(np.eye(3)[:2], np.eye(3)[:2], 1e-3)
+    for name, solver in SOLVERS.items():
+        assert pickle.loads(pickle.dumps(solver)) == solver
+        track = solver.solve_sequence(
+            [_snapshot(problems[0]), None, doubled, _snapshot(problems[1])]
+        )
+        np.testing.assert_array_equal(track.valid, [True, False, False, True])
+        assert track.error[1] is UnobservableError and "no measurement" in track.reason[1]
+        assert track.error[2] is InvalidObservationError and "one SnrMeasurement" in track.reason[2]
+        epochs = solver.solve_epochs([problems[0], None, None, problems[1]])
+        np.testing.assert_array_equal(epochs.quaternion, track.quaternion)
+        # The solver's objective, not the measurement's truncated flag, decides.
+        truncated = Snapshot.of(SnrMeasurement(problems[0], truncated=True))
+        assert _error(solver.solve(truncated), track.epoch(0).attitude) == 0.0
+        with_prior = solver.solve(_snapshot(problems[1]), prior=prior)
+        assert (
+            _error(with_prior, solver.solve(_snapshot(problems[1]), prior.attitude).attitude) == 0
+        )
+        with pytest.raises(UnsupportedMeasurementError, match=name):
+            solver.solve(Snapshot.of(SnrMeasurement(problems[0]), vectors))

@@ -29,11 +29,11 @@ from attopt.formulations.snr_truncation import (
     truncated_nll,
 )
 from attopt.formulations.symbolic import CASADI
-from attopt.solvers.snr import SNR_SOLVERS
+from attopt.solvers.ipopt import IpoptOptions
 from attopt.solvers.snr.fit import fit_at, model_at
-from attopt.solvers.snr.nlp import IpoptOptions, nlp_solver, parameter_vector
+from attopt.solvers.snr.nlp import nlp_solver, parameter_vector
 from attopt.solvers.snr.padding import pad_epoch
-from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
+from tests.test_snr_solvers import BORESIGHTS, BUDGET, SOLVERS, TRUTH, _geometry, _snapshot
 
 TAU = RECEPTION_THRESHOLD_DB
 
@@ -200,8 +200,8 @@ def test_truncated_nlp_equals_the_nlp_when_nothing_is_cut():
     true_snr = rng.uniform(4.5, 12.0, 30)
     make, _ = _near_threshold_epoch(rng, true_snr, (15, 15), threshold_db=-100.0)
     problem = make(true_snr + rng.standard_normal(30))
-    nlp = SNR_SOLVERS["nlp"].solve(problem, prior=TRUTH)
-    truncated = SNR_SOLVERS["nlp_truncated"].solve(problem, prior=TRUTH)
+    nlp = SOLVERS["nlp"].solve(_snapshot(problem), prior=TRUTH)
+    truncated = SOLVERS["nlp_truncated"].solve(_snapshot(problem), prior=TRUTH)
     assert np.linalg.norm(attitude_error(truncated.attitude, nlp.attitude)) < 1e-8
     assert truncated.loss == pytest.approx(nlp.loss, rel=1e-12)
     np.testing.assert_allclose(truncated.covariance, nlp.covariance, rtol=1e-9)
@@ -223,7 +223,7 @@ def test_monte_carlo_truncated_ml_is_unbiased_and_reaches_the_truncated_bound():
     for k in range(trials):
         problem = make(_received(rng, true_snr, 1.0, TAU))
         for name in names:
-            solution = SNR_SOLVERS[name].solve(problem, prior=TRUTH)
+            solution = SOLVERS[name].solve(_snapshot(problem), prior=TRUTH)
             errors[name][k] = attitude_error(solution.attitude, TRUTH)
             if name == "nlp_truncated":
                 reported += solution.covariance / trials

@@ -8,9 +8,10 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import ESTIMATORS
 
-SOLVERS = list(WAHBA_SOLVERS.values())
+SOLVERS = list(ESTIMATORS)
+BY_NAME = {s.name: s for s in ESTIMATORS}
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])
 REF = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
 BODY = TRUTH.apply(REF)
@@ -61,7 +62,7 @@ BAD_SINGLE = {
 def test_bad_single_epoch_raises_specific_error(solver, case):
     body, ref, w, error, text = BAD_SINGLE[case]
     with pytest.raises(error, match=text.replace("(", r"\(").replace(")", r"\)")):
-        solver.solve(body, ref, w)
+        solver.solve_vectors(body, ref, w)
 
 
 @pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
@@ -75,7 +76,7 @@ def test_bad_single_epoch_raises_specific_error(solver, case):
 )
 def test_malformed_shapes_raise(solver, body, ref, w, text):
     with pytest.raises(InvalidObservationError, match=text):
-        solver.solve(body, ref, w)
+        solver.solve_vectors(body, ref, w)
 
 
 @pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
@@ -108,13 +109,13 @@ def test_parallel_tolerance_is_the_documented_one():
     angle = 0.5 * PARALLEL_TOLERANCE
     body = np.array([[1.0, 0, 0], [np.cos(angle), np.sin(angle), 0]])
     with pytest.raises(UnobservableError):
-        WAHBA_SOLVERS["q_method"].solve(body, REF[:2], W[:2])
+        BY_NAME["q_method"].solve_vectors(body, REF[:2], W[:2])
     angle = 2.0 * PARALLEL_TOLERANCE
     body = np.array([[1.0, 0, 0], [np.cos(angle), np.sin(angle), 0]])
     ref = body.copy()
-    assert WAHBA_SOLVERS["q_method"].solve(body, ref, W[:2]).loss < 1e-12
+    assert BY_NAME["q_method"].solve_vectors(body, ref, W[:2]).loss < 1e-12
 
 
 def test_non_unit_vectors_are_normalised():
-    solution = WAHBA_SOLVERS["svd"].solve(BODY * [[50e3], [2.0], [0.1]], REF * 7.0, W)
+    solution = BY_NAME["svd"].solve_vectors(BODY * [[50e3], [2.0], [0.1]], REF * 7.0, W)
     assert np.linalg.norm((solution.attitude * TRUTH.inv()).as_rotvec()) < 1e-12

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import ESTIMATORS, SDP, TRIAD
 from tests.strategies import noisy_body
 
 TRUTH = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)
@@ -46,9 +46,7 @@ def _monte_carlo(solver, reference, sigmas, trials, seed):
 
 
 @pytest.mark.parametrize("geometry", GEOMETRIES)
-@pytest.mark.parametrize(
-    "solver", [s for s in WAHBA_SOLVERS.values() if s.vectorised], ids=lambda s: s.name
-)
+@pytest.mark.parametrize("solver", [s for s in ESTIMATORS if s.vectorised], ids=lambda s: s.name)
 def test_covariance_matches_monte_carlo(solver, geometry):
     reference, sigmas = GEOMETRIES[geometry]
     scatter, predicted = _monte_carlo(solver, reference, sigmas, trials=4000, seed=11)
@@ -57,7 +55,7 @@ def test_covariance_matches_monte_carlo(solver, geometry):
 
 def test_sdp_covariance_matches_monte_carlo():
     reference, sigmas = GEOMETRIES["five-vectors"]
-    scatter, predicted = _monte_carlo(WAHBA_SOLVERS["sdp"], reference, sigmas, trials=1000, seed=12)
+    scatter, predicted = _monte_carlo(SDP, reference, sigmas, trials=1000, seed=12)
     assert np.linalg.norm(scatter - predicted) < 0.1 * np.trace(predicted)
 
 
@@ -69,7 +67,7 @@ def test_triad_variance_belongs_to_the_anchor():
     from attopt.formulations.wahba_covariance import triad_covariance
 
     reference, sigmas = GEOMETRIES["sun-mag-30deg"]
-    scatter, _ = _monte_carlo(WAHBA_SOLVERS["triad"], reference, sigmas, trials=4000, seed=13)
+    scatter, _ = _monte_carlo(TRIAD, reference, sigmas, trials=4000, seed=13)
     u = TRUTH.apply(reference)
     swapped = triad_covariance(u[:1], u[1:], sigmas[1:] ** 2, sigmas[:1] ** 2)[0]
     assert np.linalg.norm(scatter - swapped) > 0.5 * np.trace(scatter)

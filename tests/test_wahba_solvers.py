@@ -2,19 +2,27 @@
 
 from __future__ import annotations
 
+import pickle
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import UnobservableError, UnsupportedMeasurementError
+from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.wahba import attitude_profile_matrix, davenport_matrix
 from attopt.formulations.wahba_sdp import WahbaSDP
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, SDP
+from attopt.solvers.wahba.sdp import SdpOptions, relaxation
 from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
-SOLVERS = list(WAHBA_SOLVERS.values())
+SOLVERS = list(ESTIMATORS)
+BY_NAME = {s.name: s for s in ESTIMATORS}
 OPTIMAL = [s for s in SOLVERS if s.optimal]
 EXACT_OPTIMAL = [s for s in OPTIMAL if s.name != "sdp"]
 FAST = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -42,7 +50,7 @@ def test_noise_free_recovery(solver, data):
     decades = SIGMA_DECADES.get(solver.name, DEFAULT_SIGMA_DECADES)
     problem = data.draw(wahba_problems(sigma_decades=decades))
     truth, body, reference, weights = problem
-    solution = solver.solve(body, reference, weights)
+    solution = solver.solve_vectors(body, reference, weights)
     assert angle(solution.attitude, truth) < 1e-10
     assert solution.loss < 1e-12 * weights.sum()
     assert np.all(np.linalg.eigvalsh(solution.covariance) > 0)
@@ -61,7 +69,7 @@ def test_batch_equals_single_epochs(solver, problem):
     )
     assert batch.valid.all()
     for i in range(3):
-        single = solver.solve(bodies[i], reference, weights)
+        single = solver.solve_vectors(bodies[i], reference, weights)
         assert angle(batch.epoch(i).attitude, single.attitude) < 1e-12
         np.testing.assert_allclose(batch.covariance[i], single.covariance, rtol=1e-10)
 
@@ -71,7 +79,7 @@ def test_batch_equals_single_epochs(solver, problem):
 def test_optimal_solvers_agree_on_noisy_data(problem):
     truth, _, reference, weights = problem
     body = noisy_body(truth, reference, weights**-0.5, np.random.default_rng(3))
-    solutions = {s.name: s.solve(body, reference, weights) for s in OPTIMAL}
+    solutions = {s.name: s.solve_vectors(body, reference, weights) for s in OPTIMAL}
     ref = solutions["q_method"]
     for name, sol in solutions.items():
         tol = 1e-6 if name == "sdp" else 1e-9
@@ -83,8 +91,8 @@ def test_optimal_solvers_agree_on_noisy_data(problem):
 @given(problem=wahba_problems(max_vectors=2, min_vectors=2, sigma_decades=1.0))
 def test_triad_equals_optimal_for_two_noise_free_vectors(problem):
     truth, body, reference, weights = problem
-    triad = WAHBA_SOLVERS["triad"].solve(body, reference, weights)
-    q = WAHBA_SOLVERS["q_method"].solve(body, reference, weights)
+    triad = BY_NAME["triad"].solve_vectors(body, reference, weights)
+    q = BY_NAME["q_method"].solve_vectors(body, reference, weights)
     assert angle(triad.attitude, q.attitude) < 1e-10
     assert angle(triad.attitude, truth) < 1e-10
 
@@ -92,19 +100,24 @@ def test_triad_equals_optimal_for_two_noise_free_vectors(problem):
 def test_triad_is_suboptimal_with_noise():
     """TRIAD ignores part of the data, so with noise its loss exceeds the optimum."""
     _, body, reference, sig = noisy_problem(6, 0.01, seed=0, truth_seed=1)
-    triad = WAHBA_SOLVERS["triad"].solve(body, reference, sig**-2)
-    q = WAHBA_SOLVERS["q_method"].solve(body, reference, sig**-2)
+    triad = BY_NAME["triad"].solve_vectors(body, reference, sig**-2)
+    q = BY_NAME["q_method"].solve_vectors(body, reference, sig**-2)
     assert triad.loss > q.loss * (1 + 1e-6)
 
 
+SDP_OPTIONS = [SdpOptions(), SdpOptions(solver="SCS", tolerance=1e-10)]
+"""The two installed conic solvers that handle semidefinite cones."""
+
+
+@pytest.mark.parametrize("options", SDP_OPTIONS, ids=lambda o: o.solver)
 @settings(max_examples=40, deadline=None)
 @given(problem=wahba_problems())
-def test_sdp_is_tight_and_equals_lambda_max(problem):
+def test_sdp_is_tight_and_equals_lambda_max(options, problem):
     truth, _, reference, weights = problem
     body = noisy_body(truth, reference, weights**-0.5, np.random.default_rng(5))
     k = davenport_matrix(attitude_profile_matrix(body[None], reference[None], weights[None]))[0]
     k /= weights.sum()
-    solution = WahbaSDP().solve(k)
+    solution = relaxation(options).solve(k, options.solver, **options.solver_options())
     eigenvalues = np.linalg.eigvalsh(solution.x)
     assert solution.status == "optimal"
     assert eigenvalues[-2] / eigenvalues[-1] < 1e-6
@@ -114,7 +127,7 @@ def test_sdp_is_tight_and_equals_lambda_max(problem):
 
 
 def test_sdp_reports_certificate():
-    solution = WAHBA_SOLVERS["sdp"].solve(
+    solution = BY_NAME["sdp"].solve_vectors(
         np.eye(3), Rotation.random(random_state=2).inv().apply(np.eye(3)), np.ones(3)
     )
     assert solution.diagnostics["duality_gap"] < 1e-7
@@ -145,7 +158,7 @@ def test_quest_precision_degrades_with_weight_dynamic_range():
     body = truth.apply(reference)
     errors = []
     for ratio in (1e2, 1e8):
-        quest = WAHBA_SOLVERS["quest"].solve(body, reference, np.array([ratio, 1.0]))
+        quest = BY_NAME["quest"].solve_vectors(body, reference, np.array([ratio, 1.0]))
         errors.append(angle(quest.attitude, truth))
     assert errors[0] < 1e-12
     assert errors[1] > 1e-10
@@ -154,7 +167,99 @@ def test_quest_precision_degrades_with_weight_dynamic_range():
 def test_reported_loss_is_wahbas_eq14():
     """The loss (evaluated by eq. 16) equals eq. 14 summed term by term."""
     _, body, reference, sig = noisy_problem(7, 0.01, seed=4, truth_seed=5)
-    solution = WAHBA_SOLVERS["svd"].solve(body, reference, sig**-2)
+    solution = BY_NAME["svd"].solve_vectors(body, reference, sig**-2)
     residual = body - solution.attitude.apply(reference)
     eq14 = 0.5 * np.sum(sig**-2 * np.sum(residual**2, axis=1))
     assert solution.loss == pytest.approx(eq14, rel=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(problem=wahba_problems(max_vectors=10, sigma_decades=1.0))
+def test_clarabel_and_scs_agree(problem):
+    """The SDP solved by either installed conic solver gives the same attitude and certificate."""
+    truth, _, reference, weights = problem
+    body = noisy_body(truth, reference, weights**-0.5, np.random.default_rng(6))
+    clarabel = SDP.solve_vectors(body, reference, weights)
+    scs = replace(SDP, options=SDP_OPTIONS[1]).solve_vectors(body, reference, weights)
+    assert angle(clarabel.attitude, scs.attitude) < 1e-8
+    assert scs.diagnostics["rank_one_ratio"] < 1e-6 and scs.diagnostics["duality_gap"] < 1e-8
+    assert scs.loss == pytest.approx(clarabel.loss, rel=1e-6, abs=1e-9)
+    assert angle(scs.attitude, Q_METHOD.solve_vectors(body, reference, weights).attitude) < 1e-6
+
+
+def test_sdp_relaxation_is_built_once_per_option_set():
+    assert relaxation(SdpOptions()) is relaxation(SdpOptions())
+    assert relaxation(SDP_OPTIONS[1]) is not relaxation(SDP_OPTIONS[0])
+    assert isinstance(relaxation(SdpOptions()), WahbaSDP)
+    assert SdpOptions().solver_options() == dict.fromkeys(
+        ("tol_gap_abs", "tol_gap_rel", "tol_feas"), 1e-12
+    )
+    with pytest.raises(ValueError, match="unsupported SDP solver"):
+        SdpOptions(solver="OSQP")
+
+
+def test_estimators_are_configured_copies_and_pickle():
+    for solver in ESTIMATORS:
+        again = pickle.loads(pickle.dumps(solver))
+        assert again == solver and again.name == solver.name
+    loose = replace(Q_METHOD, parallel_tolerance=1e-6)
+    angle_ = 1e-4  # between the default tolerance (1e-3) and the loose one
+    body = np.array([[1.0, 0, 0], [np.cos(angle_), np.sin(angle_), 0]])
+    assert loose.solve_vectors(body, body, np.ones(2)).loss < 1e-12
+    with pytest.raises(UnobservableError, match="parallel"):
+        Q_METHOD.solve_vectors(body, body, np.ones(2))
+
+
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@settings(max_examples=10, deadline=None)
+@given(problem=wahba_problems(max_vectors=6, sigma_decades=1.0))
+def test_snapshot_solve_equals_the_array_interface(solver, problem):
+    truth, _, reference, weights = problem
+    sigma = weights**-0.5
+    body = noisy_body(truth, reference, sigma, np.random.default_rng(8))
+    from_snapshot = solver.solve(Snapshot.from_vectors(body, reference, sigma))
+    from_arrays = solver.solve_vectors(body, reference, sigma**-2.0)
+    assert from_snapshot.method == solver.name
+    assert angle(from_snapshot.attitude, from_arrays.attitude) < 1e-12
+    np.testing.assert_allclose(from_snapshot.covariance, from_arrays.covariance, rtol=1e-10)
+    # Full 3 x 3 covariances sigma^2 I: the isotropic equivalent is sigma itself.
+    isotropic = Snapshot.from_vectors(
+        body, reference, covariance=sigma[:, None, None] ** 2 * np.eye(3)
+    )
+    assert angle(solver.solve(isotropic).attitude, from_arrays.attitude) < 1e-10
+
+
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+def test_solve_sequence_pads_epochs_and_flags_missing_ones(solver):
+    rng = np.random.default_rng(9)
+    truth = Rotation.random(4, random_state=10)
+    reference = rng.normal(size=(4, 3))
+    reference /= np.linalg.norm(reference, axis=1, keepdims=True)
+    sigma = np.array([1e-3, 2e-3, 4e-3, 3e-3])
+    body = np.stack([noisy_body(truth[k], reference, sigma, rng) for k in range(4)])
+    snapshots = [
+        Snapshot.from_vectors(body[0, :2], reference[:2], sigma[:2]),
+        None,
+        Snapshot.of(  # two measurements of one epoch: their vectors are pooled
+            VectorMeasurement(body[2, :2], reference[:2], sigma[:2]),
+            VectorMeasurement(body[2, 2:], reference[2:], sigma[2:]),
+        ),
+        Snapshot.from_vectors(body[3, :3], reference[:3], sigma[:3]),
+    ]
+    track = solver.solve_sequence(snapshots)
+    np.testing.assert_array_equal(track.valid, [True, False, True, True])
+    assert track.error[1] is UnobservableError
+    for k, count in ((0, 2), (2, 4), (3, 3)):
+        single = solver.solve_vectors(body[k, :count], reference[:count], sigma[:count] ** -2.0)
+        assert angle(track.epoch(k).attitude, single.attitude) < 1e-12
+        np.testing.assert_allclose(track.covariance[k], single.covariance, rtol=1e-10)
+
+
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+def test_other_measurement_types_are_not_accepted(solver):
+    euler = EulerAngleMeasurement(np.zeros(3), np.eye(3))
+    vectors = VectorMeasurement(np.eye(3)[:2], np.eye(3)[:2], 1e-3)
+    with pytest.raises(UnsupportedMeasurementError, match="EulerAngleMeasurement"):
+        solver.solve(Snapshot.of(vectors, euler))
+    with pytest.raises(UnsupportedMeasurementError):
+        solver.solve_sequence([Snapshot.of(vectors), Snapshot.of(euler)])

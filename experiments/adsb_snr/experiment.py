@@ -32,8 +32,9 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    of seed 0, before ``nlp_truncated``): the NLP's RMS / CRLB was 1.33 +/- 0.01
    with mean NEES 11.2 at 6 dB, and 0.99 +/- 0.01 with mean NEES 2.99 with
    ``threshold_db = -100`` (nothing discarded, same noise).
-5. Each method's ``solve_sequence`` over the pass of
-   :class:`~attopt.formulations.snr_problem.SnrEpoch` s, warm-started from the previous
+5. Each method's ``solve_sequence`` over the pass's snapshots (one
+   :class:`~attopt.formulations.snr_measurement.SnrMeasurement` of the epoch's
+   :class:`~attopt.formulations.snr_problem.SnrEpoch` each), warm-started from the previous
    valid estimate as a flight estimator would be (the first epoch has no
    prior: the one-step methods start from the two-step solution, or a
    multi-start, :mod:`attopt.solvers.snr.initialisation`).
@@ -124,12 +125,14 @@ from attopt.experiments.reporting.statistics import (
 )
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.results import Track
-from attopt.solvers.snr import SNR_SOLVERS
-from attopt.solvers.snr.driver import SnrSolver
+from attopt.solvers.snr import ESTIMATORS
+from attopt.solvers.snr.driver import SnrSolver, snr_epoch
 from attopt.solvers.snr.initialisation import StartSource
 from attopt.solvers.snr.padding import bucket_size
 
@@ -144,6 +147,8 @@ WRONG_MINIMUM_RTOL = 1e-6
 """Relative loss excess over the truth-started solve that counts as a wrong minimum."""
 WRONG_MINIMUM_ATOL = 1e-9
 """Absolute loss excess (dB^2 / sigma^2) added to the relative tolerance."""
+SOLVERS = {solver.name: solver for solver in ESTIMATORS}
+"""The SNR solvers by registry name."""
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": 3600.0,
@@ -166,9 +171,9 @@ PARAMETERS: dict[str, Any] = {
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
     """One setting: seed 000 sec. 5.1's noise and threshold; methods compared inside a trial."""
-    unknown = sorted(set(parameters["methods"]) - set(SNR_SOLVERS))
+    unknown = sorted(set(parameters["methods"]) - set(SOLVERS))
     if unknown:
-        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SNR_SOLVERS)}")
+        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SOLVERS)}")
     if parameters["wrong_minimum_every"] < 1:
         raise ValueError("wrong_minimum_every must be at least 1")
     check_parameters(parameters)
@@ -360,35 +365,41 @@ def epoch_statistics(
     return columns
 
 
-def warm_up(solver: SnrSolver, epochs: list[SnrEpoch]) -> None:
+def snr_snapshots(epochs: list[SnrEpoch]) -> list[Snapshot]:
+    """One snapshot per epoch, holding the epoch's SNRs."""
+    return [Snapshot.of(SnrMeasurement(epoch)) for epoch in epochs]
+
+
+def warm_up(solver: SnrSolver, snapshots: list[Snapshot]) -> None:
     """Solve one epoch of each padding bucket size (untimed), building the cached functions."""
     seen: set[int] = set()
-    for problem in epochs:
+    for snapshot in snapshots:
+        problem = snr_epoch(snapshot)
         size = bucket_size(problem.m)
         if size not in seen and solver.issue(problem) is None:
             seen.add(size)
-            solver.solve_sequence([problem])
+            solver.solve_sequence([snapshot])
 
 
-def timed_pass(solver: SnrSolver, epochs: list[SnrEpoch]) -> tuple[Track, float]:
+def timed_pass(solver: SnrSolver, snapshots: list[Snapshot]) -> tuple[Track, float]:
     """The method's warm-started pass and its wall time (s)."""
-    warm_up(solver, epochs)
+    warm_up(solver, snapshots)
     start = time.perf_counter()
-    solution = solver.solve_sequence(epochs, warm_start=True)
+    solution = solver.solve_sequence(snapshots)
     return solution, time.perf_counter() - start
 
 
 def wrong_minima(
-    solver: SnrSolver, epochs: list[SnrEpoch], solution: Track, truth: Rotation, every: int
+    solver: SnrSolver, snapshots: list[Snapshot], solution: Track, truth: Rotation, every: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """``wrong_minimum`` (1/0/NaN) and ``loss_from_truth`` per epoch (module docstring)."""
-    n = len(epochs)
+    n = len(snapshots)
     wrong = np.full(n, np.nan)
     loss_from_truth = np.full(n, np.nan)
     for i in range(0, n, every):
         if not solution.valid[i]:
             continue
-        again = solver.solve_sequence([epochs[i]], prior=truth[i])
+        again = solver.solve_sequence([snapshots[i]], prior=truth[i])
         source = again.diagnostics.get("start_source")
         if not again.valid[0] or (source is not None and source[0] != StartSource.PRIOR):
             continue
@@ -400,14 +411,14 @@ def wrong_minima(
 
 def _method_rows(
     name: str,
-    noisy: NoisyPass,
+    snapshots: list[Snapshot],
     truth: Rotation,
     common: Mapping[str, np.ndarray],
     every: int,
 ) -> tuple[pd.DataFrame, Track]:
-    solver = SNR_SOLVERS[name]
-    solution, seconds = timed_pass(solver, noisy.epochs)
-    wrong, loss_from_truth = wrong_minima(solver, noisy.epochs, solution, truth, every)
+    solver = SOLVERS[name]
+    solution, seconds = timed_pass(solver, snapshots)
+    wrong, loss_from_truth = wrong_minima(solver, snapshots, solution, truth, every)
     frame = pd.DataFrame(
         {
             "method": name,
@@ -437,15 +448,16 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         scenario, np.random.default_rng(seed), sigma, setting["threshold_db"], offsets
     )
     common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
+    snapshots = snr_snapshots(noisy.epochs)
     frames, solutions = [], {}
     for name in setting["methods"]:
         frame, solutions[name] = _method_rows(
-            name, noisy, scenario.truth, common, setting["wrong_minimum_every"]
+            name, snapshots, scenario.truth, common, setting["wrong_minimum_every"]
         )
         frames.append(frame)
     nlse = solutions.get(PAPER_SOURCE)
     if nlse is None and "mekf_paper" in setting["filters"]:
-        nlse = SNR_SOLVERS[PAPER_SOURCE].solve_sequence(noisy.epochs, warm_start=True)
+        nlse = SOLVERS[PAPER_SOURCE].solve_sequence(snapshots)
     frames += filter_rows(setting, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 

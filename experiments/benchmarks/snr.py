@@ -31,10 +31,13 @@ from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import AttoptError
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import SNR_SIGMA_DB, predict_snr
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
+from attopt.solvers.ipopt import IpoptOptions
 from attopt.solvers.results import Solution
-from attopt.solvers.snr import SNR_SOLVERS, IpoptOptions, NlpSolver
+from attopt.solvers.snr import DETERMINISTIC, NLP, NLSE, NlpSolver
 from attopt.solvers.snr.driver import SnrSolver
 
 OBSERVATIONS = 20
@@ -103,15 +106,15 @@ def _pick(rng: np.random.Generator, antenna: np.ndarray, received: np.ndarray) -
 
 
 def _measure(
-    solver: SnrSolver, epochs: list[SnrEpoch], warm: bool
+    solver: SnrSolver, snapshots: list[Snapshot], warm: bool
 ) -> tuple[list[float], list[Solution | None]]:
     """Seconds per epoch and solutions, epochs in order (failures are None)."""
     seconds, solutions = [], []
     previous: Rotation | None = None
-    for problem in epochs:
+    for snapshot in snapshots:
         start = time.perf_counter()
         try:
-            solution = solver.solve(problem, prior=previous if warm else None)
+            solution = solver.solve(snapshot, prior=previous if warm else None)
         except AttoptError:  # a flagged epoch is counted, not fatal
             solution = None
         seconds.append(time.perf_counter() - start)
@@ -124,22 +127,23 @@ def _measure(
 def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
     """Measure every variant on the same epochs; print and return the table rows."""
     epochs, truths = _epochs(n_epochs, seed)
+    snapshots = [Snapshot.of(SnrMeasurement(epoch)) for epoch in epochs]
     lbfgs = NlpSolver(options=IpoptOptions(hessian_approximation="limited-memory"))
     variants: list[tuple[str, SnrSolver, bool]] = [
-        ("nlse (warm start)", SNR_SOLVERS["nlse"], True),
-        ("nlse (two-step start)", SNR_SOLVERS["nlse"], False),
-        ("nlp, exact Hessian (warm start)", SNR_SOLVERS["nlp"], True),
-        ("nlp, exact Hessian (two-step start)", SNR_SOLVERS["nlp"], False),
+        ("nlse (warm start)", NLSE, True),
+        ("nlse (two-step start)", NLSE, False),
+        ("nlp, exact Hessian (warm start)", NLP, True),
+        ("nlp, exact Hessian (two-step start)", NLP, False),
         ("nlp, L-BFGS (warm start)", lbfgs, True),
-        ("deterministic (two-step, QUEST)", SNR_SOLVERS["deterministic"], False),
+        ("deterministic (two-step, QUEST)", DETERMINISTIC, False),
     ]
     for _, solver, warm in variants:  # build every cached CasADi function before timing
-        _measure(solver, epochs[:2], warm)
+        _measure(solver, snapshots[:2], warm)
     rows = []
     for name, solver, warm in variants:
         medians = []
         for _ in range(repeats):
-            seconds, solutions = _measure(solver, epochs, warm)
+            seconds, solutions = _measure(solver, snapshots, warm)
             medians.append(float(np.median(seconds)))
         rows.append(_row(name, float(np.median(medians)), solutions, truths))
     reference = rows[0].median_ms

@@ -2,7 +2,7 @@
 
 Measured in one run on the same problems (two vectors, Sun + magnetometer
 weights of seed 002): per-call microseconds of every solver's single-epoch
-``solve``, and batched solutions per second over ``n_batch`` epochs for the
+``solve_vectors``, and batched solutions per second over ``n_batch`` epochs for the
 vectorised solvers, each printed as a ratio to ``align_vectors`` called once
 per epoch.  Batched answers are checked against ``align_vectors`` (they must
 agree to 1e-9 rad).  The SDP is timed per solve after its first (compiling)
@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import ESTIMATORS
 
 
 @dataclass(frozen=True)
@@ -68,10 +68,10 @@ def run(n_batch: int = 100_000, calls: int = 2000, seed: int = 0) -> list[BenchR
     check = min(n_batch, 5000)
     reference_att = Rotation.concatenate([align(i) for i in range(check)])
     rows = [BenchRow("align_vectors (scipy)", ref_call * 1e6, 1.0, ref_throughput, 1.0, 0.0)]
-    for name, solver in WAHBA_SOLVERS.items():
+    for solver in ESTIMATORS:
         n_calls = calls if solver.vectorised else max(calls // 10, 20)
         per_call = _per_call_seconds(
-            lambda i, s=solver: s.solve(body[i], reference[i], weights[i]), n_calls
+            lambda i, s=solver: s.solve_vectors(body[i], reference[i], weights[i]), n_calls
         )
         n = n_batch if solver.vectorised else min(n_batch, 500)
         elapsed = []
@@ -85,7 +85,7 @@ def run(n_batch: int = 100_000, calls: int = 2000, seed: int = 0) -> list[BenchR
         diff = float(np.abs(np.linalg.norm(attitude_error(est, reference_att[:m]), axis=1)).max())
         rows.append(
             BenchRow(
-                name,
+                solver.name,
                 per_call * 1e6,
                 ref_call / per_call,
                 n / elapsed,

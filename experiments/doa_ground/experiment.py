@@ -33,7 +33,7 @@ noise is drawn), and every estimator sees the same DOAs:
    errors below ``pbound`` are possible).  Both are the same for every trial
    of a setting and computed once per worker.
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
-   (:data:`attopt.solvers.wahba.WAHBA_SOLVERS`) wherever at least two accepted DOAs
+   (:data:`attopt.solvers.wahba.SVD`) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
 5. ``bls_seed003`` (:data:`~attopt.experiments.doa_ground.methods.BATCH_LS`), in the first
    ``filter_trials`` trials of each setting
@@ -119,11 +119,10 @@ from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import stored_rotations
 from attopt.solvers.smoother.batch import single_frame_initial
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import SVD
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)
-WAHBA_SOLVER = "svd"
 RAD2_TO_DEG2 = np.degrees(1.0) ** 2
 DOA_ROW_REASON = "DOA statistics row (no attitude)"
 """``reason`` of the per-trial ``music`` row, which the attitude summaries count as invalid."""
@@ -486,7 +485,7 @@ def _wahba_rows(
     """Single-epoch SVD solutions at the row epochs, with the single-epoch CRB."""
     body, reference, sigma = (v[rows] for v in vectors)
     present = np.isfinite(body).all(axis=-1)
-    solution = WAHBA_SOLVERS[WAHBA_SOLVER].solve_batch(
+    solution = SVD.solve_batch(
         np.where(present[..., None], body, reference), reference, sigma**-2.0, present
     )
     bound = np.array([_single_epoch_bound(geometry, k, setting) for k in rows])

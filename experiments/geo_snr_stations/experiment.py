@@ -3,11 +3,15 @@
 One trial simulates the hour of :mod:`attopt.experiments.geo_snr_stations.scenario`
 (SNR noise from the trial's seed) and solves it with, per epoch:
 
-* ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12);
-* ``lsq``: least-squares boresight over every station that hears the satellite;
+* ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12;
+  the ``geo_cone`` estimator, :mod:`attopt.solvers.geo.boresight`);
+* ``lsq``: least-squares boresight over every station that hears the satellite
+  (``geo_lsq``);
 * ``nlp``: the CasADi/IPOPT NLP of :mod:`attopt.solvers.snr.nlp` on every heard
   station's SNR (the seed's eq. 7 model through
-  :func:`attopt.formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight;
+  :func:`attopt.formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight
+  (its epoch-level estimate: one antenna, so the one-step solvers' observability
+  rule, which needs two, is not applied);
 * ``usque``: the unscented filter of sec. V.B on the three filter stations;
 * ``usque_detect``: the same with manoeuvre detection and automatic
   re-initialisation (:mod:`attopt.solvers.geo.manoeuvre`), run with and without the
@@ -72,17 +76,19 @@ from attopt.formulations.geo_fisher import snr_fisher_information
 from attopt.formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
 from attopt.formulations.gyro import GyroModel, GyroSamples, mean_rates
 from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.filters import FilterOptions, Usque
 from attopt.solvers.geo.boresight import (
-    StationCones,
-    cone_intersection,
-    least_squares_boresight,
-    station_cones,
+    GEO_CONE,
+    GEO_LSQ,
+    check_elevations,
+    estimated_boresight,
 )
 from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
 from attopt.solvers.results import Track
 from attopt.solvers.smoother import SmootherOptions, smooth
-from attopt.solvers.snr.nlp import NlpSolver
+from attopt.solvers.snr import NLP
 
 Array = NDArray[np.float64]
 
@@ -204,15 +210,18 @@ class _Rows:
 def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.intp]) -> list:
     """``cone``, ``lsq`` and ``nlp`` per epoch (module docstring)."""
     cone, lsq, nlp = (_Rows(m, scenario) for m in ("cone", "lsq", "nlp"))
-    solver = NlpSolver()
     for k in range(scenario.t.size):
         heard = np.flatnonzero(np.isfinite(snr[k]))
-        for rows, stations, solve in (
-            (cone, np.intersect1d(filter_idx, heard), cone_intersection),
-            (lsq, heard, least_squares_boresight),
+        for rows, stations, estimator in (
+            (cone, np.intersect1d(filter_idx, heard), GEO_CONE),
+            (lsq, heard, GEO_LSQ),
         ):
             try:
-                rows.boresight[k] = solve(epoch_cones(scenario, snr, k, stations)).direction
+                track = estimator.solve_sequence([epoch_snapshot(scenario, snr, k, stations)])
+                if not track.valid[0]:
+                    rows.reason[k] = track.reason[0]
+                    continue
+                rows.boresight[k] = estimated_boresight(track)[0]
                 rows.bound[k] = crb_sigma(scenario, k, stations)
             except AttoptError as error:
                 rows.reason[k] = str(error)
@@ -226,7 +235,7 @@ def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.
             SNR_SIGMA_DB,
             scenario.link,
         )
-        estimate = solver.estimate(epoch, attitude_pointing(lsq.boresight[k]))
+        estimate = NLP.estimate_epoch(epoch, attitude_pointing(lsq.boresight[k]))
         if estimate.failure is not None or estimate.attitude is None:
             nlp.reason[k] = estimate.failure or "no estimate"
             continue
@@ -236,18 +245,25 @@ def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.
     return [cone, lsq, nlp]
 
 
-def epoch_cones(
+def epoch_snapshot(
     scenario: GeoSnrScenario, snr: Array, k: int, stations: NDArray[np.intp]
-) -> StationCones:
-    """The cones of epoch ``k``'s ``stations`` from the measured SNRs ``snr`` ``(N, m)``."""
-    return station_cones(
+) -> Snapshot:
+    """Epoch ``k``'s ``stations``' measured SNRs (``snr`` ``(N, m)``) as a snapshot; raises
+    :class:`~attopt.formulations.errors.InvalidObservationError` for a station that does
+    not see the satellite."""
+    check_elevations(
+        scenario.stations_eci_km[k, stations],
+        scenario.stations_up_eci[k, stations],
+        scenario.satellite_eci_km[k],
+    )
+    epoch = geo_snr_epoch(
         snr[k, stations],
         scenario.satellite_eci_km[k],
         scenario.stations_eci_km[k, stations],
-        scenario.stations_up_eci[k, stations],
         SNR_SIGMA_DB,
         scenario.link,
     )
+    return Snapshot.of(SnrMeasurement(epoch), t=float(scenario.t[k]))
 
 
 def _filter_rows(method: str, scenario: GeoSnrScenario, result: Track) -> _Rows:

@@ -66,9 +66,11 @@ from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import orbit_frame_attitude
 from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.wahba_covariance import quest_covariance
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import ESTIMATORS
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
+SOLVERS = {solver.name: solver for solver in ESTIMATORS}
+"""The Wahba solvers by registry name."""
 
 
 PARAMETERS: dict[str, Any] = {
@@ -76,7 +78,7 @@ PARAMETERS: dict[str, Any] = {
     "step_s": 1.0,
     "mag_sigma": MAG_SIGMA,
     "sun_sigma": SUN_SIGMA,
-    "methods": list(WAHBA_SOLVERS),
+    "methods": list(SOLVERS),
     "filters": ["mekf", "usque", "rts", "fg_batch"],
     "gyro": "mems",
     "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
@@ -91,9 +93,9 @@ def grid(parameters: Mapping[str, Any]) -> list[Setting]:
             twice across ``methods`` and ``filters``, or a non-positive
             ``initial_sigma_deg``.
     """
-    unknown = sorted(set(parameters["methods"]) - set(WAHBA_SOLVERS))
+    unknown = sorted(set(parameters["methods"]) - set(SOLVERS))
     if unknown:
-        raise ValueError(f"unknown methods {unknown}; registered: {sorted(WAHBA_SOLVERS)}")
+        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SOLVERS)}")
     filters = list(parameters.get("filters", []))
     unknown = sorted(set(filters) - set(VECTOR_FILTERS))
     if unknown:
@@ -237,7 +239,7 @@ def _method_rows(
     geometry: VectorGeometry,
     common: Mapping[str, np.ndarray],
 ) -> pd.DataFrame:
-    solution = WAHBA_SOLVERS[name].solve_batch(body, reference, weights, present)
+    solution = SOLVERS[name].solve_batch(body, reference, weights, present)
     return pd.DataFrame(
         {
             "method": name,

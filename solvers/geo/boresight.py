@@ -1,63 +1,104 @@
-"""Boresight of a GEO broadcaster from SNRs at ground stations (seed 004 sec. IV.B, eq. 12).
+"""Boresight of a GEO broadcaster from SNRs at ground stations (Pimienta-Penalver and
+Crassidis sec. IV.B, eq. 12), as snapshot estimators.
 
 Each station's SNR is inverted through the link of seed 004 eq. 7
 (:mod:`attopt.formulations.geo_link`, satellite position and RF parameters known) for
 the transmit gain and, through the main lobe of eq. 5
 (:func:`attopt.solvers.snr.pattern_inverse.cos_from_gain`), for the off-boresight
 angle ``theta_b``: the boresight ``B`` lies on the cone ``l . B = cos theta_b``
-about the unit line of sight ``l`` from the satellite to the station.
+about the unit line of sight ``l`` from the satellite to the station
+(:func:`epoch_cones`, from the :class:`~attopt.formulations.snr_problem.SnrEpoch`
+of :func:`attopt.formulations.geo_link.geo_snr_epoch`).
 
-* :func:`cone_intersection`: two cones with a common vertex meet in (at most)
-  two directions (eq. 12)::
+* :data:`GEO_CONE` (registry ``geo_cone``): two cones with a common vertex
+  meet in (at most) two directions (eq. 12)::
 
       rho = l_1 . l_2,
       eta_1 = (c_1 - rho c_2) / (1 - rho^2),  eta_2 = (c_2 - rho c_1) / (1 - rho^2),
       eta_3 = +-sqrt((1 - eta_1 c_1 - eta_2 c_2) / (1 - rho^2)),
       B = eta_1 l_1 + eta_2 l_2 + eta_3 (l_1 x l_2),
 
-  and a third cone picks one of them.  Of the three stations given, the pair
+  and a third cone picks one of them.  Of the first three stations, the pair
   with the widest angle between its lines of sight is intersected and the
-  third station selects.  Fewer than three stations: the two candidates
-  cannot be told apart (:class:`~attopt.formulations.errors.UnobservableError`).
-  A negative radicand (noisy SNRs: the cones miss each other) falls back to
-  least squares over the same stations, flagged with the reason.
-* :func:`least_squares_boresight`: every station, the constrained weighted
-  least squares ``min sum ((l_k . B - c_k) / sigma_k)^2, |B| = 1`` of
-  :func:`attopt.solvers.snr.boresight.estimate_boresight`, ``sigma_k`` the SNR noise
-  mapped to ``cos theta_b``.
+  third station selects (``selection_margin``: the rejected candidate's
+  residual on the third cone minus the kept one's, ``cos`` units).  Fewer
+  than three stations: the two candidates cannot be told apart
+  (:class:`~attopt.formulations.errors.UnobservableError`).  A negative
+  radicand (noisy SNRs: the cones miss each other) falls back to least
+  squares over the same stations (``fell_back = 1``).
+* :data:`GEO_LSQ` (registry ``geo_lsq``): every station, the constrained
+  weighted least squares ``min sum ((l_k . B - c_k) / sigma_k)^2, |B| = 1`` of
+  :func:`attopt.solvers.snr.boresight.estimate_boresight`, ``sigma_k`` the SNR
+  noise mapped to ``cos theta_b``; coplanar lines of sight leave two
+  boresights (:class:`~attopt.formulations.errors.UnobservableError`).
 
-A station that does not see the satellite (elevation below 0) is rejected
-with :class:`~attopt.formulations.errors.InvalidObservationError` naming it.
-:func:`rf_sensitivity` measures the boresight error when the solver is given
-wrong RF parameters (seed 004 Fig. 6).
+Solution.  The data determine the boresight only: the attitude is the
+pointing (:func:`attopt.formulations.geo_link.attitude_pointing`) with the
+yaw about the boresight arbitrary, that of the prior when one is given.  The
+covariance is the first-order one of the cones used,
+``(sum_k w_k g_k g_k^T)^-1`` with ``g_k = z x (A l_k)`` (the body-frame
+gradient of ``cos theta_b``) and ``w_k = 1 / sigma_k^2``, which has an
+INFINITE variance about the boresight (``z``):
+:func:`attopt.formulations.snr_model.cramer_rao_bound`, so that
+:meth:`attopt.solvers.results.Track.to_dataframe` reports NaN for yaw.  The
+loss is ``1/2 sum ((l_k . B - c_k) / sigma_k)^2`` over the stations used.
+Diagnostics: the boresight (:data:`BORESIGHT_DIAGNOSTICS`, the positions'
+frame; :func:`estimated_boresight`), ``clamped_cos`` (gains clamped to the
+main lobe) and, for ``geo_cone``, ``fell_back`` and ``selection_margin``.
+
+The estimators use the epoch's lines of sight as given, which must be unit
+vectors (as :func:`~attopt.formulations.geo_link.geo_snr_epoch` makes them):
+normalising them again would change them by rounding.  Whether the stations
+see the satellite is not in the epoch: :func:`check_elevations` rejects a
+station with the satellite below its horizon.  :func:`rf_sensitivity`
+measures the boresight error when the solver is given wrong RF parameters
+(seed 004 Fig. 6).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import itertools
+from abc import abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.errors import InvalidObservationError, UnobservableError
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
 from attopt.formulations.geo_link import (
     BORESIGHT_BODY,
     GARUDA1,
     GeoLink,
+    attitude_pointing,
     elevation_rad,
     geo_snr_db,
-    station_terms,
+    geo_snr_epoch,
 )
+from attopt.formulations.passes import Prior
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.formulations.snr_model import cramer_rao_bound
+from attopt.formulations.snr_problem import SnrEpoch, content_issue
+from attopt.solvers.estimator import SnapshotEstimator
+from attopt.solvers.results import Track
+from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
 from attopt.solvers.snr.boresight import estimate_boresight
+from attopt.solvers.snr.driver import snr_epochs, start_attitude
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
 
 Array = NDArray[np.float64]
 
 MIN_STATIONS = 3
 """Two cones meet in two directions; a third cone is needed to choose (seed 004 sec. IV.B)."""
+UNIT_TOLERANCE = 1e-12
+"""Largest ``| |l| - 1 |`` of a line of sight the estimators accept."""
+BORESIGHT_DIAGNOSTICS = ("boresight_x", "boresight_y", "boresight_z")
+"""Diagnostics holding the estimated boresight (frame of the positions)."""
 
 
 @dataclass(frozen=True)
@@ -73,55 +114,49 @@ class StationCones:
     clamped: int
     """Gains outside the main lobe's range, clamped to it (noise or wrong RF parameters)."""
 
+    def take(self, rows: Sequence[int] | slice) -> StationCones:
+        """The cones of ``rows``."""
+        return dataclasses.replace(
+            self,
+            los=self.los[rows],
+            cos_off_boresight=self.cos_off_boresight[rows],
+            sigma_cos=self.sigma_cos[rows],
+        )
+
 
 @dataclass(frozen=True)
-class BoresightSolution:
-    """Estimated unit boresight in the frame of the positions."""
+class BoresightFit:
+    """A boresight and the cones it was fitted to (those the covariance and loss use)."""
 
     direction: Array
-    method: str
-    """``"cone_intersection"`` or ``"least_squares"``."""
-    fell_back: bool
-    """True when cone intersection was asked for but the cones do not intersect."""
-    reason: str
-    """Why it fell back (``""`` otherwise)."""
-    selection_margin: float
-    """Cone intersection: residual of the rejected candidate on the third cone minus
-    that of the kept one (``cos`` units); NaN for least squares."""
+    cones: StationCones
+    diagnostics: dict[str, float]
 
 
-def station_cones(
-    snr_db: ArrayLike,
-    satellite_km: ArrayLike,
-    stations_km: ArrayLike,
-    stations_up: ArrayLike,
-    sigma_db: ArrayLike,
-    link: GeoLink = GARUDA1,
-) -> StationCones:
-    """Invert eq. 7 at each station for ``cos theta_b`` (module docstring).
-
-    Raises :class:`InvalidObservationError` for malformed input or a station
-    with the satellite below its horizon.
-    """
-    snr = np.asarray(snr_db, dtype=float)
-    stations = np.asarray(stations_km, dtype=float)
-    if snr.ndim != 1 or stations.shape != (snr.size, 3):
-        raise InvalidObservationError(
-            f"expected (m,) SNRs and (m, 3) stations, got {snr.shape} and {stations.shape}"
-        )
-    sigma = np.broadcast_to(np.asarray(sigma_db, dtype=float), snr.shape)
-    if not (np.all(np.isfinite(snr)) and np.all(np.isfinite(sigma)) and np.all(sigma > 0)):
-        raise InvalidObservationError("SNRs must be finite and sigmas finite and positive")
-    elevation = elevation_rad(stations, stations_up, satellite_km)
+def check_elevations(
+    stations_km: ArrayLike, stations_up: ArrayLike, satellite_km: ArrayLike
+) -> None:
+    """Raise :class:`InvalidObservationError` naming the stations with the satellite below
+    their horizon (no line of sight)."""
+    elevation = elevation_rad(stations_km, stations_up, satellite_km)
     below = np.flatnonzero(~(elevation >= 0.0))
     if below.size:
         raise InvalidObservationError(
             f"station(s) {below.tolist()} have the satellite below the horizon (elevation "
             f"{np.degrees(elevation[below]).round(2).tolist()} deg): no line of sight"
         )
-    los, p0 = station_terms(satellite_km, stations, link)
-    cosine, slope, clamped = cos_from_gain(link.pattern, snr - p0 + link.noise_dbw)
-    return StationCones(los, cosine, np.abs(slope) * sigma, clamped)
+
+
+def epoch_cones(epoch: SnrEpoch) -> StationCones:
+    """Invert eq. 7 at each of the epoch's stations for ``cos theta_b`` (module docstring)."""
+    los = epoch.los_orbit
+    if np.any(np.abs(np.linalg.norm(los, axis=1) - 1.0) > UNIT_TOLERANCE):
+        raise InvalidObservationError(
+            "the boresight estimators need unit lines of sight (geo_snr_epoch's)"
+        )
+    gain = epoch.snr_db - epoch.p0_dbw + epoch.noise_dbw
+    cosine, slope, clamped = cos_from_gain(epoch.pattern, gain)
+    return StationCones(los, cosine, np.abs(slope) * epoch.sigma_db, clamped)
 
 
 def _pair_candidates(los: Array, cosine: Array) -> tuple[Array, float]:
@@ -137,40 +172,32 @@ def _pair_candidates(los: Array, cosine: Array) -> tuple[Array, float]:
     return np.stack([base + eta3 * normal, base - eta3 * normal]), radicand
 
 
-def cone_intersection(cones: StationCones) -> BoresightSolution:
+def intersect_cones(cones: StationCones) -> BoresightFit:
     """Boresight from the first three stations' cones (eq. 12), least squares if they miss."""
     if cones.los.shape[0] < MIN_STATIONS:
         raise UnobservableError(
             f"{cones.los.shape[0]} station(s): cone intersection needs three; two cones about "
             "different lines of sight meet in two directions and nothing chooses between them"
         )
-    los, cosine = cones.los[:MIN_STATIONS], cones.cos_off_boresight[:MIN_STATIONS]
+    three = cones.take(slice(0, MIN_STATIONS))
+    los, cosine = three.los, three.cos_off_boresight
     pairs = list(itertools.combinations(range(MIN_STATIONS), 2))
     i, j = max(pairs, key=lambda p: np.linalg.norm(np.cross(los[p[0]], los[p[1]])))
     (k,) = set(range(MIN_STATIONS)) - {i, j}
     candidates, radicand = _pair_candidates(los[[i, j]], cosine[[i, j]])
     if radicand < 0.0:
-        fallback = least_squares_boresight(
-            dataclasses.replace(
-                cones,
-                los=los,
-                cos_off_boresight=cosine,
-                sigma_cos=cones.sigma_cos[:MIN_STATIONS],
-            )
-        )
-        reason = (
-            f"cones of stations {i} and {j} do not intersect (radicand {radicand:.3g} < 0): "
-            "least-squares fallback"
-        )
-        return dataclasses.replace(fallback, fell_back=True, reason=reason)
+        fallback = fit_cones(three)
+        diagnostics = {**fallback.diagnostics, "fell_back": 1.0, "selection_margin": np.nan}
+        return dataclasses.replace(fallback, diagnostics=diagnostics)
     residual = np.abs(candidates @ los[k] - cosine[k])
     keep = int(np.argmin(residual))
     direction = candidates[keep] / np.linalg.norm(candidates[keep])
     margin = float(residual[1 - keep] - residual[keep])
-    return BoresightSolution(direction, "cone_intersection", False, "", margin)
+    diagnostics = {"fell_back": 0.0, "selection_margin": margin}
+    return BoresightFit(direction, three.take([i, j]), diagnostics)
 
 
-def least_squares_boresight(cones: StationCones) -> BoresightSolution:
+def fit_cones(cones: StationCones) -> BoresightFit:
     """Constrained weighted least squares over every station's cone (module docstring)."""
     m = cones.los.shape[0]
     if m < MIN_STATIONS:
@@ -183,7 +210,109 @@ def least_squares_boresight(cones: StationCones) -> BoresightSolution:
         raise UnobservableError(
             "the stations' lines of sight are coplanar: two boresights fit the SNRs equally well"
         )
-    return BoresightSolution(estimate.direction, "least_squares", False, "", np.nan)
+    return BoresightFit(estimate.direction, cones, {})
+
+
+def pointing_covariance(attitude: Rotation, cones: StationCones) -> Array:
+    """``(sum_k w_k g_k g_k^T)^-1``, ``g_k = z x (A l_k)``: infinite about the boresight."""
+    gradient = np.cross(BORESIGHT_BODY, cones.los @ attitude.as_matrix().T)
+    weights = cones.sigma_cos**-2.0
+    return cramer_rao_bound((gradient.T * weights) @ gradient)
+
+
+def cone_loss(cones: StationCones, direction: Array) -> float:
+    """``1/2 sum ((l_k . B - c_k) / sigma_k)^2``."""
+    residual = (cones.los @ direction - cones.cos_off_boresight) / cones.sigma_cos
+    return 0.5 * float(residual @ residual)
+
+
+def estimated_boresight(track: Track) -> Array:
+    """``(N, 3)`` boresights of a boresight estimator's track (NaN where invalid)."""
+    return np.stack([track.diagnostics[name] for name in BORESIGHT_DIAGNOSTICS], axis=1)
+
+
+@dataclass(frozen=True, repr=False)
+class BoresightEstimator(SnapshotEstimator):
+    """A snapshot estimator of the boresight from a GEO link epoch (module docstring)."""
+
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
+    diagnostic_names: ClassVar[tuple[str, ...]]
+
+    @abstractmethod
+    def fit(self, cones: StationCones) -> BoresightFit:
+        """The boresight of the epoch's cones."""
+
+    def solve_sequence(
+        self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None
+    ) -> Track:
+        """Each epoch on its own; ``prior`` gives the yaw about the boresight."""
+        return solve_in_sequence(
+            self.name,
+            snr_epochs(self, snapshots),
+            start_attitude(prior),
+            WarmStart(enabled=False),
+            self.diagnostic_names,
+            content_issue,
+            self._estimate,
+        )
+
+    def _estimate(self, epoch: SnrEpoch, reference: Rotation | None) -> EpochEstimate:
+        try:
+            cones = epoch_cones(epoch)
+            fit = self.fit(cones)
+        except AttoptError as exc:
+            return EpochEstimate.failed(str(exc), {}, type(exc))
+        attitude = attitude_pointing(fit.direction, reference)
+        diagnostics = {
+            **dict(zip(BORESIGHT_DIAGNOSTICS, fit.direction.tolist(), strict=True)),
+            **fit.diagnostics,
+            "clamped_cos": float(cones.clamped),
+        }
+        return EpochEstimate(
+            attitude,
+            pointing_covariance(attitude, fit.cones),
+            cone_loss(fit.cones, fit.direction),
+            diagnostics,
+        )
+
+
+@dataclass(frozen=True, repr=False)
+class ConeIntersection(BoresightEstimator):
+    """Registry entry ``geo_cone`` (module docstring)."""
+
+    name: str = "geo_cone"
+    description: str = (
+        "boresight by intersecting three stations' SNR cones, least squares when they miss "
+        "(Pimienta-Penalver and Crassidis sec. IV.B, eq. 12); yaw unobservable"
+    )
+    diagnostic_names: ClassVar[tuple[str, ...]] = (
+        *BORESIGHT_DIAGNOSTICS,
+        "fell_back",
+        "selection_margin",
+        "clamped_cos",
+    )
+
+    def fit(self, cones: StationCones) -> BoresightFit:
+        return intersect_cones(cones)
+
+
+@dataclass(frozen=True, repr=False)
+class LeastSquaresBoresight(BoresightEstimator):
+    """Registry entry ``geo_lsq`` (module docstring)."""
+
+    name: str = "geo_lsq"
+    description: str = (
+        "boresight by constrained weighted least squares over every station's SNR cone "
+        "(Pimienta-Penalver and Crassidis sec. IV.B); yaw unobservable"
+    )
+    diagnostic_names: ClassVar[tuple[str, ...]] = (*BORESIGHT_DIAGNOSTICS, "clamped_cos")
+
+    def fit(self, cones: StationCones) -> BoresightFit:
+        return fit_cones(cones)
+
+
+GEO_CONE = ConeIntersection()
+GEO_LSQ = LeastSquaresBoresight()
 
 
 def boresight_error_rad(estimate: ArrayLike, truth: ArrayLike) -> float:
@@ -204,6 +333,13 @@ class RfSensitivity:
     """Where cone intersection fell back to least squares."""
 
 
+SENSITIVITY_METHODS: dict[str, BoresightEstimator] = {
+    "cone_intersection": GEO_CONE,
+    "least_squares": GEO_LSQ,
+}
+"""The two methods of seed 004 sec. IV.B by the names of its Fig. 6."""
+
+
 def rf_sensitivity(
     truth: Rotation,
     satellite_km: ArrayLike,
@@ -217,22 +353,26 @@ def rf_sensitivity(
     """Boresight error with noise-free SNRs of ``link`` inverted with wrong ``P_t`` and ``D``.
 
     Seed 004 Fig. 6: the SNRs are those of the true attitude and ``link``;
-    the solver assumes each (``P_t``, ``D``) pair of the grid instead.
+    the solver (:data:`SENSITIVITY_METHODS`) assumes each (``P_t``, ``D``)
+    pair of the grid instead.
     """
+    if method not in SENSITIVITY_METHODS:
+        raise InvalidObservationError(
+            f"method must be one of {sorted(SENSITIVITY_METHODS)}, got {method!r}"
+        )
+    estimator = SENSITIVITY_METHODS[method]
+    check_elevations(stations_km, stations_up, satellite_km)
     snr = geo_snr_db(truth.as_matrix(), satellite_km, stations_km, link)
     true_boresight = truth.inv().apply(BORESIGHT_BODY)
     powers = np.asarray(transmit_power_w, dtype=float)
     diameters = np.asarray(dish_diameter_m, dtype=float)
     error = np.empty((powers.size, diameters.size))
     fell_back = np.zeros(error.shape, dtype=bool)
-    solvers = {"cone_intersection": cone_intersection, "least_squares": least_squares_boresight}
-    if method not in solvers:
-        raise InvalidObservationError(f"method must be one of {sorted(solvers)}, got {method!r}")
-    solve = solvers[method]
     for (a, power), (b, diameter) in itertools.product(enumerate(powers), enumerate(diameters)):
         assumed = dataclasses.replace(link, transmit_power_w=power, dish_diameter_m=diameter)
-        cones = station_cones(snr, satellite_km, stations_km, stations_up, 1.0, assumed)
-        solution = solve(cones)
-        error[a, b] = boresight_error_rad(solution.direction, true_boresight)
-        fell_back[a, b] = solution.fell_back
+        epoch = geo_snr_epoch(snr, satellite_km, stations_km, 1.0, assumed)
+        solution = estimator.solve(Snapshot.of(SnrMeasurement(epoch)))
+        direction = [solution.diagnostics[name] for name in BORESIGHT_DIAGNOSTICS]
+        error[a, b] = boresight_error_rad(direction, true_boresight)
+        fell_back[a, b] = solution.diagnostics.get("fell_back", 0.0) == 1.0
     return RfSensitivity(powers, diameters, error, fell_back)

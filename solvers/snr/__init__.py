@@ -1,17 +1,20 @@
-"""Solvers of the SNR attitude problem of seed 000 and their registry.
+"""Solvers of the SNR attitude problem of seed 000 as snapshot estimators.
 
 Every solver is an :class:`~attopt.solvers.snr.driver.SnrSolver` in
-:data:`SNR_SOLVERS` with the common contract
+:data:`ESTIMATORS`: a :class:`~attopt.solvers.estimator.SnapshotEstimator`
+that accepts one :class:`~attopt.formulations.snr_measurement.SnrMeasurement`
+per snapshot, with
 
-* ``solve(problem, prior=None) -> Solution`` for one
-  :class:`~attopt.formulations.snr_problem.SnrEpoch` (raises the specific
+* ``solve(snapshot, prior=None) -> Solution`` (raises the specific
   :mod:`attopt.formulations.errors` exception on bad input or a failed solve), and
-* ``solve_sequence(problems, prior=None, *, warm_start=True, max_prior_age=10)
-  -> Track`` for consecutive epochs (invalid ones flagged with the
-  reason, each epoch warm-started from the previous valid estimate).
+* ``solve_sequence(snapshots, prior=None) -> Track`` for consecutive epochs
+  (invalid ones flagged with the reason, each epoch warm-started from the
+  previous valid estimate as the ``warm_start`` field says);
+* ``solve_epochs(epochs, prior=None) -> Track``, the same on
+  :class:`~attopt.formulations.snr_problem.SnrEpoch` s.
 
-Names: ``"deterministic"`` (two-step: pattern inverse, boresight cones,
-QUEST; seed 000 sec. 3.2), ``"nlse"`` (Levenberg-Marquardt on 3-2-1 Euler
+Names: ``"deterministic"`` (two-step: pattern inverse, boresight cones, QUEST;
+Liu et al. 2023 sec. 3.2), ``"nlse"`` (Levenberg-Marquardt on 3-2-1 Euler
 angles; sec. 3.3) and ``"nlp"`` (CasADi NLP on an MRP increment, IPOPT), the
 last two minimising eq. 19, and ``"nlp_truncated"`` (the same NLP maximising
 the likelihood of the threshold-truncated measurements of sec. 5.1,
@@ -22,17 +25,23 @@ from __future__ import annotations
 
 from attopt.solvers.snr.deterministic import DeterministicSolver
 from attopt.solvers.snr.driver import SnrSolver
-from attopt.solvers.snr.nlp import TRUNCATED_NLP, IpoptOptions, NlpSolver
+from attopt.solvers.snr.nlp import TRUNCATED_NLP, NlpSolver
 from attopt.solvers.snr.nlse import LmOptions, NlseSolver
 
-SNR_SOLVERS: dict[str, SnrSolver] = {
-    s.name: s for s in (DeterministicSolver(), NlseSolver(), NlpSolver(), TRUNCATED_NLP)
-}
+DETERMINISTIC = DeterministicSolver()
+NLSE = NlseSolver()
+NLP = NlpSolver()
+
+ESTIMATORS: tuple[SnrSolver, ...] = (DETERMINISTIC, NLSE, NLP, TRUNCATED_NLP)
+"""The four SNR solvers."""
 
 __all__ = [
-    "SNR_SOLVERS",
+    "DETERMINISTIC",
+    "ESTIMATORS",
+    "NLP",
+    "NLSE",
+    "TRUNCATED_NLP",
     "DeterministicSolver",
-    "IpoptOptions",
     "LmOptions",
     "NlpSolver",
     "NlseSolver",

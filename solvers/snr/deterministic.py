@@ -8,7 +8,7 @@ least squares on the unit sphere (:mod:`attopt.solvers.snr.boresight`).
 
 Step 2: Wahba's problem (eqs. 16-17) with the pairs
 ``({b_i}_B, {b_i}_o)`` (body = mounting direction, reference = estimate),
-solved by QUEST (``attopt.solvers.wahba.WAHBA_SOLVERS["quest"]``, as in seed 000
+solved by QUEST (:data:`attopt.solvers.wahba.QUEST`, as in seed 000
 sec. 5.1).  QUEST's weights are ``a_i = 1 / sigma_i^2`` with ``sigma_i^2`` the
 mean tangent-plane variance of the estimated boresight, whose covariance
 comes from the SNR noise through step 1; the returned covariance is QUEST's
@@ -38,18 +38,20 @@ sight are not coplanar, the method is exact.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import AttoptError, ConvergenceError, UnobservableError
-from attopt.formulations.snr_problem import SnrEpoch
+from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
+from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.boresight import BoresightEstimate, estimate_boresight
-from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
+from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
-from attopt.solvers.wahba import WAHBA_SOLVERS
+from attopt.solvers.wahba import QUEST
 
 Array = NDArray[np.float64]
 
@@ -133,7 +135,7 @@ def two_step(
     body = problem.unit_boresights[antennas[usable]]
     reference = np.stack([e.direction for e, ok in zip(estimates, usable, strict=True) if ok])
     try:
-        wahba = WAHBA_SOLVERS["quest"].solve(body, reference, 1.0 / variance[usable])
+        wahba = QUEST.solve_vectors(body, reference, 1.0 / variance[usable])
     except AttoptError as exc:
         return TwoStep(
             None, np.full((3, 3), np.nan), diagnostics, f"QUEST: {exc}", type(exc), tuple(estimates)
@@ -144,7 +146,7 @@ def two_step(
     return TwoStep(wahba.attitude, wahba.covariance, diagnostics, boresights=tuple(estimates))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class DeterministicSolver(SnrSolver):
     """Registry entry ``"deterministic"``: :func:`two_step` per epoch.
 
@@ -155,13 +157,17 @@ class DeterministicSolver(SnrSolver):
     min_per_antenna: int = SEED000_MIN_PER_ANTENNA
     name: str = "deterministic"
     description: str = "two-step: pattern inverse, boresight cones, QUEST (seed 000 sec. 3.2)"
-    diagnostic_names: tuple[str, ...] = DETERMINISTIC_DIAGNOSTICS
+    diagnostic_names: ClassVar[tuple[str, ...]] = DETERMINISTIC_DIAGNOSTICS
 
     def __post_init__(self) -> None:
         if self.min_per_antenna < 2:
             raise ValueError("a boresight needs at least two cones (min_per_antenna >= 2)")
 
-    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+    def issue(self, problem: SnrEpoch) -> EpochIssue | None:
+        """The two-step rule: two non-parallel antennas with ``min_per_antenna`` observations."""
+        return epoch_issue(problem, min_per_antenna=self.min_per_antenna)
+
+    def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         result = two_step(problem, prior, self.min_per_antenna)
         if not result.valid:
             return EpochEstimate.failed(result.reason, result.diagnostics, result.error)

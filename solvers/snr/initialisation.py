@@ -13,6 +13,11 @@ solver needs a start in the basin of the global minimum.
   the fixed set :data:`START_ATTITUDES` around nadir pointing, keeping the
   converged solve of lowest loss.
 
+:func:`initialise` and :func:`multistart` take any problem and local solver,
+with the direct start and the multi-start set as arguments (the MAP NLP,
+:mod:`attopt.solvers.map_nlp`, has no direct start and multi-starts from
+well-spread attitudes).
+
 :class:`Initialised` records which start won (``source``: 0 prior,
 1 deterministic, 2 multi-start; ``start_index`` into :data:`START_ATTITUDES`),
 how many starts converged and to how many distinct minima (attitudes more
@@ -24,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import TypeVar
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -78,8 +84,9 @@ class LocalResult:
     acceptable: bool = False
 
 
-LocalSolve = Callable[[SnrEpoch, Rotation], LocalResult]
-"""A local solver: epoch and start attitude -> :class:`LocalResult`."""
+Problem = TypeVar("Problem")
+LocalSolve = Callable[[Problem, Rotation], LocalResult]
+"""A local solver: problem (an epoch) and start attitude -> :class:`LocalResult`."""
 
 
 @dataclass(frozen=True)
@@ -130,13 +137,19 @@ def count_distinct(attitudes: list[Rotation], tolerance: float = DISTINCT_MINIMU
     return len(representatives)
 
 
-def multistart(problem: SnrEpoch, local_solve: LocalSolve, already: int = 0) -> Initialised:
-    """Local solves from every :data:`START_ATTITUDES`; the converged one of lowest loss wins.
+def multistart(
+    problem: Problem,
+    local_solve: LocalSolve[Problem],
+    already: int = 0,
+    starts: Rotation = START_ATTITUDES,
+) -> Initialised:
+    """Local solves from every one of ``starts``; the converged one of lowest loss wins.
 
     If none converges, the result is the (failed) solve of lowest loss, or the
-    first, so that its status explains the failure.
+    first, so that its status explains the failure.  ``already``: local solves
+    run before (counted in :attr:`Initialised.local_solves`).
     """
-    results = [local_solve(problem, START_ATTITUDES[i]) for i in range(len(START_ATTITUDES))]
+    results = [local_solve(problem, starts[i]) for i in range(len(starts))]
     converged = [i for i, r in enumerate(results) if r.converged and np.isfinite(r.loss)]
     finite = [i for i, r in enumerate(results) if np.isfinite(r.loss)]
     candidates = converged or finite or [0]
@@ -151,11 +164,24 @@ def multistart(problem: SnrEpoch, local_solve: LocalSolve, already: int = 0) -> 
     )
 
 
-def initialise(problem: SnrEpoch, local_solve: LocalSolve, prior: Rotation | None) -> Initialised:
+def two_step_start(problem: SnrEpoch) -> Rotation | None:
+    """The deterministic two-step solution of seed 000 sec. 3.2, if it is valid."""
+    return two_step(problem).attitude
+
+
+def initialise(
+    problem: Problem,
+    local_solve: LocalSolve[Problem],
+    prior: Rotation | None,
+    direct_start: Callable[[Problem], Rotation | None] | None = two_step_start,
+    starts: Rotation = START_ATTITUDES,
+) -> Initialised:
     """The local solve of an epoch, started as the module docstring describes.
 
+    ``direct_start`` gives the start tried after the prior (for SNR epochs
+    :func:`two_step_start`; ``None``: none), ``starts`` the multi-start set.
     If no start converges, the result is the failed solve of the first start
-    tried (the prior, else the two-step solution, else the best multi-start),
+    tried (the prior, else the direct start, else the best multi-start),
     whose status then explains the failure.
     """
     failed: list[tuple[LocalResult, StartSource]] = []
@@ -164,13 +190,13 @@ def initialise(problem: SnrEpoch, local_solve: LocalSolve, prior: Rotation | Non
         if result.converged:
             return Initialised(result, StartSource.PRIOR)
         failed.append((result, StartSource.PRIOR))
-    deterministic = two_step(problem)
-    if deterministic.valid:
-        result = local_solve(problem, deterministic.attitude)
+    direct = None if direct_start is None else direct_start(problem)
+    if direct is not None:
+        result = local_solve(problem, direct)
         if result.converged:
             return Initialised(result, StartSource.DETERMINISTIC, local_solves=len(failed) + 1)
         failed.append((result, StartSource.DETERMINISTIC))
-    started = multistart(problem, local_solve, already=len(failed))
+    started = multistart(problem, local_solve, already=len(failed), starts=starts)
     if started.result.converged or not failed:
         return started
     first, source = failed[0]

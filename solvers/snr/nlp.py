@@ -52,16 +52,16 @@ near nadir pointing but are singular at 90 deg pitch and not body-frame.
 
 Size classes.  The NLP is built once per (pattern, bucket size, options) and
 per process (``functools.lru_cache``; ``nlpsol`` objects pickle, but each
-worker process builds its own and uses it from one thread,
-``/work/shared/notes/verified-facts.md``).  All epoch data are parameters:
+worker process builds its own and uses it from one thread).  All epoch data are parameters:
 ``A_ref`` (9), lines of sight and boresight rows (``3 x size`` each),
 ``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), and for the
 truncated objective standard deviations (size) and ``tau`` (1), with epochs
 padded to the buckets of :mod:`attopt.solvers.snr.padding`.
 
-IPOPT options (:class:`IpoptOptions`).  ``print_level 0``, ``sb yes``, no
-timing print and no CasADi evaluation warnings: silent (IPOPT itself cuts
-back steps into ``cos(alpha) <= 0``, where ``lg cos(alpha)`` is undefined).
+IPOPT options (:class:`attopt.solvers.ipopt.IpoptOptions`, shared with the
+MAP NLP).  ``print_level 0``, ``sb yes``, no timing print and no CasADi
+evaluation warnings: silent (IPOPT itself cuts back steps into
+``cos(alpha) <= 0``, where ``lg cos(alpha)`` is undefined).
 ``nlp_scaling_method = none``: the loss is already in units of the SNR
 variance, and IPOPT's gradient-based scaling would make the stopping test
 depend on the start.  ``tol = 1e-6`` on the gradient (dB^2/rad): the attitude
@@ -89,9 +89,9 @@ attitude is returned for it.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Any, Literal
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -101,40 +101,14 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.snr_model import snr_function
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.snr.driver import EpochEstimate
+from attopt.solvers.ipopt import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, IpoptOptions
+from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
 from attopt.solvers.snr.initialisation import LocalResult
-from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
+from attopt.solvers.snr.one_step import OneStepSolver
 from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
 
 Array = NDArray[np.float64]
-
-CONVERGED_STATUS = "Solve_Succeeded"
-ACCEPTABLE_STATUS = "Solved_To_Acceptable_Level"
-
-
-@dataclass(frozen=True)
-class IpoptOptions:
-    """IPOPT settings of the SNR NLP (module docstring); hashable, part of the cache key."""
-
-    tol: float = 1e-6
-    acceptable_tol: float = 1e-4
-    acceptable_iter: int = 15
-    max_iter: int = 100
-    hessian_approximation: Literal["exact", "limited-memory"] = "exact"
-    nlp_scaling_method: Literal["none", "gradient-based"] = "none"
-
-    def nlpsol_options(self) -> dict[str, Any]:
-        ipopt = {f"ipopt.{k}": v for k, v in asdict(self).items()}
-        return {
-            **ipopt,
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "print_time": False,
-            "show_eval_warnings": False,
-            "calc_lam_p": False,
-            "calc_lam_x": False,
-        }
 
 
 def _parameter_symbols(size: int, objective: Objective = "least_squares") -> dict[str, ca.SX]:
@@ -224,14 +198,14 @@ def solve_local(
     return LocalResult(
         attitude=attitude,
         loss=loss if finite else np.nan,
-        converged=finite and status in (CONVERGED_STATUS, ACCEPTABLE_STATUS),
+        converged=finite and status in ACCEPTED_STATUSES,
         status=status,
         iterations=int(stats["iter_count"]),
         acceptable=status == ACCEPTABLE_STATUS,
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class NlpSolver(OneStepSolver):
     """Registry entries ``"nlp"`` and ``"nlp_truncated"``: the IPOPT NLP of :attr:`objective`.
 
@@ -243,8 +217,7 @@ class NlpSolver(OneStepSolver):
     objective: Objective = "least_squares"
     name: str = "nlp"
     description: str = "CasADi NLP on the MRP increment, IPOPT (seed 000 eqs. 19-20, 22)"
-    diagnostic_names: tuple[str, ...] = ONE_STEP_DIAGNOSTICS
-    status_label: str = "IPOPT"
+    status_label: ClassVar[str] = "IPOPT"
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -253,8 +226,8 @@ class NlpSolver(OneStepSolver):
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         return solve_local(problem, start, self.options, self.objective)
 
-    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
-        estimate = super().estimate(problem, prior)
+    def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        estimate = super().estimate_epoch(problem, prior)
         if self.objective == "least_squares" or estimate.attitude is None:
             return estimate
         # The shared one-step estimate scores with eq. 19 and eq. 22; score the truncated model.

@@ -32,6 +32,7 @@ solver (``tests/test_snr_solvers.py`` checks the mapping).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,7 +43,7 @@ from attopt.formulations.conventions import attitude_from_euler321, euler321_fro
 from attopt.formulations.snr_euler import snr_euler_jacobian_function
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snr.initialisation import LocalResult
-from attopt.solvers.snr.one_step import ONE_STEP_DIAGNOSTICS, OneStepSolver
+from attopt.solvers.snr.one_step import OneStepSolver
 from attopt.solvers.snr.padding import pad_epoch
 
 Array = NDArray[np.float64]
@@ -111,7 +112,7 @@ def solve_local(problem: SnrEpoch, start: Rotation, options: LmOptions) -> Local
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class NlseSolver(OneStepSolver):
     """Registry entry ``"nlse"``: seed 000's NLSE.
 
@@ -123,8 +124,7 @@ class NlseSolver(OneStepSolver):
     options: LmOptions = field(default_factory=LmOptions)
     name: str = "nlse"
     description: str = "Levenberg-Marquardt on 3-2-1 Euler angles (seed 000 eqs. 8, 18-22)"
-    diagnostic_names: tuple[str, ...] = ONE_STEP_DIAGNOSTICS
-    status_label: str = "least_squares(lm)"
+    status_label: ClassVar[str] = "least_squares(lm)"
 
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         return solve_local(problem, start, self.options)

@@ -10,11 +10,13 @@ the shared loss and covariance (seed 000 eqs. 19, 22; :mod:`attopt.solvers.snr.f
 from __future__ import annotations
 
 from abc import abstractmethod
+from typing import ClassVar
 
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.snr.driver import EpochEstimate, SnrSolver
+from attopt.solvers.snapshot_sequence import EpochEstimate
+from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
 
@@ -25,13 +27,14 @@ ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe")
 class OneStepSolver(SnrSolver):
     """A one-step solver; subclasses set :attr:`status_label` and implement :meth:`local_solve`."""
 
-    status_label: str
+    status_label: ClassVar[str]
+    diagnostic_names: ClassVar[tuple[str, ...]] = ONE_STEP_DIAGNOSTICS
 
     @abstractmethod
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         """Minimise the SNR loss of ``problem`` from ``start``."""
 
-    def estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+    def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         init = initialise(problem, self.local_solve, prior)
         diagnostics = init.diagnostics()
         if not init.result.converged:

@@ -1,38 +1,78 @@
-"""Solvers of Wahba's problem (seed 002) and their registry.
+"""Solvers of Wahba's problem (Cilden Guler et al. 2017) as snapshot estimators.
 
-Every solver is a :class:`WahbaSolver` in :data:`WAHBA_SOLVERS`; experiments,
-benchmarks and the contract tests iterate over that registry.
+Every solver is a :class:`WahbaSolver` in :data:`ESTIMATORS` (registry names
+``triad``, ``svd``, ``q_method``, ``quest``, ``foam``, ``sdp``).  Each accepts
+:class:`~attopt.formulations.attitude_measurement.VectorMeasurement` s
+(:meth:`~attopt.solvers.estimator.SnapshotEstimator.solve`,
+:meth:`WahbaSolver.solve_sequence`) and keeps the array-level interface the
+experiments use for speed (:meth:`WahbaSolver.solve_batch`,
+:meth:`WahbaSolver.solve_vectors`).
+
+Weights.  The weight of vector ``i`` is ``a_i = 1 / sigma_i^2`` (eq. 14) and
+each covariance (eqs. 11, 19, 32, 37) is that of the attitude error under the
+QUEST measurement model with isotropic direction noise of standard deviation
+``sigma_i`` per axis.  Weights given directly are read the same way, as
+inverse variances: weights scaled by ``c`` give the same attitude and a
+covariance scaled by ``1 / c``, so the covariance is a covariance in rad^2
+only for ``a_i = 1 / sigma_i^2``.  A
+:class:`~attopt.formulations.attitude_measurement.VectorMeasurement` given
+full ``3 x 3`` covariances ``C_i`` contributes its isotropic equivalent
+:attr:`~attopt.formulations.attitude_measurement.VectorMeasurement.sigma`
+(``sigma_i^2 = tr(P_i C_i P_i) / 2``, the mean variance across the measured
+direction): the covariance is then that of the isotropic model with those
+variances, an approximation when ``C_i`` is not isotropic across the
+direction.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from abc import abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import ClassVar
 
+import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
 
-from attopt.formulations.vector_observations import PARALLEL_TOLERANCE, prepare_observations
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
+from attopt.formulations.passes import Prior
+from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.vector_observations import (
+    PARALLEL_TOLERANCE,
+    ObservationBatch,
+    prepare_observations,
+)
+from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.results import Solution, Track
 from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
-from attopt.solvers.wahba.driver import Estimator, solve_prepared
+from attopt.solvers.wahba.driver import Estimate, Method, solve_prepared
+from attopt.solvers.wahba.sdp import SdpOptions
 
 
-@dataclass(frozen=True)
-class WahbaSolver:
-    """A registered solver of Wahba's problem.
+@dataclass(frozen=True, repr=False, kw_only=True)
+class WahbaSolver(SnapshotEstimator):
+    """A solver of Wahba's problem (module docstring).
 
     Attributes:
-        name: registry key, also the ``method`` column of results.
-        estimator: the method itself (see :mod:`attopt.solvers.wahba.driver`).
+        name: registry key, also the ``method`` of its results.
+        description: one line with the equations it implements.
         optimal: whether it minimises Wahba's loss exactly (TRIAD does not).
         vectorised: whether a batch is solved without a Python loop per epoch.
-        description: one line with the seed equations it implements.
+        parallel_tolerance: ``|b_i x b_j|`` below which every pair of
+            directions counts as (anti)parallel (an unobservable epoch).
     """
 
     name: str
-    estimator: Estimator
+    description: str
     optimal: bool
     vectorised: bool
-    description: str
+    parallel_tolerance: float = PARALLEL_TOLERANCE
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (VectorMeasurement,)
+
+    @abstractmethod
+    def estimate(self, obs: ObservationBatch) -> Estimate:
+        """The method itself on validated observations (:mod:`attopt.solvers.wahba.driver`)."""
 
     def solve_batch(
         self,
@@ -40,42 +80,127 @@ class WahbaSolver:
         reference: ArrayLike,
         weights: ArrayLike,
         present: ArrayLike | None = None,
-        *,
-        parallel_tolerance: float = PARALLEL_TOLERANCE,
     ) -> Track:
-        """Solve ``N`` epochs (``(N, n, 3)`` vectors); invalid epochs are flagged, not raised."""
+        """Solve ``N`` epochs of ``(N, n, 3)`` vectors with weights ``(N, n)``; ``present``
+        ``(N, n)`` masks absent vectors.  Invalid epochs are flagged, not raised.
+
+        The weights are read as inverse variances ``a_i = 1 / sigma_i^2`` (rad^-2)
+        of isotropic direction noise: the covariance is the attitude error's (rad^2)
+        for those, and scales by ``1 / c`` when every weight is scaled by ``c``
+        (the attitude does not change).
+        """
         obs = prepare_observations(
-            body, reference, weights, present, parallel_tolerance=parallel_tolerance
+            body, reference, weights, present, parallel_tolerance=self.parallel_tolerance
         )
-        return solve_prepared(self.name, self.estimator, obs)
+        return solve_prepared(self.name, self.estimate, obs)
 
-    def solve(
-        self,
-        body: ArrayLike,
-        reference: ArrayLike,
-        weights: ArrayLike,
-        *,
-        parallel_tolerance: float = PARALLEL_TOLERANCE,
-    ) -> Solution:
-        """Solve one epoch (``(n, 3)`` vectors); raises a specific error on bad input."""
-        obs = prepare_observations(body, reference, weights, parallel_tolerance=parallel_tolerance)
+    def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
+        """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
+        specific error on bad input."""
+        obs = prepare_observations(
+            body, reference, weights, parallel_tolerance=self.parallel_tolerance
+        )
         if obs.n_epochs != 1:
-            raise ValueError("solve() takes one epoch of (n, 3) vectors; use solve_batch()")
-        return solve_prepared(self.name, self.estimator, obs).epoch(0).raise_if_invalid()
+            raise ValueError("solve_vectors() takes one epoch of (n, 3) vectors; use solve_batch()")
+        return solve_prepared(self.name, self.estimate, obs).epoch(0).raise_if_invalid()
+
+    def solve_sequence(
+        self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None
+    ) -> Track:
+        """Every epoch's vector measurements, padded to a common count, by :meth:`solve_batch`.
+
+        Weights ``1 / sigma_i^2`` from each measurement's ``sigma``; an epoch
+        without measurement (``None``) is flagged as having fewer than two
+        vectors.  ``prior`` is not used: the solution is closed-form.
+        """
+        vectors = []
+        for snapshot in snapshots:
+            if snapshot is None:
+                vectors.append((np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)))
+                continue
+            self.check_types(snapshot.types)
+            parts = snapshot.of_type(VectorMeasurement)
+            vectors.append(
+                (
+                    np.concatenate([m.z.reshape(-1, 3) for m in parts]),
+                    np.concatenate([m.reference for m in parts]),
+                    np.concatenate([m.sigma for m in parts]),
+                )
+            )
+        n = max((v[2].size for v in vectors), default=0)
+        body = np.zeros((len(vectors), n, 3))
+        reference = np.zeros((len(vectors), n, 3))
+        weights = np.zeros((len(vectors), n))
+        present = np.zeros((len(vectors), n), dtype=bool)
+        for i, (b, r, sigma) in enumerate(vectors):
+            k = sigma.size
+            body[i, :k], reference[i, :k], weights[i, :k] = b, r, sigma**-2.0
+            present[i, :k] = True
+        return self.solve_batch(body, reference, weights, present)
 
 
-WAHBA_SOLVERS: dict[str, WahbaSolver] = {
-    s.name: s
-    for s in (
-        WahbaSolver("triad", triad.estimate, False, True, "TRIAD/algebraic, seed 002 eqs. 5-11"),
-        WahbaSolver("svd", svd.estimate, True, True, "SVD, seed 002 eqs. 17-19"),
-        WahbaSolver(
-            "q_method", qmethod.estimate, True, True, "Davenport q-method, seed 002 eqs. 20-26"
-        ),
-        WahbaSolver("quest", quest.estimate, True, True, "QUEST, seed 002 eqs. 27-32"),
-        WahbaSolver("foam", foam.estimate, True, True, "FOAM, seed 002 eqs. 33-37"),
-        WahbaSolver(
-            "sdp", sdp.estimate, True, False, "SDP relaxation (cvxpy + Clarabel), eqs. 22-26"
-        ),
+@dataclass(frozen=True, repr=False, kw_only=True)
+class ClosedFormSolver(WahbaSolver):
+    """A closed-form or eigenvalue method: ``method`` maps the observations to an estimate."""
+
+    method: Method
+
+    def estimate(self, obs: ObservationBatch) -> Estimate:
+        return self.method(obs)
+
+
+@dataclass(frozen=True, repr=False, kw_only=True)
+class SdpSolver(WahbaSolver):
+    """Registry entry ``sdp``: the semidefinite relaxation, :class:`SdpOptions` its solver."""
+
+    name: str = "sdp"
+    description: str = (
+        "SDP relaxation (cvxpy: Clarabel or SCS), Cilden Guler et al. 2017 eqs. 22-26"
     )
-}
+    optimal: bool = True
+    vectorised: bool = False
+    options: SdpOptions = field(default_factory=SdpOptions)
+
+    def estimate(self, obs: ObservationBatch) -> Estimate:
+        return sdp.estimate(obs, self.options)
+
+
+TRIAD = ClosedFormSolver(
+    name="triad",
+    method=triad.estimate,
+    optimal=False,
+    vectorised=True,
+    description="TRIAD/algebraic, Cilden Guler et al. 2017 eqs. 5-11",
+)
+SVD = ClosedFormSolver(
+    name="svd",
+    method=svd.estimate,
+    optimal=True,
+    vectorised=True,
+    description="SVD, Cilden Guler et al. 2017 eqs. 17-19",
+)
+Q_METHOD = ClosedFormSolver(
+    name="q_method",
+    method=qmethod.estimate,
+    optimal=True,
+    vectorised=True,
+    description="Davenport q-method, Cilden Guler et al. 2017 eqs. 20-26",
+)
+QUEST = ClosedFormSolver(
+    name="quest",
+    method=quest.estimate,
+    optimal=True,
+    vectorised=True,
+    description="QUEST, Cilden Guler et al. 2017 eqs. 27-32",
+)
+FOAM = ClosedFormSolver(
+    name="foam",
+    method=foam.estimate,
+    optimal=True,
+    vectorised=True,
+    description="FOAM, Cilden Guler et al. 2017 eqs. 33-37",
+)
+SDP = SdpSolver()
+
+ESTIMATORS: tuple[WahbaSolver, ...] = (TRIAD, SVD, Q_METHOD, QUEST, FOAM, SDP)
+"""The six solvers, in the order of Cilden Guler et al. 2017's sections."""

@@ -1,10 +1,10 @@
 """The part every Wahba solver shares: validate, estimate, mask, score.
 
-A solver supplies only an *estimator*: a function from validated
-observations (:class:`attopt.formulations.vector_observations.ObservationBatch`) to an
-:class:`Estimate` for every epoch.  This module turns that into a
-:class:`attopt.solvers.results.Track` with Wahba's loss (seed 002 eq. 14), the
-validity mask and reasons.
+A solver supplies only its method: a function from validated observations
+(:class:`attopt.formulations.vector_observations.ObservationBatch`) to an
+:class:`Estimate` for every epoch (:meth:`attopt.solvers.wahba.WahbaSolver.estimate`).
+This module turns that into a :class:`attopt.solvers.results.Track` with
+Wahba's loss (seed 002 eq. 14), the validity mask and reasons.
 """
 
 from __future__ import annotations
@@ -38,11 +38,12 @@ class Estimate:
     failure: str | NDArray[np.object_] | None = None
 
 
-Estimator = Callable[[ObservationBatch], Estimate]
+Method = Callable[[ObservationBatch], Estimate]
+"""A Wahba method: validated observations -> the estimate of every epoch."""
 
 
-def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> Track:
-    """Run ``estimator`` on validated observations and assemble the batch result."""
+def solve_prepared(name: str, method: Method, obs: ObservationBatch) -> Track:
+    """Run ``method`` on validated observations and assemble the batch result."""
     n = obs.n_epochs
     valid = obs.valid.copy()
     reason = obs.reason.copy()
@@ -50,7 +51,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     if not valid.any():
         nan = np.full(n, np.nan)
         return Track(
-            method,
+            name,
             np.full((n, 4), np.nan),
             np.full((n, 3, 3), np.nan),
             nan,
@@ -59,7 +60,7 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
             error,
             {},
         )
-    est = estimator(obs)
+    est = method(obs)
     if est.failed is not None:
         newly = est.failed & valid
         valid &= ~est.failed
@@ -74,4 +75,4 @@ def solve_prepared(method: str, estimator: Estimator, obs: ObservationBatch) -> 
     diagnostics = {
         k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()
     }
-    return Track(method, quaternion, covariance, loss, valid, reason, error, diagnostics)
+    return Track(name, quaternion, covariance, loss, valid, reason, error, diagnostics)
