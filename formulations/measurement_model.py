@@ -33,8 +33,10 @@ Innovations (CasADi, elementwise unless stated):
   written as ``p atan2(|p|, c) / |p|`` with ``c = z . u``, ``u = h / |h|``
   and ``p = z - c u``, and for ``|p| < 1e-6 c`` as the series
   ``p (1 - |p|^2 / (3 c^2)) / c``, so that it stays differentiable at
-  ``p = 0`` (a noise-free optimum).  An exactly antipodal vector (``p = 0``,
-  ``c < 0``) has no geodesic difference.
+  ``p = 0`` (a noise-free optimum).  A reversed vector (``c < 0`` with ``|p|``
+  that small, antipodal to rounding) has no direction of difference: it gets
+  ``pi`` times a unit vector perpendicular to ``u``, the limit of the
+  difference's size, so that the loss there is the largest, not zero.
 """
 
 from __future__ import annotations
@@ -84,8 +86,25 @@ def geodesic_difference(z: Any, h: Any) -> Any:
     sine = ca.sqrt(ca.fmax(square, 1e-300))
     exact = ca.atan2(sine, cosine) / sine
     series = (1.0 - square / (3.0 * cosine**2)) / cosine
-    ratio = ca.if_else(square > (_SERIES_BELOW * cosine) ** 2, exact, series)
-    return ca.vec(perpendicular * ca.repmat(ratio, 3, 1))
+    near = square <= (_SERIES_BELOW * cosine) ** 2
+    ratio = ca.if_else(near * (cosine > 0), series, exact)
+    regular = perpendicular * ca.repmat(ratio, 3, 1)
+    reversed_ = ca.repmat(near * (cosine < 0), 3, 1)
+    return ca.vec(ca.if_else(reversed_, np.pi * _any_perpendicular(unit), regular))
+
+
+def _any_perpendicular(unit: Any) -> Any:
+    """A unit vector perpendicular to each column of ``unit`` (``3 x k``): its cross product
+    with the coordinate axis it is least aligned with, normalised."""
+    x, y, z = unit[0, :], unit[1, :], unit[2, :]
+    zero = ca.DM.zeros(1, unit.size2())
+    with_x = ca.vertcat(zero, z, -y)  # u x e_x, |.|^2 = 1 - x^2
+    with_y = ca.vertcat(-z, zero, x)  # u x e_y
+    with_z = ca.vertcat(y, -x, zero)  # u x e_z
+    best_xy = ca.if_else(ca.repmat(x**2 <= y**2, 3, 1), with_x, with_y)
+    smallest_xy = ca.fmin(x**2, y**2)
+    cross = ca.if_else(ca.repmat(z**2 < smallest_xy, 3, 1), with_z, best_xy)
+    return cross / ca.repmat(ca.sqrt(ca.sum1(cross**2)), 3, 1)
 
 
 def _matrix(value: ArrayLike) -> Array:

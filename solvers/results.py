@@ -23,7 +23,7 @@ Example::
     ... )
     >>> solution = estimator("quest").solve(snapshot)
     >>> solution.valid, np.round(solution.sigma_deg, 3).tolist()
-    (True, [0.057, 0.057, 0.081])
+    (True, [0.057, 0.057, 0.041])
 """
 
 from __future__ import annotations

@@ -96,6 +96,20 @@ def test_noise_free_vectors_are_recovered_without_a_prior(truth):
     )
 
 
+@pytest.mark.parametrize("count", [2, 3])
+def test_axis_aligned_vectors_are_not_matched_by_a_half_turn(count):
+    """The multi-start includes half turns about the axes, which reverse some of these
+    vectors exactly: a reversed vector must cost (pi / sigma)^2, not nothing."""
+    reference = np.eye(3)[:count]
+    solution = MAP_NLP.solve(Snapshot.from_vectors(reference, reference, sigma=1e-3))
+    assert solution.attitude.magnitude() < 1e-9 and solution.loss < 1e-12
+    half_turn = Rotation.from_rotvec([np.pi, 0.0, 0.0])
+    flipped = MAP_NLP.solve(
+        Snapshot.from_vectors(half_turn.apply(reference), reference, sigma=1e-3)
+    )
+    assert angle(flipped.attitude, half_turn) < 1e-9
+
+
 @settings(max_examples=10, deadline=None)
 @given(attitudes())
 def test_noise_free_euler_angles_and_doas_are_recovered(truth):
