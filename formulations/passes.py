@@ -220,6 +220,18 @@ class Pass:
         return self.t.size
 
     @classmethod
+    def from_measurements(
+        cls,
+        t: ArrayLike,
+        measurements: Sequence[AttitudeMeasurement | Snapshot | None],
+        gyro: GyroRecord | None = None,
+        prior: Prior | None = None,
+        dynamics: RigidBody | None = None,
+    ) -> Pass:
+        """One measurement (or snapshot, or ``None``: none) per epoch ``t``."""
+        return cls(t, epoch_snapshots(measurements, t), gyro, prior, dynamics)
+
+    @classmethod
     def from_vectors(
         cls,
         t: ArrayLike,

@@ -117,6 +117,11 @@ _BRANCH_CLAMP_U = 0.5
 """Tail branches are evaluated at ``u >= 0.5`` (they are used at ``u > 1``)."""
 _MIDDLE_CLAMP_X = 2.0 * _SQRT_TWO
 """The middle branch is evaluated at ``|x| <= 2 sqrt 2`` (it is used at ``|x| <= sqrt 2``)."""
+_UPPER_X = 40.0
+"""Above this ``Phi(x) = 1`` and ``lambda(x) = 0`` in double precision (``exp(-x^2 / 2)``
+underflows from ``x = 38.6``), so clamping ``x`` there changes no finite value and makes
+``x = +inf`` exact: an epoch without a reception threshold (``tau = -inf``) is then the
+untruncated Gaussian model."""
 
 
 def _horner(coefficients: Sequence[float], u: Any, monic: bool = False) -> Any:
@@ -141,6 +146,7 @@ def log_normal_cdf(x: Any, xp: ArrayNamespace | None = None) -> Any:
     defaults to the namespace of ``x``.
     """
     xp = namespace_of(x) if xp is None else xp
+    x = -xp.fmax(-x, -_UPPER_X)
     half_square = 0.5 * x * x
     # The tails, |x| > sqrt 2, with u = |x| / sqrt 2 > 1 and E(u) = exp(u^2) erfc(u):
     scaled = _scaled_erfc(xp.fmax(abs(x) * _SQRT_HALF, _BRANCH_CLAMP_U), xp)
@@ -186,7 +192,7 @@ def truncated_information_factor(
     truth, the predicted one at an estimate).
     """
     xp = namespace_of(predicted_db, sigma_db, threshold_db) if xp is None else xp
-    x = (predicted_db - threshold_db) / sigma_db
+    x = -xp.fmax(-(predicted_db - threshold_db) / sigma_db, -_UPPER_X)
     mills = inverse_mills_ratio(x, xp)
     return 1.0 - x * mills - mills * mills
 

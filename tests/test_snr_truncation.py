@@ -23,6 +23,7 @@ from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.snr_model import cramer_rao_bound
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
 from attopt.formulations.snr_truncation import (
+    inverse_mills_ratio,
     log_normal_cdf,
     truncated_fisher_information,
     truncated_information_factor,
@@ -244,3 +245,13 @@ def test_monte_carlo_truncated_ml_is_unbiased_and_reaches_the_truncated_bound():
     # 300 trials: the standard error of tr(scatter) is ~5%; 15% is three of them.
     assert ratio["nlp_truncated"] == pytest.approx(1.0, abs=0.15)
     assert explained == pytest.approx(1.0, abs=0.15)
+
+
+def test_without_a_threshold_the_truncated_model_is_the_gaussian_one():
+    """``tau = -inf`` (no reception threshold, as at a GEO ground station): no NaN, the
+    limits exactly: ``log Phi = 0``, ``lambda = 0``, information factor 1."""
+    f = np.array([-20.0, 0.0, 10.0, 60.0])
+    assert np.array_equal(truncated_information_factor(f, 1.0, -np.inf), np.ones(4))
+    assert np.array_equal(truncated_nll(f + 0.5, f, 1.0, -np.inf), np.full(4, 0.125))
+    assert inverse_mills_ratio(np.array([np.inf]))[0] == 0.0
+    assert log_normal_cdf(np.array([np.inf]))[0] == 0.0

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
@@ -48,6 +48,8 @@ from attopt.solvers.results import Solution, Track
 from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
 from attopt.solvers.wahba.driver import Estimate, Method, solve_prepared
 from attopt.solvers.wahba.sdp import SdpOptions
+
+Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True, repr=False, kw_only=True)
@@ -113,20 +115,7 @@ class WahbaSolver(SnapshotEstimator):
         without measurement (``None``) is flagged as having fewer than two
         vectors.  ``prior`` is not used: the solution is closed-form.
         """
-        vectors = []
-        for snapshot in snapshots:
-            if snapshot is None:
-                vectors.append((np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)))
-                continue
-            self.check_types(snapshot.types)
-            parts = snapshot.of_type(VectorMeasurement)
-            vectors.append(
-                (
-                    np.concatenate([m.z.reshape(-1, 3) for m in parts]),
-                    np.concatenate([m.reference for m in parts]),
-                    np.concatenate([m.sigma for m in parts]),
-                )
-            )
+        vectors = [self._vectors(snapshot) for snapshot in snapshots]
         n = max((v[2].size for v in vectors), default=0)
         body = np.zeros((len(vectors), n, 3))
         reference = np.zeros((len(vectors), n, 3))
@@ -137,6 +126,20 @@ class WahbaSolver(SnapshotEstimator):
             body[i, :k], reference[i, :k], weights[i, :k] = b, r, sigma**-2.0
             present[i, :k] = True
         return self.solve_batch(body, reference, weights, present)
+
+    def _vectors(self, snapshot: Snapshot | None) -> tuple[Array, Array, Array]:
+        """The snapshot's body vectors, references and sigmas, stacked (empty if none)."""
+        parts = []
+        if snapshot is not None:
+            self.check_types(snapshot.types)
+            parts = snapshot.of_type(VectorMeasurement)
+        if not parts:
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return (
+            np.concatenate([m.z.reshape(-1, 3) for m in parts]),
+            np.concatenate([m.reference for m in parts]),
+            np.concatenate([m.sigma for m in parts]),
+        )
 
 
 @dataclass(frozen=True, repr=False, kw_only=True)
