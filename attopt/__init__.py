@@ -5,6 +5,8 @@ The public API, in one flat namespace (``docs/api.md``):
 * the problem's nouns: :class:`Snapshot` (one epoch's measurements of any
   mix of types), :class:`Pass` (epochs of snapshots with a :class:`GyroRecord`,
   :class:`RigidBody` dynamics and a :class:`Prior`);
+* gain patterns (:class:`CosinePowerPattern`, :class:`ParabolicPattern`,
+  :class:`TabulatedPattern`) and the ADS-B :class:`LinkBudget`;
 * measurement types, each with its noise model: :class:`VectorMeasurement`,
   :class:`SnrMeasurement` (of an :class:`SnrEpoch`), :class:`DoaMeasurement`,
   :class:`EulerAngleMeasurement`, :class:`ReferencedMeasurement`; a type of
@@ -48,7 +50,9 @@ from attopt.formulations.errors import (
     UnobservableError,
     UnsupportedMeasurementError,
 )
+from attopt.formulations.gain_patterns import CosinePowerPattern, ParabolicPattern, TabulatedPattern
 from attopt.formulations.gyro import GYRO_MODELS, MEMS_GYRO, GyroModel, simulate_gyro
+from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.measurement_model import SymbolicModel
 from attopt.formulations.passes import GyroRecord, Pass, Prior, RigidBody
 from attopt.formulations.snapshot import Snapshot, StackedMeasurement
@@ -71,6 +75,7 @@ __all__ = [
     "AttitudeMeasurement",
     "AttoptError",
     "ConvergenceError",
+    "CosinePowerPattern",
     "DoaMeasurement",
     "Estimator",
     "EulerAngleMeasurement",
@@ -79,6 +84,8 @@ __all__ = [
     "GyroRateMismatchError",
     "GyroRecord",
     "InvalidObservationError",
+    "LinkBudget",
+    "ParabolicPattern",
     "Pass",
     "PassEstimator",
     "Prior",
@@ -93,6 +100,7 @@ __all__ = [
     "Solution",
     "StackedMeasurement",
     "SymbolicModel",
+    "TabulatedPattern",
     "Track",
     "UnknownEstimatorError",
     "UnobservableError",

@@ -241,13 +241,19 @@ class Pass:
         gyro: GyroRecord | None = None,
         prior: Prior | None = None,
     ) -> Pass:
-        """Unit-vector pairs per epoch: ``body`` and ``reference`` ``(N, k, 3)`` (NaN rows:
-        absent), ``sigma`` broadcastable to ``(N, k)`` (rad)."""
+        """Unit-vector pairs per epoch: ``body`` ``(N, k, 3)`` (NaN rows: absent),
+        ``reference`` ``(N, k, 3)`` or, for fixed directions, ``(k, 3)``, ``sigma``
+        broadcastable to ``(N, k)`` (rad)."""
         t = np.asarray(t, dtype=float)
         body = np.asarray(body, dtype=float)
-        reference = np.asarray(reference, dtype=float)
-        if body.ndim != 3 or body.shape != reference.shape or body.shape[0] != t.size:
-            raise InvalidObservationError("body and reference must both be (N, k, 3) for N epochs")
+        if body.ndim != 3 or body.shape[0] != t.size or body.shape[2] != 3:
+            raise InvalidObservationError("body vectors must be (N, k, 3) for N epochs")
+        try:
+            reference = np.broadcast_to(np.asarray(reference, dtype=float), body.shape)
+        except ValueError:
+            raise InvalidObservationError(
+                f"reference vectors must be (N, k, 3) or (k, 3) for body {body.shape}"
+            ) from None
         sigma = np.broadcast_to(np.asarray(sigma, dtype=float), body.shape[:2])
         snapshots = [_vector_snapshot(body[k], reference[k], sigma[k], t[k]) for k in range(t.size)]
         return cls(t, tuple(snapshots), gyro, prior)

@@ -141,7 +141,9 @@ class Solution:
         return self
 
     def to_dataframe(self, truth: Rotation | None = None) -> pd.DataFrame:
-        """One row: the columns of :meth:`Track.to_dataframe`."""
+        """One row: the columns of :meth:`Track.to_dataframe` (``truth``: one rotation)."""
+        if truth is not None and truth.single:
+            truth = Rotation.concatenate([truth])
         return Track.from_solutions([self]).to_dataframe(truth)
 
     def __repr__(self) -> str:
