@@ -58,7 +58,7 @@ from attopt.formulations.passes import GyroRecord, Pass, Prior, RigidBody
 from attopt.formulations.snapshot import Snapshot, StackedMeasurement
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.bounds import crb
+from attopt.solvers.bounds import crb, posterior_bound
 from attopt.solvers.estimator import Estimator, PassEstimator, SnapshotEstimator
 from attopt.solvers.filters import FilterOptions
 from attopt.solvers.pipeline import Run, run_estimators
@@ -112,6 +112,7 @@ __all__ = [
     "estimator",
     "estimators",
     "euler321_from_attitude",
+    "posterior_bound",
     "run_estimators",
     "simulate_gyro",
 ]

@@ -35,10 +35,16 @@ from scipy.spatial.transform import Rotation, Slerp
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
 from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.solvers.bounds import posterior_bound
 from attopt.solvers.estimator import PassEstimator
-from attopt.solvers.filters import FilterOptions, Mekf, Rts, Usque
+from attopt.solvers.filters import Mekf, Rts, Usque
 from attopt.solvers.results import Track
-from attopt.solvers.smoother import OnlineSmoother, SmootherOptions, smooth
+from attopt.solvers.smoother import (
+    OFFSET_PRIOR_SIGMA_DB,
+    BatchSmoother,
+    OffsetBatchSmoother,
+    OnlineSmoother,
+)
 
 Array = NDArray[np.float64]
 
@@ -152,8 +158,6 @@ names; the others take the caller's suffix."""
 SMOOTHER_KINDS = ("fg_online", "fg_batch", "fg_batch_offsets")
 VECTOR_FILTERS = tuple(k for k in FILTERS if k != "fg_batch_offsets")
 """Filter kinds for measurements without transmitter offsets to estimate."""
-OFFSET_PRIOR_SIGMA_DB = 2.0
-"""Default prior standard deviation of a transmitter's power offset (issue 6 sec. 2)."""
 
 
 FILTER_ESTIMATORS: dict[str, PassEstimator] = {
@@ -161,6 +165,8 @@ FILTER_ESTIMATORS: dict[str, PassEstimator] = {
     "usque": Usque(),
     "rts": Rts(),
     "fg_online": OnlineSmoother(),
+    "fg_batch": BatchSmoother(),
+    "fg_batch_offsets": OffsetBatchSmoother(),
 }
 """The registry estimators :func:`run_filter` runs, by filter kind."""
 
@@ -171,16 +177,24 @@ def run_filter(
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
     method: str,
+    initial: Track | None = None,
+    offset_sigma: float = OFFSET_PRIOR_SIGMA_DB,
 ) -> tuple[Track, float]:
     """Run filter ``kind`` on orbit-frame ``measurements``; the result and its wall time (s).
 
-    ``rts`` runs the MEKF and smooths it.
+    ``initial``: the track it starts from (the RTS pass's MEKF, the batch
+    smoothers' start; else its own: ``rts`` runs the MEKF and smooths it);
+    ``fg_batch_offsets`` estimates one offset per transmitter with prior ``N(0,
+    offset_sigma^2)``.
     """
     if kind not in FILTER_ESTIMATORS:
         raise ValueError(f"run_filter runs {', '.join(FILTER_ESTIMATORS)}, not {kind!r}")
+    estimator = FILTER_ESTIMATORS[kind]
+    if isinstance(estimator, OffsetBatchSmoother):
+        estimator = replace(estimator, offset_sigma=offset_sigma)
     pass_ = inputs.filter_pass(truth, measurements)
     start = time.perf_counter()
-    result = FILTER_ESTIMATORS[kind].solve(pass_)
+    result = estimator.solve(pass_, initial)
     return replace(result, method=method), time.perf_counter() - start
 
 
@@ -204,10 +218,10 @@ def run_filters(
     The RTS pass smooths the MEKF run (run once even when both are asked for);
     its time includes the MEKF's.  The batch smoothers start from ``initial`` (a
     result and the seconds it took) if given, else from the online smoother's
-    causal estimates when ``fg_online`` is asked for (issue 6: an online pass
-    followed by a batch solve), else from the MEKF and RTS passes; their times
-    include that initialisation's.  ``fg_batch_offsets`` estimates one offset
-    per transmitter with prior ``N(0, offset_sigma^2)``.
+    causal estimates when ``fg_online`` is asked for (an online pass followed
+    by a batch solve), else from the MEKF and RTS passes (their
+    ``starts_from``); their times include that start's.  ``fg_batch_offsets``
+    estimates one offset per transmitter with prior ``N(0, offset_sigma^2)``.
     """
     unknown = sorted(set(kinds) - set(FILTERS))
     if unknown:
@@ -220,13 +234,10 @@ def run_filters(
         out["mekf"] = run_filter("mekf", inputs, truth, measurements, method_name("mekf", suffix))
     if "rts" in wanted or from_rts:
         filtered, seconds = out["mekf"]
-        pass_ = inputs.filter_pass(truth, measurements)
-        start = time.perf_counter()
-        smoothed = FILTER_ESTIMATORS["rts"].solve(pass_, initial=filtered)
-        out["rts"] = (
-            replace(smoothed, method=method_name("rts", suffix)),
-            seconds + time.perf_counter() - start,
+        smoothed, rts_seconds = run_filter(
+            "rts", inputs, truth, measurements, method_name("rts", suffix), filtered
         )
+        out["rts"] = (smoothed, seconds + rts_seconds)
     if "usque" in wanted:
         out["usque"] = run_filter(
             "usque", inputs, truth, measurements, method_name("usque", suffix)
@@ -234,36 +245,10 @@ def run_filters(
     if "fg_online" in wanted:
         out["fg_online"] = run_filter("fg_online", inputs, truth, measurements, "fg_online")
     for kind in sorted(batch):
-        start_from = initial or out["fg_online" if "fg_online" in wanted else "rts"]
-        options = SmootherOptions(offset_sigma=offset_sigma if kind == "fg_batch_offsets" else None)
-        result, seconds = run_smoother(inputs, truth, measurements, kind, options, start_from[0])
-        out[kind] = (result, start_from[1] + seconds)
+        start, seconds = initial or out["fg_online" if "fg_online" in wanted else "rts"]
+        result, own = run_filter(kind, inputs, truth, measurements, kind, start, offset_sigma)
+        out[kind] = (result, seconds + own)
     return {kind: out[kind] for kind in kinds}
-
-
-def run_smoother(
-    inputs: FilterInputs,
-    truth: GyroTruth,
-    measurements: Sequence[AttitudeMeasurement | None],
-    method: str,
-    options: SmootherOptions,
-    initial: Track,
-) -> tuple[Track, float]:
-    """The batch smoother on orbit-frame ``measurements`` from ``initial``; its wall time (s)."""
-    inertial = referenced(measurements, truth.epoch_frames)
-    t_epochs = truth.t[truth.epoch_samples]
-    start = time.perf_counter()
-    result = smooth(
-        inputs.gyro.samples,
-        t_epochs,
-        inertial,
-        inputs.prior,
-        inputs.model,
-        options,
-        initial,
-        method,
-    )
-    return result, time.perf_counter() - start
 
 
 def bound_columns(
@@ -272,43 +257,17 @@ def bound_columns(
     truth: GyroTruth,
     measurements: Sequence[AttitudeMeasurement | None],
 ) -> dict[str, Array]:
-    """``pbound_{x,y,z}_deg`` per epoch (:func:`posterior_bound`) when ``runs`` has a
-    factor-graph smoother, else nothing."""
+    """``pbound_{x,y,z}_deg`` per epoch when ``runs`` has a factor-graph smoother, else
+    nothing: the posterior Cramer-Rao bound of the pass
+    (:func:`attopt.solvers.bounds.posterior_bound`) at the true attitudes and biases."""
     if not set(SMOOTHER_KINDS) & set(runs):
         return {}
-    template = next(iter(runs.values()))[0]
-    sigma = np.degrees(posterior_bound(inputs, truth, measurements, template))
-    return {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate("xyz")}
-
-
-def posterior_bound(
-    inputs: FilterInputs,
-    truth: GyroTruth,
-    measurements: Sequence[AttitudeMeasurement | None],
-    template: Track,
-) -> Array:
-    """Per-epoch posterior Cramer-Rao bound of the attitude (rad, ``(N, 3)`` body axes).
-
-    The square roots of the diagonal of the attitude block of the smoother's
-    marginal covariance at the TRUTH (attitude and bias), every received
-    measurement used (no gating), offsets not modelled: the inverse of the
-    whole pass's information at the truth (issue 6 sec. 1).  ``template``: any
-    result on the same epochs (its estimates are replaced by the truth).
-    """
-    at_truth = replace(
-        template,
-        quaternion=truth.attitude[truth.epoch_samples].as_quat(),
-        bias=inputs.gyro.bias[truth.epoch_samples],
-        history=None,
+    sigma = posterior_bound(
+        inputs.filter_pass(truth, measurements),
+        truth.attitude[truth.epoch_samples],
+        inputs.gyro.bias[truth.epoch_samples],
     )
-    options = SmootherOptions(
-        max_iterations=0,
-        flag_unconverged=False,
-        cross_covariance=False,
-        filter=FilterOptions(gate_probability=1.0),
-    )
-    bound, _ = run_smoother(inputs, truth, measurements, "bound", options, at_truth)
-    return np.sqrt(np.diagonal(bound.state_covariance[:, :3, :3], axis1=1, axis2=2))
+    return {f"pbound_{a}_deg": np.degrees(sigma)[:, i] for i, a in enumerate("xyz")}
 
 
 def in_orbit_frame(track: Track, eci_to_orbit: Rotation) -> Track:

@@ -1,4 +1,4 @@
-"""Cramer-Rao bounds of the attitude.
+"""Cramer-Rao bounds of the attitude: of one snapshot, and of a pass.
 
 The snapshot bound (:func:`crb`): one epoch's measurements ``z_k = h_k(A) +
 nu_k``, ``nu_k ~ N(0, R_k(A))``, independent across measurements, carry the
@@ -21,17 +21,43 @@ measurement), and the DOA stochastic bound of
 Rows a model cannot predict at the attitude (NaN) carry no information and
 are left out.  :func:`snapshot_information` is the information itself, which
 the MAP estimator adds to its prior's (:mod:`attopt.solvers.map_nlp`).
+
+The pass bounds (posterior Cramer-Rao bounds, Tichavsky, Muravchik and Nehorai
+1998: the inverse of the whole pass's information, measurements, dynamics and
+prior, evaluated at the truth):
+
+* :func:`posterior_bound`, of a gyro-aided pass: the attitude block of the batch
+  smoother's marginal covariance (:mod:`attopt.solvers.smoother.marginals`) with
+  its factors linearised at the true attitudes and biases: every measurement
+  used (no gating), no optimisation step, transmitter offsets not modelled;
+* :func:`posterior_bound_ekf`, of Yang et al. 2014's rigid-body dynamics model
+  (:mod:`attopt.solvers.doa.eks`): filter and smoother bounds.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.passes import Pass
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_model import cramer_rao_bound
+from attopt.solvers.doa.eks import posterior_bound_ekf
+from attopt.solvers.filters.common import FilterOptions
+from attopt.solvers.smoother.estimators import BatchSmoother
+from attopt.solvers.smoother.initial import fixed_start
+from attopt.solvers.smoother.marginals import MarginalOptions
+from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
+
+__all__ = [
+    "crb",
+    "measurement_information",
+    "posterior_bound",
+    "posterior_bound_ekf",
+    "snapshot_information",
+]
 
 Array = NDArray[np.float64]
 
@@ -63,3 +89,33 @@ def crb(snapshot: Snapshot, truth: Rotation) -> Array:
     """The snapshot Cramer-Rao bound ``F(truth)^-1`` ``(3, 3)`` (rad^2, body frame), infinite
     on the axes the snapshot cannot see (module docstring)."""
     return cramer_rao_bound(snapshot_information(snapshot, truth))
+
+
+AT_THE_TRUTH = BatchSmoother(
+    optimiser=LevenbergMarquardtParams(max_iterations=0),
+    marginals=MarginalOptions(cross_covariance=False),
+    filter=FilterOptions(gate_probability=1.0),
+    flag_unconverged=False,
+)
+"""The batch smoother that :func:`posterior_bound` evaluates at the truth: no step, no
+gate, per-key marginals."""
+
+
+def posterior_bound(pass_: Pass, truth_attitude: Rotation, truth_bias: ArrayLike) -> Array:
+    """Per-epoch posterior Cramer-Rao bound ``(N, 3)`` of the attitude of a gyro-aided pass
+    (rad, body axes; module docstring).
+
+    The square roots of the diagonal of the attitude block of the batch smoother's
+    marginal covariance with its factors at ``truth_attitude`` (``N`` attitudes at the
+    epochs) and ``truth_bias`` (``(N, 3)`` rad/s): every measurement of the pass used
+    (no gate), offsets not modelled.  The prior node at the first gyro sample (when the
+    first epoch is later) stays at the prior's estimate.  NaN at epochs the
+    smoother's validity rules flag (an attitude sigma above
+    ``FilterOptions.max_attitude_sigma``).
+
+    Raises:
+        InvalidObservationError: the pass has no gyro record or prior, or the truth
+            has another number of epochs.
+    """
+    track = AT_THE_TRUTH.solve(pass_, fixed_start(truth_attitude, truth_bias))
+    return np.sqrt(np.diagonal(track.state_covariance[:, :3, :3], axis1=1, axis2=2))

@@ -34,7 +34,12 @@ from attopt.solvers.filters.common import gyro_monitor, gyro_pass, step_noise
 from attopt.solvers.filters.mekf import MekfFilter
 from attopt.solvers.filters.usque import UsqueFilter
 from attopt.solvers.sequential import TrackMonitor, rejected_epoch
-from attopt.solvers.smoother import OnlineSmoother, smooth
+from attopt.solvers.smoother import (
+    BatchSmoother,
+    LevenbergMarquardtParams,
+    OffsetBatchSmoother,
+    OnlineSmoother,
+)
 from attopt.solvers.smoother.online import OnlineFilter
 from tests.filter_passes import (
     GYRO,
@@ -166,7 +171,15 @@ def _exact_prior(t0: float, attitude_sigma: float, error: tuple = (0.0, 0.0, 0.0
     return Prior(Rotation.from_rotvec(error) * _truth(np.array([t0]))[0], covariance, bias=BIAS)
 
 
-@pytest.mark.parametrize("estimator", [Mekf(), Usque(), OnlineSmoother()], ids=lambda e: e.name)
+EXACT_BATCH = BatchSmoother(
+    optimiser=LevenbergMarquardtParams(relative_tolerance=1e-15, absolute_tolerance=1e-14)
+)
+"""The batch smoother iterating to the rounding floor (exactness checks)."""
+
+
+@pytest.mark.parametrize(
+    "estimator", [Mekf(), Usque(), OnlineSmoother(), EXACT_BATCH], ids=lambda e: e.name
+)
 def test_epochs_between_samples_noise_free_exact(estimator) -> None:
     """Exact gyro and vectors, epochs at 0.05 s past the samples, a 5 deg initial error:
     the estimates are the truth at the epochs' own times to 1e-10 rad after the first
@@ -200,19 +213,21 @@ def test_an_epoch_between_samples_is_propagated_to_its_own_time() -> None:
     assert track.diagnostics["gyro_gap_s"].max() == 0.0
 
 
-def test_epochs_between_samples_match_a_gyro_sampled_at_the_epochs() -> None:
+@pytest.mark.parametrize("estimator", [Mekf(), BatchSmoother()], ids=lambda e: e.name)
+def test_epochs_between_samples_match_a_gyro_sampled_at_the_epochs(estimator) -> None:
     """The same truth and the same noisy vectors at t = 0.05 + k, once with the gyro
     sampled at multiples of 0.1 s (each epoch cuts a step in two) and once sampled at
     0.05 + 0.1 j (every epoch a sample time), each prior the truth at its gyro's first
-    sample: the MEKF's estimates agree to far below their sigma (the process noise of
-    two half steps differs from one step's at third order in the step)."""
+    sample: the MEKF's and the batch smoother's estimates agree to far below their
+    sigma (the process noise of two half steps differs from one step's at third
+    order in the step)."""
     rng = np.random.default_rng(9)
     epochs = OFFSET + np.arange(60.0)
     sigma = 1e-3
     cut = _constant_rate_pass(0.0, epochs, _exact_prior(0.0, 1e-2), sigma, rng)
     on = _constant_rate_pass(-OFFSET, epochs, _exact_prior(-OFFSET, 1e-2), sigma)
     on = Pass(on.t, cut.snapshots, on.gyro, on.prior)  # the same measured vectors
-    a, b = Mekf().solve(cut), Mekf().solve(on)
+    a, b = estimator.solve(cut), estimator.solve(on)
     assert a.valid.all() and b.valid.all()
     normalised = attitude_error(a.attitude(), b.attitude()) / a.sigma
     assert np.abs(normalised[5:]).max() < 1e-3, np.abs(normalised).max()
@@ -273,7 +288,8 @@ def test_monitors_of_the_filters() -> None:
 
 def test_a_gyro_at_another_rate_than_its_model_raises() -> None:
     """2 Hz samples declared as a 10 Hz gyro: ``GyroRateMismatchError`` (an
-    ``InvalidObservationError``) when the pass is built, and from the batch smoother."""
+    ``InvalidObservationError``) when the gyro record is built, so no estimator
+    (every gyro-aided one takes a :class:`~attopt.formulations.passes.Pass`) sees it."""
     rng = np.random.default_rng(5)
     run = simulate_pass(rng, duration=10.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
@@ -281,7 +297,7 @@ def test_a_gyro_at_another_rate_than_its_model_raises() -> None:
     with pytest.raises(GyroRateMismatchError, match="declared at 10 Hz"):
         make_pass(run.gyro, run.t, run.measurements, prior, ten_hz)
     with pytest.raises(GyroRateMismatchError):
-        smooth(run.gyro, run.t, run.measurements, prior, ten_hz)
+        GyroRecord(run.gyro.t, run.gyro.rates, ten_hz)
     assert issubclass(GyroRateMismatchError, InvalidObservationError)
 
 
@@ -291,14 +307,16 @@ def test_gyro_estimators_need_a_gyro_and_a_gyro_prior() -> None:
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
     pass_ = make_pass(run.gyro, run.t, run.measurements, prior)
     no_gyro = Pass(pass_.t, pass_.snapshots, None, prior)
-    for estimator in (Mekf(), Usque(), Rts(), OnlineSmoother()):
+    for estimator in (Mekf(), Usque(), Rts(), OnlineSmoother(), BatchSmoother()):
         with pytest.raises(InvalidObservationError, match=f"{estimator.name} needs a gyro record"):
             estimator.solve(no_gyro)
     rate_prior = Prior(prior.attitude, prior.covariance, rate=np.zeros(3))
-    with pytest.raises(InvalidObservationError, match="not a rate"):
-        Mekf().solve(Pass(pass_.t, pass_.snapshots, pass_.gyro, rate_prior))
-    with pytest.raises(InvalidObservationError, match="needs a prior"):
-        Usque().solve(Pass(pass_.t, pass_.snapshots, pass_.gyro))
+    for estimator in (Mekf(), BatchSmoother()):
+        with pytest.raises(InvalidObservationError, match="not a rate"):
+            estimator.solve(Pass(pass_.t, pass_.snapshots, pass_.gyro, rate_prior))
+    for estimator in (Usque(), BatchSmoother()):
+        with pytest.raises(InvalidObservationError, match="needs a prior"):
+            estimator.solve(Pass(pass_.t, pass_.snapshots, pass_.gyro))
 
 
 def test_an_attitude_prior_gets_the_models_bias_sigma() -> None:
@@ -350,13 +368,18 @@ def test_registry_estimators() -> None:
         "usque",
         "rts",
         "fg_online",
+        "fg_batch",
+        "fg_batch_offsets",
         "ekf_seed003",
         "rts_seed003",
         "bls_seed003",
     ]
-    starts = {e.name: e.starts_from for package in (filters, doa) for e in package.ESTIMATORS}
+    starts = {
+        e.name: e.starts_from for package in (filters, smoother, doa) for e in package.ESTIMATORS
+    }
     assert starts["rts"] == ("mekf",) and starts["rts_seed003"] == ("ekf_seed003",)
-    assert starts["bls_seed003"] == ("rts_seed003",)
+    assert starts["bls_seed003"] == ("rts_seed003",) and starts["fg_online"] == ()
+    assert starts["fg_batch"] == starts["fg_batch_offsets"] == ("fg_online", "rts")
     for package in (filters, smoother, doa):
         for estimator in package.ESTIMATORS:
             assert pickle.loads(pickle.dumps(estimator)) == estimator
@@ -365,6 +388,9 @@ def test_registry_estimators() -> None:
     assert strict.filter.gate_probability == 0.99 and Mekf().filter.gate_probability > 0.99
     with pytest.raises(dataclasses.FrozenInstanceError):
         strict.filter = FilterOptions()  # type: ignore[misc]
+    wide = dataclasses.replace(OffsetBatchSmoother(), offset_sigma=5.0, noise_updates=1)
+    assert wide.offset_sigma == 5.0 and wide.noise_updates == 1 and wide.name == "fg_batch_offsets"
+    assert pickle.loads(pickle.dumps(wide)) == wide
 
 
 def test_gyro_samples_and_vector_type_are_what_the_pass_holds() -> None:

@@ -40,7 +40,12 @@ from attopt.solvers.filters.common import prepare_gyro
 from attopt.solvers.filters.rts import rts_smooth
 from attopt.solvers.gyro_timeline import gyro_timeline
 from attopt.solvers.results import Track
-from attopt.solvers.smoother import SmootherOptions, single_frame_initial, smooth
+from attopt.solvers.smoother import (
+    BatchSmoother,
+    GraphOptions,
+    LevenbergMarquardtParams,
+    single_frame_initial,
+)
 from attopt.solvers.smoother.conventions import (
     attitude_key,
     bias_key,
@@ -65,7 +70,9 @@ from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
 COARSE = GyroModel("coarse-2hz", 2e-3, 2e-4, 0.01, rate_hz=2.0)
 """A poor gyro: the measurements and the gyro both matter (well-conditioned brute force)."""
-TIGHT = SmootherOptions(relative_tolerance=1e-15, absolute_tolerance=1e-14)
+TIGHT = BatchSmoother(
+    optimiser=LevenbergMarquardtParams(relative_tolerance=1e-15, absolute_tolerance=1e-14)
+)
 """Tolerances for comparisons at 1e-8: stop only at the rounding floor."""
 
 
@@ -99,7 +106,7 @@ def test_noise_free_pass_recovers_truth_and_bias():
         prior_covariance(np.radians(20.0), declared),
         bias=np.zeros(3),
     )
-    result = smooth(run.gyro, run.t, run.measurements, prior, declared, TIGHT)
+    result = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, declared)
     assert result.report.converged, result.report.message
     errors = state_errors(result, run)
     assert np.abs(errors[:, :3]).max() < 1e-10
@@ -259,7 +266,7 @@ def test_smoother_equals_brute_force_least_squares():
     root[3, 0] = root[4, 1] = 0.005
     covariance = root @ root.T
     prior = drawn_prior(rng, run, covariance)
-    result = smooth(run.gyro, run.t, run.measurements, prior, COARSE, TIGHT)
+    result = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, COARSE)
     report = result.report
     assert report.converged and report.n_gated == 0, report.message
     problem = report.problem
@@ -341,7 +348,7 @@ def test_marginal_covariance_matches_monte_carlo_scatter():
     for _ in range(30):
         run = simulate_pass(rng, duration=29.0, sigma=2e-2, simulated_gyro=NOISY)
         prior = drawn_prior(rng, run, covariance)
-        result = smooth(run.gyro, run.t, run.measurements, prior, NOISY)
+        result = solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, NOISY)
         assert result.report.converged, result.report.message
         errors.append(state_errors(result, run))
         covariances.append(result.state_covariance)
@@ -366,7 +373,7 @@ def test_marginal_covariance_equals_rts_covariance_on_a_near_linear_pass():
     rts = rts_smooth(
         solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, GYRO), FilterOptions(), "rts"
     )
-    result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, initial=rts)
+    result = solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, GYRO, rts)
     sigma = np.sqrt(np.einsum("kii->ki", rts.state_covariance))
     scale = sigma[:, :, None] * sigma[:, None, :]
     correlation = rts.state_covariance / scale
@@ -389,7 +396,9 @@ def test_smoother_at_least_as_good_as_the_filters():
         prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0), NOISY))
         forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, NOISY)
         backward = rts_smooth(forward, FilterOptions(), "rts")
-        result = smooth(run.gyro, run.t, run.measurements, prior, NOISY, initial=backward)
+        result = solve_with(
+            BatchSmoother(), run.gyro, run.t, run.measurements, prior, NOISY, backward
+        )
         assert result.report.converged, result.report.message
         assert result.report.final_cost <= result.report.initial_cost
         rms[seed] = [rms_deg(forward, run), rms_deg(backward, run), rms_deg(result, run)]
@@ -422,8 +431,8 @@ def test_snr_pass_end_to_end():
     run, prior = _snr_pass(np.random.default_rng(0))
     forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, GYRO)
     backward = rts_smooth(forward, FilterOptions(), "rts")
-    options = SmootherOptions(noise_updates=1)
-    result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, options, initial=backward)
+    options = BatchSmoother(noise_updates=1)
+    result = solve_with(options, run.gyro, run.t, run.measurements, prior, GYRO, backward)
     report = result.report
     assert report.converged and report.noise_updates == 1, report.message
     assert report.final_cost < report.initial_cost
@@ -439,13 +448,20 @@ def test_bad_input_is_rejected():
     rng = np.random.default_rng(17)
     run = simulate_pass(rng, duration=10.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
-    with pytest.raises(InvalidObservationError, match="measurements for"):
-        smooth(run.gyro, run.t, run.measurements[:-1], prior, GYRO)
+    with pytest.raises(InvalidObservationError, match="snapshots for"):
+        solve_with(BatchSmoother(), run.gyro, run.t, run.measurements[:-1], prior, GYRO)
     rigid = dataclasses.replace(GYRO, sigma_u=0.0)
     with pytest.raises(InvalidObservationError, match="sigma_u > 0"):
-        smooth(run.gyro, run.t, run.measurements, prior, rigid)
+        solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, rigid)
+    short = solve_with(Mekf(), run.gyro, run.t[:-1], run.measurements[:-1], prior, GYRO)
+    with pytest.raises(InvalidObservationError, match="initial estimate has"):
+        solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, GYRO, short)
     with pytest.raises(ValueError, match="initialisation"):
-        SmootherOptions(initialisation="magic")
+        BatchSmoother(initialisation="magic")
+    with pytest.raises(ValueError, match="noise_updates"):
+        BatchSmoother(noise_updates=-1)
+    with pytest.raises(ValueError, match="huber_threshold"):
+        GraphOptions(huber_threshold=0.0)
 
 
 def test_nan_measurement_is_counted_and_left_out():
@@ -455,7 +471,7 @@ def test_nan_measurement_is_counted_and_left_out():
     run = simulate_pass(rng, duration=20.0)
     run.measurements[5] = EulerAngleMeasurement([0.1, np.nan, 0.2], 1e-4 * np.eye(3))
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
-    result = smooth(run.gyro, run.t, run.measurements, prior, GYRO)
+    result = solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, GYRO)
     diagnostics = result.diagnostics
     assert diagnostics["n_nan"][5] == 1 and diagnostics["n_used"][5] == 0
     assert result.report.n_nan == 1
@@ -481,8 +497,8 @@ def test_outlier_is_gated_once_and_counted():
     """The turned vector is gated at the initial estimate: the solution equals
     the one of the pass without it (to 1e-9 rad) and the block is counted."""
     run, prior, clean = _outlier_pass()
-    result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
-    reference = smooth(run.gyro, run.t, clean, prior, GYRO, TIGHT)
+    result = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, GYRO)
+    reference = solve_with(TIGHT, run.gyro, run.t, clean, prior, GYRO)
     assert result.diagnostics["n_gated"][10] == 1 and result.report.n_gated == 1
     assert result.diagnostics["n_used"][10] == 1
     difference = attitude_error(result.attitude(), reference.attitude())
@@ -495,16 +511,10 @@ def test_huber_loss_downweights_an_ungated_outlier():
     keeps the error near the clean solution's."""
     run, prior, clean = _outlier_pass()
     no_gate = FilterOptions(gate_probability=1.0)
-    plain = smooth(run.gyro, run.t, run.measurements, prior, GYRO, SmootherOptions(filter=no_gate))
-    robust = smooth(
-        run.gyro,
-        run.t,
-        run.measurements,
-        prior,
-        GYRO,
-        SmootherOptions(filter=no_gate, huber_threshold=1.345),
-    )
-    reference = smooth(run.gyro, run.t, clean, prior, GYRO)
+    plain = solve_with(BatchSmoother(filter=no_gate), run.gyro, run.t, run.measurements, prior)
+    huber = BatchSmoother(graph=GraphOptions(huber_threshold=1.345), filter=no_gate)
+    robust = solve_with(huber, run.gyro, run.t, run.measurements, prior)
+    reference = solve_with(BatchSmoother(), run.gyro, run.t, clean, prior)
     assert plain.report.n_gated == 0 and plain.report.n_downweighted == 0
     assert robust.diagnostics["n_downweighted"][10] == 1
     assert robust.report.converged, robust.report.message
@@ -528,8 +538,10 @@ def test_non_convergence_is_reported_not_silent():
         prior_covariance(np.radians(20.0)),
         bias=np.zeros(3),
     )
-    options = SmootherOptions(initialisation="gyro", max_iterations=1)
-    result = smooth(run.gyro, run.t, run.measurements, prior, GYRO, options)
+    options = BatchSmoother(
+        optimiser=LevenbergMarquardtParams(max_iterations=1), initialisation="gyro"
+    )
+    result = solve_with(options, run.gyro, run.t, run.measurements, prior, GYRO)
     report = result.report
     assert not report.converged and report.iterations == 1
     assert "did not converge" in report.message and "after 1 iterations" in report.message
@@ -537,8 +549,8 @@ def test_non_convergence_is_reported_not_silent():
     assert not result.valid.any()
     assert all("did not converge" in reason for reason in result.reason)
     assert np.all(np.isfinite(report.quaternion)) and np.all(np.isfinite(report.bias))
-    enough = dataclasses.replace(options, max_iterations=30)
-    converged = smooth(run.gyro, run.t, run.measurements, prior, GYRO, enough)
+    enough = dataclasses.replace(options, optimiser=LevenbergMarquardtParams(max_iterations=30))
+    converged = solve_with(enough, run.gyro, run.t, run.measurements, prior, GYRO)
     assert converged.report.converged and converged.valid.all()
 
 
@@ -560,7 +572,7 @@ def test_gyro_gap_is_bridged_below_the_limit():
     constant) bridges it with a growing covariance (sigma at 30 s above that at
     10 s), errors stay within 4 sigma, every epoch valid."""
     run, gyro, prior = _gap_pass()
-    result = smooth(gyro, run.t, run.measurements, prior, GYRO)
+    result = solve_with(BatchSmoother(), gyro, run.t, run.measurements, prior, GYRO)
     assert result.report.converged and result.valid.all()
     errors = state_errors(result, run)[:, :3]
     sigma = np.sqrt(np.einsum("kii->ki", result.covariance))
@@ -576,8 +588,8 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     (25-35 s) are undetermined (diffuse prior only) and flagged by the 30 deg
     sigma rule; no motion is invented."""
     run, gyro, prior = _gap_pass()
-    strict = SmootherOptions(filter=FilterOptions(max_gyro_gap_s=5.0))
-    result = smooth(gyro, run.t, run.measurements, prior, GYRO, strict)
+    strict = BatchSmoother(filter=FilterOptions(max_gyro_gap_s=5.0))
+    result = solve_with(strict, gyro, run.t, run.measurements, prior, GYRO)
     assert result.report.converged, result.report.message
     prepared = prepare_gyro(gyro_timeline(gyro, run.t), strict.filter)
     intervals = gyro_intervals(np.round(run.t / GYRO.dt).astype(int), prepared, GYRO, 5.0)
@@ -620,8 +632,8 @@ def test_single_frame_initialisation_reaches_the_same_optimum():
         diagnostics={},
     )
     start = single_frame_initial(snapshots, prior)
-    from_snapshots = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT, start)
-    from_rts = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
+    from_snapshots = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, GYRO, start)
+    from_rts = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, GYRO)
     assert from_snapshots.report.converged, from_snapshots.report.message
     assert from_snapshots.report.initialisation == "given"
     difference = attitude_error(from_snapshots.attitude(), from_rts.attitude())
@@ -635,11 +647,11 @@ def test_first_epoch_after_the_gyro_start_gets_a_prior_node():
     rng = np.random.default_rng(37)
     run = simulate_pass(rng, duration=20.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
-    full = smooth(run.gyro, run.t, run.measurements, prior, GYRO, TIGHT)
+    full = solve_with(TIGHT, run.gyro, run.t, run.measurements, prior, GYRO)
     without_zero = list(run.measurements)
     without_zero[0] = None
-    reference = smooth(run.gyro, run.t, without_zero, prior, GYRO, TIGHT)
-    later = smooth(run.gyro, run.t[1:], run.measurements[1:], prior, GYRO, TIGHT)
+    reference = solve_with(TIGHT, run.gyro, run.t, without_zero, prior, GYRO)
+    later = solve_with(TIGHT, run.gyro, run.t[1:], run.measurements[1:], prior, GYRO)
     assert len(later) == len(run.t) - 1 and later.report.problem.offset == 1
     difference = attitude_error(later.attitude(), reference.attitude()[1:])
     assert np.abs(difference).max() < 1e-9

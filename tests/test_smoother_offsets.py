@@ -1,7 +1,7 @@
 """Transmitter power offsets in the smoother (issue 6 sec. 2).
 
 Each transmitter (aircraft) ``a`` adds an unknown offset ``o_a`` to ``10 lg
-P0`` of every SNR it produces; ``SmootherOptions(offset_sigma=s)`` estimates
+P0`` of every SNR it produces; ``OffsetBatchSmoother(offset_sigma=s)`` estimates
 one offset per transmitter with prior ``N(0, s^2)``.  Scenario: 12
 transmitters, each seen at every epoch of a short pass from a fresh random
 direction inside a main lobe (tests/test_snr_solvers.py's geometry), offsets
@@ -17,15 +17,23 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import ReferencedMeasurement
-from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.errors import InvalidObservationError, UnsupportedMeasurementError
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.gyro import GyroModel, simulate_gyro
 from attopt.formulations.snr_measurement import SnrMeasurement, truncated_mean_slope
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
-from attopt.solvers.smoother import SmootherOptions, smooth
+from attopt.solvers.smoother import BatchSmoother, OffsetBatchSmoother
 from attopt.solvers.smoother.measurement_factors import prepare_factor
-from tests.filter_passes import GYRO, RATE, SimulatedPass, drawn_prior, prior_covariance
+from tests.filter_passes import (
+    GYRO,
+    RATE,
+    SimulatedPass,
+    drawn_prior,
+    prior_covariance,
+    simulate_pass,
+    solve_with,
+)
 from tests.test_smoother import TIGHT, rms_deg, state_errors
 from tests.test_snr_solvers import BORESIGHTS, BUDGET, TRUTH, _geometry
 
@@ -89,8 +97,10 @@ def test_noise_free_offsets_and_attitudes_are_recovered():
     run, prior, offsets = _offset_pass(
         3, epochs=12, sigma=1e-6, simulated_gyro=bias_only, noisy=False
     )
-    options = dataclasses.replace(TIGHT, offset_sigma=OFFSET_SIGMA, initialisation="gyro")
-    result = smooth(run.gyro, run.t, run.measurements, prior, declared, options)
+    options = OffsetBatchSmoother(
+        optimiser=TIGHT.optimiser, initialisation="gyro", offset_sigma=OFFSET_SIGMA
+    )
+    result = solve_with(options, run.gyro, run.t, run.measurements, prior, declared)
     report = result.report
     assert report.converged, report.message
     assert report.n_gated == 0
@@ -105,10 +115,9 @@ def test_offsets_unmodelled_degrade_and_modelled_recover():
     near the offset-free pass (same noise draws), and the offsets' estimates
     scatter consistently with their marginal sigmas."""
     run, prior, offsets = _offset_pass(5)
-    plain = smooth(run.gyro, run.t, run.measurements, prior, GYRO, SmootherOptions())
-    modelled = smooth(
-        run.gyro, run.t, run.measurements, prior, GYRO, SmootherOptions(offset_sigma=OFFSET_SIGMA)
-    )
+    plain = solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior)
+    offsets_modelled = OffsetBatchSmoother(offset_sigma=OFFSET_SIGMA)
+    modelled = solve_with(offsets_modelled, run.gyro, run.t, run.measurements, prior)
     assert modelled.report.converged, modelled.report.message
     assert rms_deg(modelled, run) < 0.6 * rms_deg(plain, run)
     z = (modelled.report.offsets - offsets) / modelled.report.offset_sigmas
@@ -166,9 +175,12 @@ def test_offset_factor_column_matches_finite_difference():
 def test_offsets_need_sources_and_a_positive_sigma():
     run, prior, _ = _offset_pass(6, epochs=3)
     with pytest.raises(ValueError, match="offset_sigma"):
-        SmootherOptions(offset_sigma=0.0)
+        OffsetBatchSmoother(offset_sigma=0.0)
     stripped = [
         SnrMeasurement(dataclasses.replace(m.epoch, transmitter=None)) for m in run.measurements
     ]
     with pytest.raises(InvalidObservationError, match="sources"):
-        smooth(run.gyro, run.t, stripped, prior, GYRO, SmootherOptions(offset_sigma=1.0))
+        solve_with(OffsetBatchSmoother(offset_sigma=1.0), run.gyro, run.t, stripped, prior)
+    vectors = simulate_pass(np.random.default_rng(6), duration=3.0)
+    with pytest.raises(UnsupportedMeasurementError, match="not VectorMeasurement"):
+        solve_with(OffsetBatchSmoother(), vectors.gyro, vectors.t, vectors.measurements, prior)

@@ -30,7 +30,7 @@ from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gyro import GyroModel
 from attopt.formulations.passes import Prior
 from attopt.solvers.filters import FilterOptions, Mekf
-from attopt.solvers.smoother import OnlineOptions, OnlineSmoother, smooth
+from attopt.solvers.smoother import BatchSmoother, OnlineOptions, OnlineSmoother
 from attopt.solvers.smoother.conventions import attitude_key, bias_key, rot3, to_values
 from attopt.solvers.smoother.gyro_factors import JointPrior
 from attopt.solvers.smoother.measurement_factors import prepare_factor
@@ -107,7 +107,9 @@ def test_estimates_are_causal():
     assert np.array_equal(online[0].bias[:10], online[1].bias[:10])
     assert np.array_equal(online[0].state_covariance[:10], online[1].state_covariance[:10])
     assert np.abs(attitude_error(*(r.attitude()[10] for r in online))).max() > 1e-5
-    batch = [smooth(run.gyro, run.t, m, prior, GYRO) for m in (run.measurements, changed)]
+    batch = [
+        solve_with(BatchSmoother(), run.gyro, run.t, m, prior) for m in (run.measurements, changed)
+    ]
     assert np.abs(attitude_error(*(r.attitude()[:10] for r in batch))).max() > 1e-6
 
 
@@ -192,11 +194,11 @@ def test_unpredictable_rows_give_zero_rows_not_nan():
     assert np.any(a[~zero] != 0.0)
 
 
-def _compare_with_mekf_and_batch(run, prior, model, options=None):
+def _compare_with_mekf_and_batch(run, prior, model):
     """Online, MEKF and the batch started from the online result on one pass."""
     online = solve_with(OnlineSmoother(), run.gyro, run.t, run.measurements, prior, model)
     forward = solve_with(Mekf(), run.gyro, run.t, run.measurements, prior, model)
-    batch = smooth(run.gyro, run.t, run.measurements, prior, model, options, initial=online)
+    batch = solve_with(BatchSmoother(), run.gyro, run.t, run.measurements, prior, model, online)
     assert online.valid.all() and batch.report.converged, batch.report.message
     assert batch.report.initialisation == "given"
     assert batch.report.final_cost <= batch.report.initial_cost

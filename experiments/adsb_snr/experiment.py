@@ -111,11 +111,7 @@ from attopt.experiments.adsb_snr.scenario import (
     observation_chunks,
 )
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.filtering import (
-    INITIAL_ATTITUDE_SIGMA_DEG,
-    OFFSET_PRIOR_SIGMA_DB,
-    child_rng,
-)
+from attopt.experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG, child_rng
 from attopt.experiments.metrics import AXES, error_columns
 from attopt.experiments.reporting.statistics import (
     bounded_valid_rows,
@@ -131,6 +127,7 @@ from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.results import Track
+from attopt.solvers.smoother import OFFSET_PRIOR_SIGMA_DB
 from attopt.solvers.snr import ESTIMATORS
 from attopt.solvers.snr.driver import SnrSolver, snr_epoch
 from attopt.solvers.snr.initialisation import StartSource

@@ -21,7 +21,7 @@ rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
 * ``fg_online``: the causal fixed-lag factor-graph smoother
   (:class:`attopt.solvers.smoother.OnlineSmoother`) on the same SNR measurements.
 * ``fg_batch``: the whole-pass factor-graph smoother
-  (:func:`attopt.solvers.smoother.smooth`) started from ``fg_online``'s estimates (or
+  (:class:`attopt.solvers.smoother.BatchSmoother`) started from ``fg_online``'s estimates (or
   from ``rts_snr``'s when ``fg_online`` is not asked for); ``runtime_s``
   includes that start.
 * ``fg_batch_offsets``: ``fg_batch`` with one power-offset variable per
@@ -31,7 +31,7 @@ rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
 
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a ``fg_*``
 row is asked for: the posterior Cramer-Rao bound of the pass
-(:func:`attopt.experiments.filtering.posterior_bound`, offsets not modelled), the
+(:func:`attopt.solvers.bounds.posterior_bound`, offsets not modelled), the
 same for every method of that gyro.
 
 Every filter starts from the prior of

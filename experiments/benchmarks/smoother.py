@@ -10,8 +10,9 @@ model, wrapped for the inertial attitude by
 attitude error), it times:
 
 * ``mekf``: the forward MEKF (``mekf_snr``), and ``rts`` its backward pass;
-* ``smoother``: :func:`attopt.solvers.smoother.smooth` started from the RTS result
-  (``initial=``; the time of the smoother alone, split into factor set-up,
+* ``smoother``: the batch smoother (registry estimator ``fg_batch``,
+  :class:`attopt.solvers.smoother.BatchSmoother`) started from the RTS result
+  (``initial=``; the time of the smoother alone, split into the problem's set-up,
   optimisation and marginals, with the number of passes over the
   measurements, each one ``predict`` per epoch);
 * ``predict``: one pass of ``predict`` over all epochs at the truth, the
@@ -24,7 +25,8 @@ attitude error), it times:
 
 and reports each method's RMS attitude error (body axes, degrees, all valid
 epochs and those after 300 s), the posterior Cramer-Rao bound of the pass
-(the smoother's marginal covariance at the truth: its information is the
+(:func:`attopt.solvers.bounds.posterior_bound`, the smoother's marginal
+covariance at the truth: its information is the
 Fisher information of the whole pass, gyro and prior included; RMS over the
 epochs of the square root of its trace), the same for the smoother's own
 covariance at its solution (``sigma``) and its mean NEES, and the time ratio
@@ -47,16 +49,12 @@ import numpy as np
 
 from attopt.experiments.adsb_snr.experiment import PARAMETERS, noise_free_pass, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
-from attopt.experiments.filtering import (
-    child_rng,
-    posterior_bound,
-    referenced,
-    simulate_filter_inputs,
-)
+from attopt.experiments.filtering import child_rng, referenced, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
+from attopt.solvers.bounds import posterior_bound
 from attopt.solvers.filters import Mekf, Rts
-from attopt.solvers.smoother import OnlineReport, OnlineSmoother, smooth
+from attopt.solvers.smoother import BatchSmoother, OnlineReport, OnlineSmoother
 
 BURN_IN_S = 300.0
 
@@ -132,11 +130,12 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     backward = Rts().solve(pass_, initial=forward)
     rts_s = time.perf_counter() - start
     start = time.perf_counter()
-    result = smooth(inputs.gyro.samples, t, measurements, inputs.prior, model, initial=backward)
+    result = BatchSmoother().solve(pass_, initial=backward)
     smoother_s = time.perf_counter() - start
     report = result.report
 
-    trace = np.sum(posterior_bound(inputs, truth, orbit_frame, backward) ** 2, axis=1)
+    true_bias = inputs.gyro.bias[truth.epoch_samples]
+    trace = np.sum(posterior_bound(pass_, true_attitude, true_bias) ** 2, axis=1)
 
     solutions = {"mekf": forward, "rts": backward, "smoother": result}
     online_s = None

@@ -51,7 +51,7 @@ noise is drawn), and every estimator sees the same DOAs:
    EKF).  The smoother starts its iterations from the lowest-``Q`` RTS pass
    (its result does not depend on the start once it converges; its time
    includes that pass).  Their rows carry the posterior bound of the pass
-   with the gyro (:func:`attopt.experiments.filtering.posterior_bound`).
+   with the gyro (:func:`attopt.solvers.bounds.posterior_bound`).
 
 Rows.  Attitude rows every ``row_step_s`` (a 5000 s pass has 20 000 epochs)
 per method with :func:`attopt.experiments.metrics.error_columns`, the ``phase``
@@ -111,14 +111,14 @@ from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.formulations.gyro import MEMS_GYRO
 from attopt.formulations.passes import Pass, Prior, RigidBody
+from attopt.solvers.bounds import posterior_bound_ekf
 from attopt.solvers.doa import DoaBatchLs, DoaEkf, DoaRts
 from attopt.solvers.doa.batch_ls import BatchLsOptions
 from attopt.solvers.doa.ekf import INERTIA_SEED003, PROCESS_NOISE
-from attopt.solvers.doa.eks import posterior_bound_ekf
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import stored_rotations
-from attopt.solvers.smoother.batch import single_frame_initial
+from attopt.solvers.smoother import single_frame_initial
 from attopt.solvers.wahba import SVD
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
@@ -275,7 +275,7 @@ def _model_bound(
     initial_rate_sigma_deg_s: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Attitude standard deviations (deg, ``(N, 3)``) of the posterior Cramer-Rao bound of
-    the EKF's model (filter, smoother), :func:`attopt.solvers.doa.eks.posterior_bound_ekf` with
+    the EKF's model (filter, smoother), :func:`attopt.solvers.bounds.posterior_bound_ekf` with
     the DOA CRB of every visible station at the truth: the same for every trial of a
     setting, so cached.  With ``process_noise = 0`` it is the Cramer-Rao bound of the
     seed's problem itself (known, torque-free dynamics)."""

@@ -16,9 +16,10 @@ One trial simulates the hour of :mod:`attopt.experiments.geo_snr_stations.scenar
 * ``usque_detect``: the same with manoeuvre detection and automatic
   re-initialisation (:mod:`attopt.solvers.geo.manoeuvre`), run with and without the
   manoeuvre so that false alarms show;
-* ``fg_batch``: the factor-graph smoother (:func:`attopt.solvers.smoother.smooth`) on
-  the filters' SNRs, started from ``usque_detect`` (``usque`` would carry the
-  manoeuvre's unmodelled rate into the start).
+* ``fg_batch``: the whole-pass factor-graph smoother (registry ``fg_batch``,
+  :class:`attopt.solvers.smoother.BatchSmoother`) on the filters' SNRs, started from
+  ``usque_detect`` (``usque`` would carry the manoeuvre's unmodelled rate into the
+  start).
 
 Rate input (seed 004 sec. V.B: "the UKF is provided with ... position and body
 rate information").  A ground observer has no gyro on the broadcaster; the
@@ -87,7 +88,7 @@ from attopt.solvers.geo.boresight import (
 )
 from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
 from attopt.solvers.results import Track
-from attopt.solvers.smoother import SmootherOptions, smooth
+from attopt.solvers.smoother import BatchSmoother
 from attopt.solvers.snr import NLP
 
 Array = NDArray[np.float64]
@@ -319,15 +320,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     )
     boresight: Callable[[int], Array] = _cone_or_lsq(cone, snapshot[1])
     run = detect_and_reinitialise(filter_pass, boresight, detection, FILTER_OPTIONS)
-    smoothed = smooth(
-        samples,
-        scenario.t,
-        measurements,
-        prior,
-        model,
-        SmootherOptions(filter=FILTER_OPTIONS),
-        initial=run.result,
-    )
+    smoothed = BatchSmoother(filter=FILTER_OPTIONS).solve(filter_pass, initial=run.result)
     detect_rows = _filter_rows("usque_detect", scenario, run.result)
     detect_rows.extra["p_value"] = run.p_value
     detect_rows.extra["detected"] = np.isin(np.arange(scenario.t.size), run.detections)

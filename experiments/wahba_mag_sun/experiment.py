@@ -25,7 +25,7 @@ depend on the filters.  Filter rows carry the single-frame columns plus
 there.  ``fg_batch`` is the GTSAM whole-pass smoother (:mod:`attopt.solvers.smoother`)
 started from the RTS estimates (its ``runtime_s`` includes them); with it,
 the gyro-aided rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao
-bound of the pass (:func:`attopt.experiments.filtering.posterior_bound`).
+bound of the pass (:func:`attopt.solvers.bounds.posterior_bound`).
 """
 
 from __future__ import annotations

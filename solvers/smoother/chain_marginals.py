@@ -2,8 +2,9 @@
 
 ``gtsam.GaussianBayesTree.jointMarginalCovariance`` recomputes separator
 marginals clique by clique, which for the smoother with transmitter offsets
-(separators of the 100-300 offsets in view, :func:`attopt.solvers.smoother.batch._time_ordering`)
-costs tens of seconds for a few minutes of pass.  Here the graph is
+(separators of the 100-300 offsets in view,
+:func:`attopt.solvers.smoother.problem.time_ordering`) costs tens of seconds for a
+few minutes of pass.  Here the graph is
 eliminated sequentially in the given ordering into conditionals ``R x_F + S x_P = d``
 (unit noise after elimination, checked), and the covariances are propagated
 from the last eliminated variables back to the first (the Rauch-Tung-Striebel

@@ -88,13 +88,16 @@ def node_marginal(source: object, node: int, cross: bool) -> Array:
     return out
 
 
-def to_values(attitudes: Rotation, bias: Array) -> gtsam.Values:
-    """``gtsam.Values`` with one ``Rot3`` and one bias vector per node."""
+def to_values(attitudes: Rotation, bias: Array, offsets: Array | None = None) -> gtsam.Values:
+    """``gtsam.Values`` with one ``Rot3`` and one bias vector per node, and the
+    transmitter ``offsets`` (1-vectors) if given."""
     values = gtsam.Values()
     matrices = attitudes.as_matrix().reshape(-1, 3, 3)
     for k, (a, b) in enumerate(zip(matrices, np.asarray(bias, dtype=float), strict=True)):
         values.insert(attitude_key(k), gtsam.Rot3(a.T))
         values.insert(bias_key(k), np.array(b))
+    for j, o in enumerate(() if offsets is None else offsets):
+        values.insert(offset_key(j), np.array([o]))
     return values
 
 

@@ -1,12 +1,35 @@
-"""The factor-graph smoothers as registry estimators: ``fg_online``.
+"""The factor-graph smoothers as registry estimators: ``fg_online``, ``fg_batch`` and
+``fg_batch_offsets``.
 
-``fg_online`` is the causal fixed-lag smoother of
-:mod:`attopt.solvers.smoother.online`, run by the sequential loop
-(:func:`attopt.solvers.sequential.run_filter`) like the filters: a
-:class:`~attopt.formulations.passes.Pass` with a gyro record (epochs anywhere
-in it) and a prior, any
-:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement`s; the
-track carries the pass's :class:`~attopt.solvers.smoother.online.OnlineReport`.
+Each takes a :class:`~attopt.formulations.passes.Pass` with a gyro record (epochs
+anywhere in it) and a prior (an attitude-only prior gets zero bias with the gyro
+model's initial bias sigma), and returns a filter's
+:class:`~attopt.solvers.results.Track` (state ``("attitude", "bias")``) with the
+smoother's report.
+
+* ``fg_online`` is the causal fixed-lag smoother of
+  :mod:`attopt.solvers.smoother.online`, run by the sequential loop
+  (:func:`attopt.solvers.sequential.run_filter`) like the filters;
+* ``fg_batch`` is the whole-pass maximum a posteriori estimate
+  (:mod:`attopt.solvers.smoother.batch`), started from the online smoother's track
+  if that was run on the same pass, else from the RTS pass's (``starts_from``);
+* ``fg_batch_offsets`` is ``fg_batch`` with one power-offset variable per
+  transmitter (the measurements' ``sources``: SNRs).
+
+Example::
+
+    >>> import numpy as np
+    >>> from scipy.spatial.transform import Rotation
+    >>> from attopt.formulations.gyro import MEMS_GYRO
+    >>> from attopt.formulations.passes import GyroRecord, Pass, Prior
+    >>> t = np.arange(10.0) + 0.05  # between the 10 Hz gyro's samples
+    >>> gyro = GyroRecord(np.arange(0.0, 10.01, 0.1), np.zeros((100, 3)), MEMS_GYRO)
+    >>> body = reference = np.tile(np.eye(3)[:2], (10, 1, 1))
+    >>> prior = Prior(Rotation.identity(), np.radians(1.0) ** 2 * np.eye(3))
+    >>> pass_ = Pass.from_vectors(t, body, reference, 1e-3, gyro, prior)
+    >>> track = BatchSmoother().solve(pass_)
+    >>> bool(track.valid.all()), track.report.converged, track.report.initialisation
+    (True, True, 'mekf+rts')
 """
 
 from __future__ import annotations
@@ -14,13 +37,31 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement
+import numpy as np
+
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
 from attopt.formulations.passes import Pass
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import FilterOptions, gyro_pass
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import TrackMonitor, run_filter
+from attopt.solvers.smoother.batch import Stopwatch, batch_track
+from attopt.solvers.smoother.gyro_factors import check_model
+from attopt.solvers.smoother.initial import (
+    INITIALISATIONS,
+    filter_start,
+    given_start,
+    node_values,
+)
+from attopt.solvers.smoother.marginals import MarginalOptions, problem_marginals
 from attopt.solvers.smoother.online import OnlineFilter, OnlineOptions
+from attopt.solvers.smoother.optimiser import levenberg_marquardt
+from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
+from attopt.solvers.smoother.problem import GraphOptions, build_problem
+
+OFFSET_PRIOR_SIGMA_DB = 2.0
+"""Default prior standard deviation (dB) of a transmitter's power offset."""
 
 
 @dataclass(frozen=True, repr=False)
@@ -69,3 +110,141 @@ class OnlineSmoother(PassEstimator):
             self.name,
         )
         return online.report(track)
+
+
+@dataclass(frozen=True, repr=False)
+class BatchSmoother(PassEstimator):
+    """The whole-pass factor-graph smoother (:mod:`attopt.solvers.smoother.batch`).
+
+    Attributes:
+        graph: the problem's model: Huber loss, bias relinearisation
+            (:class:`~attopt.solvers.smoother.problem.GraphOptions`).
+        optimiser: Levenberg-Marquardt's stopping rules and damping
+            (:class:`~attopt.solvers.smoother.optimiser_params.LevenbergMarquardtParams`).
+        noise_updates: times ``R`` is re-evaluated at the solution and the
+            problem re-solved (attitude-dependent ``R``: truncated SNRs).
+        marginals: joint or block-diagonal marginals
+            (:class:`~attopt.solvers.smoother.marginals.MarginalOptions`).
+        filter: gating, gyro-gap and validity rules shared with the filters (and
+            the options of the MEKF it starts from when given no start).
+        flag_unconverged: flag every epoch invalid when the optimiser did not converge.
+        initialisation: the start when none is given
+            (:func:`~attopt.solvers.smoother.initial.filter_start`): ``"mekf"``
+            (the MEKF and its RTS pass) or ``"gyro"`` (gyro integration from the prior).
+    """
+
+    graph: GraphOptions = field(default_factory=GraphOptions)
+    optimiser: LevenbergMarquardtParams = field(default_factory=LevenbergMarquardtParams)
+    noise_updates: int = 0
+    marginals: MarginalOptions = field(default_factory=MarginalOptions)
+    filter: FilterOptions = field(default_factory=FilterOptions)
+    flag_unconverged: bool = True
+    initialisation: str = "mekf"
+
+    name: ClassVar[str] = "fg_batch"
+    description: ClassVar[str] = (
+        "whole-pass factor-graph smoother over attitude and gyro bias (GTSAM AHRS and "
+        "bias random-walk factors, Liu et al. 2023 eq. 24; Levenberg-Marquardt)"
+    )
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+    starts_from: ClassVar[tuple[str, ...]] = ("fg_online", "rts")
+
+    def __post_init__(self) -> None:
+        if self.initialisation not in INITIALISATIONS:
+            raise ValueError(f"initialisation must be one of {INITIALISATIONS}")
+        if self.noise_updates < 0:
+            raise ValueError("need noise_updates >= 0")
+
+    def modelled_offsets(self) -> float | None:
+        """Prior sigma of the transmitter offsets the problem models (``None``: none)."""
+        return None
+
+    def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
+        """The smoothed track with its :class:`~attopt.solvers.smoother.batch.SmootherReport`
+        (:func:`~attopt.solvers.smoother.batch.batch_track`).
+
+        ``initial``: another estimator's track on the pass's epochs to start from
+        (else the start of ``initialisation``).
+
+        Raises:
+            InvalidObservationError: no gyro record or prior, a gyro model without
+                noise, ``initial`` on other epochs, or offsets modelled and no
+                measurement with sources.
+            UnsupportedMeasurementError: a measurement type it does not accept.
+        """
+        clock = Stopwatch()
+        with clock.stage("initialisation"):
+            inputs = gyro_pass(pass_, self, self.filter)
+            check_model(inputs.model)
+            start = (
+                filter_start(pass_, self.initialisation, self.filter)
+                if initial is None
+                else given_start(initial, pass_)
+            )
+            values = node_values(start, inputs)
+        with clock.stage("factors"):
+            problem = build_problem(
+                inputs, values, self.graph, self.filter, self.modelled_offsets()
+            )
+        with clock.stage("optimisation"):
+            offsets = np.zeros(problem.n_offsets)
+            outcome = levenberg_marquardt(
+                problem, values.attitudes, values.bias, offsets, self.optimiser
+            )
+            for _ in range(self.noise_updates):
+                problem.update_noise(outcome.attitudes, outcome.offsets)
+                outcome = outcome.then(
+                    levenberg_marquardt(
+                        problem, outcome.attitudes, outcome.bias, outcome.offsets, self.optimiser
+                    )
+                )
+        with clock.stage("marginals"):
+            marginals = problem_marginals(problem, outcome.values, self.marginals)
+        return batch_track(
+            self.name,
+            inputs,
+            problem,
+            outcome,
+            marginals,
+            self.filter,
+            self.flag_unconverged,
+            self.noise_updates,
+            start.label,
+            clock,
+        )
+
+
+@dataclass(frozen=True, repr=False)
+class OffsetBatchSmoother(BatchSmoother):
+    """:class:`BatchSmoother` with one additive offset per transmitter (the measurements'
+    ``sources``: an aircraft's power offset, dB) shared by every epoch it is seen in,
+    with prior ``N(0, offset_sigma^2)`` (:mod:`attopt.solvers.smoother.problem`).
+
+    It accepts the measurements that carry ``sources``: SNRs
+    (:class:`~attopt.formulations.snr_measurement.SnrMeasurement`), also re-expressed
+    for another frame (:class:`~attopt.formulations.attitude_measurement.ReferencedMeasurement`);
+    a pass in which none has sources raises ``InvalidObservationError``.
+
+    Attributes:
+        offset_sigma: prior standard deviation of each offset (dB).
+    """
+
+    offset_sigma: float = OFFSET_PRIOR_SIGMA_DB
+
+    name: ClassVar[str] = "fg_batch_offsets"
+    description: ClassVar[str] = (
+        "whole-pass factor-graph smoother with one power offset per transmitter "
+        "(Liu et al. 2023 eq. 13's 10 lg P0 per aircraft)"
+    )
+    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (
+        SnrMeasurement,
+        ReferencedMeasurement,
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.offset_sigma > 0:
+            raise ValueError("offset_sigma must be positive")
+
+    def modelled_offsets(self) -> float | None:
+        return self.offset_sigma

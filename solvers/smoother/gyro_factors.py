@@ -13,7 +13,7 @@ epochs between them; ``T = t_{i+1} - t_i``):
   by ``tests/test_smoother.py`` with a noise-free gyro).  ``b_hat`` is the
   bias estimate of node ``i`` when the graph is built; the driver rebuilds
   the graph when an estimate moves by more than
-  ``SmootherOptions.bias_relinearise_angle / T`` from it, so the first-order
+  ``GraphOptions.bias_relinearise_angle / T`` from it, so the first-order
   correction is exact to second order at the solution;
 * noise of the AHRS factor: ``(sigma_v^2 T + sigma_u^2 T^3 / 3 + h) I``, set
   through ``PreintegratedRotationParams.setGyroscopeCovariance`` (a

@@ -30,7 +30,7 @@ Rows (:func:`prepare_factor`, at the initial estimate, once):
 * ``R = noise_covariance_at(A_init)`` (``(m,)`` variances or an ``(m, m)``
   matrix; work is linear in the rows for variances), held fixed while the optimiser runs
   (the truncated SNR model's ``R`` depends on the attitude;
-  ``SmootherOptions.noise_updates`` re-evaluates it at the solution);
+  the batch smoother's ``noise_updates`` re-evaluate it at the solution);
 * rows with a NaN value or that the model cannot predict are left out
   (:func:`attopt.solvers.filters.common.usable_rows`), counted per block;
 * outliers are gated once on the innovation at the initial estimate,

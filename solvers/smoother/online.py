@@ -1,6 +1,6 @@
 """Online (causal) factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
 
-The variables and factors of the batch smoother (:mod:`attopt.solvers.smoother.batch`,
+The variables and factors of the batch smoother (:mod:`attopt.solvers.smoother.problem`,
 ``docs/smoother.md``), added one node at a time to GTSAM's
 ``IncrementalFixedLagSmoother`` (iSAM2 over the nodes of the last ``lag_s``
 seconds; older nodes are marginalised into a linear prior on the window).
@@ -53,10 +53,10 @@ filter is made):
    (:func:`~attopt.solvers.smoother.conventions.error_state_covariance`).
 
 Cost: a ``CustomFactor`` inside GTSAM's C++ code receives a deep copy of the
-whole ``Values`` on every callback (``/work/shared/notes/verified-facts.md``);
-here ``Values`` holds only the window, so each callback costs a bounded copy
-plus one ``predict`` and the pass is linear in its length.  The callback of a
-factor at the point where it was prepared reuses that evaluation.
+whole ``Values`` on every callback (measured with gtsam 4.3.0); here ``Values``
+holds only the window, so each callback costs a bounded copy plus one
+``predict`` and the pass is linear in its length.  The callback of a factor at
+the point where it was prepared reuses that evaluation.
 
 Faults as in the batch and the filters: bad input raises
 :class:`~attopt.formulations.errors.InvalidObservationError`; epochs in a gyro gap
