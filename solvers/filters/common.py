@@ -61,7 +61,7 @@ from attopt.formulations.gyro import GyroModel, attitude_increment, error_state_
 from attopt.formulations.passes import Pass, Prior
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.gyro_timeline import COINCIDENCE, GyroTimeline, gyro_timeline
-from attopt.solvers.sequential import TrackMonitor
+from attopt.solvers.sequential import SequentialFilter, TrackMonitor
 
 Array = NDArray[np.float64]
 
@@ -284,6 +284,21 @@ def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
     inflation[:3, :3] = options.recover_sigma**2 * np.eye(3)
     inflation[3:, 3:] = prior.covariance[3:, 3:]
     return TrackMonitor(options.max_rejected_epochs, inflation)
+
+
+class GyroStateFilter(SequentialFilter):
+    """The state every gyro-aided filter carries: attitude, bias and their ``6 x 6``
+    covariance, starting at the first gyro sample with the prior (``[attitude, bias]``),
+    and the gyro steps it walks (``node``: the timeline index it has reached)."""
+
+    def __init__(
+        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
+    ) -> None:
+        self.gyro, self.model, self.options = gyro, model, options
+        self.attitude = prior.attitude
+        self.bias = np.asarray(prior.bias, dtype=float)
+        self.covariance = np.asarray(prior.covariance, dtype=float)
+        self.node = 0
 
 
 def propagate_covariance(

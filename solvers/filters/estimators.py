@@ -35,6 +35,7 @@ from attopt.formulations.passes import Pass
 from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import (
     FilterOptions,
+    GyroStateFilter,
     check_gyro_pass,
     gyro_monitor,
     gyro_pass,
@@ -47,8 +48,8 @@ from attopt.solvers.sequential import run_filter
 
 
 @dataclass(frozen=True, repr=False)
-class Mekf(PassEstimator):
-    """The multiplicative EKF with gyro bias (:mod:`attopt.solvers.filters.mekf`).
+class GyroFilter(PassEstimator):
+    """A gyro-aided filter run through the sequential loop: its steps are ``steps``.
 
     Attributes:
         filter: fault handling (gating, gyro gaps, validity, lost track).
@@ -56,17 +57,15 @@ class Mekf(PassEstimator):
 
     filter: FilterOptions = field(default_factory=FilterOptions)
 
-    name: ClassVar[str] = "mekf"
-    description: ClassVar[str] = (
-        "multiplicative EKF with gyro bias (Liu et al. 2023 secs. 4.2-4.5, Joseph form)"
-    )
+    steps: ClassVar[type[GyroStateFilter]]
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
-        """The filtered track, with the history an RTS pass needs (``initial`` unused)."""
+        """The filtered track (``initial`` unused); a smoothable filter's keeps the
+        history an RTS pass needs."""
         inputs = gyro_pass(pass_, self, self.filter)
         return run_filter(
-            MekfFilter(inputs.gyro, inputs.model, inputs.prior, self.filter),
+            self.steps(inputs.gyro, inputs.model, inputs.prior, self.filter),
             inputs.t,
             inputs.measurements,
             gyro_monitor(self.filter, inputs.prior),
@@ -76,33 +75,26 @@ class Mekf(PassEstimator):
 
 
 @dataclass(frozen=True, repr=False)
-class Usque(PassEstimator):
-    """The unscented quaternion estimator with gyro bias (:mod:`attopt.solvers.filters.usque`).
+class Mekf(GyroFilter):
+    """The multiplicative EKF with gyro bias (:mod:`attopt.solvers.filters.mekf`)."""
 
-    Attributes:
-        filter: fault handling (gating, gyro gaps, validity, lost track).
-    """
+    name: ClassVar[str] = "mekf"
+    description: ClassVar[str] = (
+        "multiplicative EKF with gyro bias (Liu et al. 2023 secs. 4.2-4.5, Joseph form)"
+    )
+    steps: ClassVar[type[GyroStateFilter]] = MekfFilter
 
-    filter: FilterOptions = field(default_factory=FilterOptions)
+
+@dataclass(frozen=True, repr=False)
+class Usque(GyroFilter):
+    """The unscented quaternion estimator with gyro bias (:mod:`attopt.solvers.filters.usque`)."""
 
     name: ClassVar[str] = "usque"
     description: ClassVar[str] = (
         "unscented quaternion estimator with gyro bias (Crassidis and Markley 2003; "
         "Pimienta-Penalver and Crassidis sec. V.B)"
     )
-    accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
-
-    def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
-        """The filtered track (``initial`` unused; no history: no RTS pass)."""
-        inputs = gyro_pass(pass_, self, self.filter)
-        return run_filter(
-            UsqueFilter(inputs.gyro, inputs.model, inputs.prior, self.filter),
-            inputs.t,
-            inputs.measurements,
-            gyro_monitor(self.filter, inputs.prior),
-            self.filter,
-            self.name,
-        )
+    steps: ClassVar[type[GyroStateFilter]] = UsqueFilter
 
 
 @dataclass(frozen=True, repr=False)

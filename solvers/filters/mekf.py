@@ -27,11 +27,11 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel
-from attopt.formulations.passes import Prior
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
     FilterOptions,
+    GyroStateFilter,
     PreparedGyro,
     apply_error,
     error_jacobian,
@@ -46,7 +46,6 @@ from attopt.solvers.filters.common import (
     solve_noise,
     usable_rows,
 )
-from attopt.solvers.sequential import SequentialFilter
 
 
 def propagate(
@@ -178,7 +177,7 @@ def update(
     return apply_error(state[:3], attitude), bias + state[3:], covariance, counts
 
 
-class MekfFilter(SequentialFilter):
+class MekfFilter(GyroStateFilter):
     """The MEKF's state and steps (module docstring), for
     :func:`attopt.solvers.sequential.run_filter`.
 
@@ -188,15 +187,6 @@ class MekfFilter(SequentialFilter):
     """
 
     smoothable = True
-
-    def __init__(
-        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
-    ) -> None:
-        self.gyro, self.model, self.options = gyro, model, options
-        self.attitude = prior.attitude
-        self.bias = np.asarray(prior.bias, dtype=float)
-        self.covariance = np.asarray(prior.covariance, dtype=float)
-        self.node = 0
 
     def predict(self, t: float) -> dict[str, float]:
         stop = self.gyro.node(t)

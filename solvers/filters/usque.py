@@ -129,11 +129,11 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel
-from attopt.formulations.passes import Prior
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
     FilterOptions,
+    GyroStateFilter,
     PreparedGyro,
     apply_error,
     error_jacobian,
@@ -147,7 +147,6 @@ from attopt.solvers.filters.common import (
     repair_covariance,
     usable_rows,
 )
-from attopt.solvers.sequential import SequentialFilter
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -338,7 +337,7 @@ def update(
     return apply_error(state[:3], attitude), bias + state[3:], posterior, counts  # (U9)
 
 
-class UsqueFilter(SequentialFilter):
+class UsqueFilter(GyroStateFilter):
     """USQUE's state and steps (module docstring), for
     :func:`attopt.solvers.sequential.run_filter`.
 
@@ -347,15 +346,6 @@ class UsqueFilter(SequentialFilter):
     to a sample time or an epoch of the timeline, :meth:`update` the
     unscented update (U6)-(U9) (none while the covariance is not finite).
     """
-
-    def __init__(
-        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
-    ) -> None:
-        self.gyro, self.model, self.options = gyro, model, options
-        self.attitude = prior.attitude
-        self.bias = np.asarray(prior.bias, dtype=float)
-        self.covariance = np.asarray(prior.covariance, dtype=float)
-        self.node = 0
 
     def predict(self, t: float) -> dict[str, float]:
         stop = self.gyro.node(t)
