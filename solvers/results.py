@@ -89,8 +89,25 @@ def normalised_errors(error: Array, covariance: Array) -> Array:
     return nees
 
 
+class _Uncertainty:
+    """Per-axis standard deviations of a result's ``covariance``."""
+
+    covariance: Array
+
+    @property
+    def sigma(self) -> Array:
+        """Standard deviations per body axis (rad), ``(3,)`` for a solution and ``(N, 3)``
+        for a track; NaN where not valid or where the axis is unobservable."""
+        return observable_sigma(self.covariance)
+
+    @property
+    def sigma_deg(self) -> Array:
+        """:attr:`sigma` in degrees."""
+        return np.degrees(self.sigma)
+
+
 @dataclass(frozen=True, eq=False)
-class Solution:
+class Solution(_Uncertainty):
     """One epoch's estimate.
 
     Attributes:
@@ -115,16 +132,6 @@ class Solution:
     reason: str = ""
     error: type[AttoptError] | None = None
     t: float = np.nan
-
-    @property
-    def sigma(self) -> Array:
-        """``(3,)`` standard deviations per body axis (rad), NaN where unobservable."""
-        return observable_sigma(self.covariance)
-
-    @property
-    def sigma_deg(self) -> Array:
-        """:attr:`sigma` in degrees."""
-        return np.degrees(self.sigma)
 
     @property
     def quaternion(self) -> Array:
@@ -156,7 +163,7 @@ class Solution:
 
 
 @dataclass(frozen=True, eq=False)
-class Track:
+class Track(_Uncertainty):
     """Estimates at ``N`` epochs with a per-epoch validity mask.
 
     Attributes:
@@ -202,16 +209,6 @@ class Track:
     def attitude(self) -> Rotation:
         """Attitudes of the valid epochs (use ``valid`` to place them)."""
         return Rotation.from_quat(self.quaternion[self.valid])
-
-    @property
-    def sigma(self) -> Array:
-        """``(N, 3)`` standard deviations per body axis (rad); NaN where invalid or unobservable."""
-        return observable_sigma(self.covariance)
-
-    @property
-    def sigma_deg(self) -> Array:
-        """:attr:`sigma` in degrees."""
-        return np.degrees(self.sigma)
 
     def block(self, name: str) -> slice:
         """The rows of block ``name`` (``"attitude"``, ``"bias"``, ``"rate"``) in the state."""

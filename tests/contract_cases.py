@@ -19,7 +19,6 @@ from scipy.spatial.transform import Rotation
 from attopt.experiments.geo_snr_stations.scenario import SNR_SIGMA_DB, build_geo_snr_scenario
 from attopt.formulations.attitude_measurement import EulerAngleMeasurement
 from attopt.formulations.conventions import euler321_from_attitude
-from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.geo_link import geo_snr_epoch
 from attopt.formulations.passes import GyroRecord, Pass, Prior
 from attopt.formulations.snapshot import Snapshot
@@ -28,7 +27,7 @@ from attopt.formulations.snr_problem import SnrEpoch
 from tests.filter_passes import GYRO, drawn_prior, prior_covariance, simulate_pass
 from tests.test_doa_ekf import drawn_prior as drawn_rate_prior
 from tests.test_doa_ekf import rate_prior, simulate_vectors
-from tests.test_snr_solvers import BORESIGHTS, BUDGET, _geometry
+from tests.test_snr_solvers import _epoch, _geometry
 
 Problem = Snapshot | Pass
 NOISE_FREE_GYRO = dataclasses.replace(GYRO, sigma_v=0.0, sigma_u=0.0, initial_bias_sigma=0.0)
@@ -101,12 +100,10 @@ unobservable, ``tests/test_contract.py``); a snapshot without measurements is.""
 def _snr_epoch(seed: int, noisy: bool, **options: float) -> tuple[SnrEpoch, Rotation]:
     truth = _truth(seed)
     rng = np.random.default_rng(seed + 1)
-    los, antenna, ranges, true_snr, _ = _geometry(rng, truth)
+    geometry = _geometry(rng, truth)
+    true_snr = geometry[3]
     snr = true_snr + rng.standard_normal(true_snr.shape) if noisy else true_snr
-    epoch = SnrEpoch.from_ranges(
-        snr, los, antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET, **options
-    )
-    return epoch, truth
+    return _epoch(geometry, snr, **options), truth
 
 
 def _snr_case(**options: float) -> Case:
@@ -246,19 +243,10 @@ def _gyro_snr_draw(seed: int, noisy: bool) -> Drawn:
     pass_ = drawn.problem
     snapshots = []
     for k in range(len(pass_)):
-        los, antenna, ranges, true_snr, _ = _geometry(rng, drawn.truth[k], per_antenna=(6, 6))
+        geometry = _geometry(rng, drawn.truth[k], per_antenna=(6, 6))
+        true_snr = geometry[3]
         snr = true_snr + rng.standard_normal(true_snr.shape) if noisy else true_snr
-        epoch = SnrEpoch.from_ranges(
-            snr,
-            los,
-            antenna,
-            BORESIGHTS,
-            ranges,
-            SEED000_HELIX,
-            BUDGET,
-            threshold_db=-np.inf,
-            transmitter=np.arange(snr.size),
-        )
+        epoch = _epoch(geometry, snr, threshold_db=-np.inf, transmitter=np.arange(snr.size))
         snapshots.append(Snapshot.of(SnrMeasurement(epoch)))
     return Drawn(Pass(pass_.t, snapshots, pass_.gyro, pass_.prior), drawn.truth)
 

@@ -19,17 +19,19 @@ smoother's report.
 Example::
 
     >>> import numpy as np
-    >>> from scipy.spatial.transform import Rotation
-    >>> from attopt.formulations.gyro import MEMS_GYRO
-    >>> from attopt.formulations.passes import GyroRecord, Pass, Prior
-    >>> t = np.arange(10.0) + 0.05  # between the 10 Hz gyro's samples
-    >>> gyro = GyroRecord(np.arange(0.0, 10.01, 0.1), np.zeros((100, 3)), MEMS_GYRO)
-    >>> body = reference = np.tile(np.eye(3)[:2], (10, 1, 1))
-    >>> prior = Prior(Rotation.identity(), np.radians(1.0) ** 2 * np.eye(3))
-    >>> pass_ = Pass.from_vectors(t, body, reference, 1e-3, gyro, prior)
-    >>> track = BatchSmoother().solve(pass_)
-    >>> bool(track.valid.all()), track.report.converged, track.report.initialisation
-    (True, True, 'mekf+rts')
+    >>> import attopt
+    >>> record = attopt.GyroRecord(np.arange(101) / 10.0, np.zeros((100, 3)), attopt.MEMS_GYRO)
+    >>> still = attopt.Prior(attopt.attitude_from_euler321(0.1, 0.0, 0.0), 1e-4 * np.eye(3))
+    >>> directions = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    >>> pass_ = attopt.Pass.from_vectors(
+    ...     np.arange(0.0, 10.0, 0.5), still.attitude.apply(directions)[None].repeat(20, 0),
+    ...     directions, 2e-3, record, still,
+    ... )
+    >>> runs = attopt.run_estimators(pass_, ["fg_online", "fg_batch"])
+    >>> runs["fg_batch"].track.report.initialisation  # started from fg_online's track
+    'given'
+    >>> bool(runs["fg_batch"].track.valid.all())
+    True
 """
 
 from __future__ import annotations
