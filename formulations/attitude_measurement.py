@@ -14,7 +14,7 @@ Symbolic models are written once with :mod:`attopt.formulations.symbolic` and
 differentiated by CasADi
 (:func:`attopt.formulations.attitude_model.attitude_model_function`): the attitude
 enters as ``C(v) A`` (:func:`attopt.formulations.attitude_model.increment_matrix`,
-seed 000 eq. 28), whose derivative at ``v = 0`` is the body-frame Jacobian.
+Liu et al. 2023 eq. 28), whose derivative at ``v = 0`` is the body-frame Jacobian.
 :meth:`AttitudeMeasurement.symbolic` returns that model with its parameter
 values and its symbolic innovation
 (:class:`~attopt.formulations.measurement_model.SymbolicModel`); the default
@@ -26,11 +26,11 @@ types below keep their own ``predict`` where it has a faster numpy path or
 masks unpredictable rows; their AD values and Jacobians come from the same
 symbolic model.
 
-Implementations: :class:`EulerAngleMeasurement` (seed 000 eqs. 41-46, the
-"paper MEKF" observation), :class:`VectorMeasurement` (unit vectors, seed 002
-eqs. 2-4), :class:`attopt.formulations.snr_measurement.SnrMeasurement` (SNRs, seed
-000 eq. 13); :class:`ReferencedMeasurement` re-expresses any of them for an
-attitude relative to another reference frame.
+Implementations: :class:`EulerAngleMeasurement` (Liu et al. 2023 eqs. 41-46, the
+"paper MEKF" observation), :class:`VectorMeasurement` (unit vectors, Cilden Guler et
+al. 2017 eqs. 2-4), :class:`attopt.formulations.snr_measurement.SnrMeasurement`
+(SNRs, Liu et al. 2023 eq. 13); :class:`ReferencedMeasurement` re-expresses any of
+them for an attitude relative to another reference frame.
 """
 
 from __future__ import annotations
@@ -125,7 +125,7 @@ class AttitudeMeasurement(ABC):
 
     sources: NDArray[np.intp] | None = None
     """``(m,)`` identifier of the unknown additive offset inside each row's model (a
-    transmitter's power offset, dB: issue 6 sec. 2), or ``None`` for models without one."""
+    transmitter's power offset, dB: ``docs/smoother.md``), or ``None`` for models without one."""
 
     def with_offsets(self, offsets: Array) -> AttitudeMeasurement:
         """The measurement whose model adds ``offsets`` ``(m,)`` to its rows' offset parameter."""
@@ -144,7 +144,7 @@ def _check_vector(name: str, value: ArrayLike) -> Array:
 
 
 def euler321_model(attitude: Any) -> Any:
-    """``[yaw, pitch, roll]`` of seed 000 eq. 8 from the attitude matrix (symbolic).
+    """``[yaw, pitch, roll]`` of Liu et al. 2023 eq. 8 from the attitude matrix (symbolic).
 
     ``A = R1(roll) R2(pitch) R3(yaw)`` has ``A12 / A11 = tan(yaw)``,
     ``A13 = -sin(pitch)``, ``A23 / A33 = tan(roll)``; pitch is taken as
@@ -163,11 +163,11 @@ def _wrap(angle: Array) -> Array:
 
 
 class EulerAngleMeasurement(AttitudeMeasurement):
-    """3-2-1 Euler angles of an attitude solution as a measurement (seed 000 eqs. 41-46).
+    """3-2-1 Euler angles of an attitude solution as a measurement (Liu et al. 2023 eqs. 41-46).
 
-    ``z = [yaw, pitch, roll]`` (rad) of a single-frame solution (the seed uses
-    the NLSE's); the Jacobian (AD) equals minus seed 000 eq. 44's ``H_v``, the
-    Euler-rate kinematics matrix at the predicted angles: the seed's error
+    ``z = [yaw, pitch, roll]`` (rad) of a single-frame solution (the paper uses
+    the NLSE's); the Jacobian (AD) equals minus Liu et al. 2023 eq. 44's ``H_v``, the
+    Euler-rate kinematics matrix at the predicted angles: the paper's error
     vector is the opposite rotation of attopt's ``delta`` (its eq. 36 has
     ``- delta_beta``, see :mod:`attopt.formulations.gyro`).  One gating block.
     """
@@ -195,24 +195,25 @@ class EulerAngleMeasurement(AttitudeMeasurement):
 
 
 def body_vectors_model(attitude: Any, reference: Any) -> Any:
-    """``b_i = A r_i`` stacked as ``[b_1; b_2; ...]`` (seed 002 eqs. 2, 4; symbolic)."""
+    """``b_i = A r_i`` stacked as ``[b_1; b_2; ...]`` (Cilden Guler et al. 2017 eqs. 2, 4;
+    symbolic)."""
     return ca.vec(attitude @ reference.T)
 
 
 class VectorMeasurement(AttitudeMeasurement):
-    """Measured body-frame unit vectors ``b_i = A r_i + noise`` (seed 002 eqs. 2-4).
+    """Measured body-frame unit vectors ``b_i = A r_i + noise`` (Cilden Guler et al. 2017 eqs. 2-4).
 
     ``z`` is the ``k`` measured vectors stacked (``3 k`` rows); each vector is a
     gating block and rows with a NaN vector are dropped.  The noise is given
     per vector either as a standard deviation ``sigma_i`` (rad), ``R_i =
-    sigma_i^2 I3``, the QUEST measurement model of seed 002 sec. 2.3, or as a
+    sigma_i^2 I3``, the QUEST measurement model of Cilden Guler et al. 2017 sec. 2.3, or as a
     positive-definite ``3 x 3`` covariance ``C_i`` (rad^2), then ``R`` is block
     diagonal with the ``C_i``.  :attr:`sigma` is each vector's isotropic
     equivalent, ``sigma_i^2 = tr(P_i C_i P_i) / 2`` with ``P_i = I - b_i
     b_i^T`` (the mean variance perpendicular to the measured direction; the
     component along it does not move the attitude to first order), which is
     ``sigma_i`` itself for ``C_i = sigma_i^2 I3``: the weight ``1 / sigma_i^2``
-    of Wahba's problem (seed 002 eq. 14).
+    of Wahba's problem (Cilden Guler et al. 2017 eq. 14).
 
     The innovation of each vector is its geodesic difference in the plane
     perpendicular to the prediction ``h_i``: ``theta p / |p|`` with ``p`` the

@@ -2,7 +2,7 @@
 
 A measurement model ``h(A, params)`` is written once with
 :mod:`attopt.formulations.symbolic`.  Solvers vary the attitude as ``A = C(v) A_ref``
-(:func:`increment_matrix`, seed 000 eq. 28) and need ``h`` and ``dh/dv`` at
+(:func:`increment_matrix`, Liu et al. 2023 eq. 28) and need ``h`` and ``dh/dv`` at
 ``v = 0``: the Jacobian with respect to the body-frame attitude error
 (``docs/conventions.md``).  :func:`attitude_model_function` builds that pair
 by CasADi automatic differentiation and :func:`evaluate_at_attitudes`
@@ -30,7 +30,7 @@ def increment_matrix(v: Any) -> Any:
     ``C = I + (8 [p x]^2 + 4 (1 - |p|^2) [p x]) / (1 + |p|^2)^2``, which is
     ``Rotation.from_mrp(v / 4).as_matrix()``: the rotation by
     ``4 arctan(|v| / 4)`` about ``v``, i.e. ``v`` minus ``O(|v|^3)``.  Four times
-    the MRPs is the attitude error vector of seed 000 eq. 28.  Rational in
+    the MRPs is the attitude error vector of Liu et al. 2023 eq. 28.  Rational in
     ``v`` (no ``sinc``), exactly orthogonal, smooth at ``v = 0``.  numpy: ``v``
     is ``(..., 3)``, the result ``(..., 3, 3)``; CasADi: ``v`` is ``3 x 1``.
     """

@@ -1,15 +1,15 @@
 """Frame and attitude conventions of attopt (see ``docs/conventions.md``).
 
 * An attitude ``A`` maps components in a reference frame to components in the
-  body frame, ``b = A r`` (Wahba's form, seed 002 eq. 14).  It is carried as a
+  body frame, ``b = A r`` (Wahba's form, Cilden Guler et al. 2017 eq. 14).  It is carried as a
   :class:`scipy.spatial.transform.Rotation` whose ``as_matrix()`` is ``A``, so
   ``A.apply(r) == b``.
 * The quaternion exchange format is scipy's: Hamilton, scalar last
-  ``[x, y, z, w]``, of the rotation ``A``.  The Shuster quaternion of seed 002
+  ``[x, y, z, w]``, of the rotation ``A``.  The Shuster quaternion of Cilden Guler et al. 2017
   eq. 21 (``A(q) = (q4^2 - |q|^2) I + 2 q q^T - 2 q4 [q x]``) is its conjugate,
   i.e. the scipy quaternion of ``A.inv()``.
 * Euler angles are the 3-2-1 sequence (yaw psi, pitch theta, roll phi) of
-  seed 000 eq. 8: ``A = R1(phi) R2(theta) R3(psi)`` with ``Ri`` the frame
+  Liu et al. 2023 eq. 8: ``A = R1(phi) R2(theta) R3(psi)`` with ``Ri`` the frame
   (passive) rotation about axis ``i``.
 * The attitude error is the rotation vector of ``A_est * A_true.inv()``; its
   components are along the body axes (x roll, y pitch, z yaw).
@@ -25,27 +25,27 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 EULER_SEQUENCE = "ZYX"
-"""scipy's intrinsic sequence whose inverse is seed 000 eq. 8."""
+"""scipy's intrinsic sequence whose inverse is Liu et al. 2023 eq. 8."""
 
 
 def attitude_from_euler321(yaw: ArrayLike, pitch: ArrayLike, roll: ArrayLike) -> Rotation:
-    """Attitude ``A = R1(roll) R2(pitch) R3(yaw)`` of seed 000 eq. 8 (angles in rad)."""
+    """Attitude ``A = R1(roll) R2(pitch) R3(yaw)`` of Liu et al. 2023 eq. 8 (angles in rad)."""
     angles = np.stack(np.broadcast_arrays(yaw, pitch, roll), axis=-1)
     return Rotation.from_euler(EULER_SEQUENCE, angles).inv()
 
 
 def euler321_from_attitude(attitude: Rotation) -> NDArray[np.float64]:
-    """Return ``[yaw, pitch, roll]`` (rad, last axis) of seed 000 eq. 8."""
+    """Return ``[yaw, pitch, roll]`` (rad, last axis) of Liu et al. 2023 eq. 8."""
     return attitude.inv().as_euler(EULER_SEQUENCE)
 
 
 def shuster_quaternion(attitude: Rotation) -> NDArray[np.float64]:
-    """Shuster quaternion ``[q1, q2, q3, q4]`` (scalar last) of seed 002 eq. 21."""
+    """Shuster quaternion ``[q1, q2, q3, q4]`` (scalar last) of Cilden Guler et al. 2017 eq. 21."""
     return attitude.inv().as_quat(canonical=True)
 
 
 def attitude_from_shuster_quaternion(q: ArrayLike) -> Rotation:
-    """Attitude whose matrix is ``A(q)`` of seed 002 eq. 21 (``q`` scalar last)."""
+    """Attitude whose matrix is ``A(q)`` of Cilden Guler et al. 2017 eq. 21 (``q`` scalar last)."""
     return Rotation.from_quat(q).inv()
 
 

@@ -1,6 +1,6 @@
-"""The smart-antenna array of seed 003: geometry, steering vector and snapshots.
+"""The smart-antenna array of Yang et al. 2014: geometry, steering vector and snapshots.
 
-Array frame ``F_r`` (seed 003 sec. 2, Fig. 1): the elements lie in its x-y
+Array frame ``F_r`` (Yang et al. 2014 sec. 2, Fig. 1): the elements lie in its x-y
 plane, which is parallel to the body x-y plane; ``z`` is the array axis.  A
 direction of arrival (DOA) is ``(theta, phi)``: ``theta`` the polar angle of
 the source direction from ``+z`` (``0 <= theta <= pi / 2`` on the side the
@@ -47,7 +47,7 @@ ComplexArray = NDArray[np.complex128]
 
 @dataclass(frozen=True)
 class UniformCircularArray:
-    """A uniform circular array in the x-y plane of its frame (seed 003 eqs. 19-21)."""
+    """A uniform circular array in the x-y plane of its frame (Yang et al. 2014 eqs. 19-21)."""
 
     n_elements: int = 12
     radius_m: float = 0.15
@@ -55,7 +55,7 @@ class UniformCircularArray:
 
     @property
     def element_angles(self) -> Array:
-        """``varphi_m = 2 pi (m - 1) / M`` (rad), ``m = 1..M`` (seed 003 sec. 4.1)."""
+        """``varphi_m = 2 pi (m - 1) / M`` (rad), ``m = 1..M`` (Yang et al. 2014 sec. 4.1)."""
         return 2.0 * np.pi * np.arange(self.n_elements) / self.n_elements
 
     @property
@@ -92,11 +92,11 @@ class UniformCircularArray:
 
 
 SEED003_UCA = UniformCircularArray()
-"""The 12-element UCA of seed 003 sec. 4.1 (r = lambda = 150 mm)."""
+"""The 12-element UCA of Yang et al. 2014 sec. 4.1 (r = lambda = 150 mm)."""
 
 
 def doa_unit_vector(theta: Any, phi: Any) -> Any:
-    """``S = [sin theta cos phi, sin theta sin phi, cos theta]`` (seed 003 eqs. 1, 12).
+    """``S = [sin theta cos phi, sin theta sin phi, cos theta]`` (Yang et al. 2014 eqs. 1, 12).
 
     numpy: ``(...)`` angles -> ``(..., 3)``; CasADi: scalars -> ``1 x 3`` row.
     """
@@ -193,7 +193,7 @@ def unit_vector_covariance(theta: ArrayLike, phi: ArrayLike, covariance: ArrayLi
 def steering_vector(
     theta: ArrayLike, phi: ArrayLike, array: UniformCircularArray = SEED003_UCA
 ) -> ComplexArray:
-    """``a(theta, phi)`` ``(..., M)`` of seed 003 eq. 21."""
+    """``a(theta, phi)`` ``(..., M)`` of Yang et al. 2014 eq. 21."""
     direction = doa_unit_vector(np.asarray(theta, float), np.asarray(phi, float))
     return np.exp(1j * array.steering_phase(direction))
 
@@ -206,7 +206,7 @@ def simulate_snapshots(
     rng: np.random.Generator,
     array: UniformCircularArray = SEED003_UCA,
 ) -> ComplexArray:
-    """``X = a(theta, phi) s + N`` ``(..., M, L)`` (seed 003 eqs. 8-10).
+    """``X = a(theta, phi) s + N`` ``(..., M, L)`` (Yang et al. 2014 eqs. 8-10).
 
     ``s`` and every element of ``N`` are independent circular complex
     Gaussian, ``E|n|^2 = 1`` and ``E|s|^2 = 10^(snr_db / 10)`` (the input

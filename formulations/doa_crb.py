@@ -1,6 +1,6 @@
 """Stochastic Cramer-Rao bound of a single far-field source's DOA on an array.
 
-For ``X = a(eta) s + N`` (seed 003 eq. 8) with ``s ~ CN(0, P)``, white noise
+For ``X = a(eta) s + N`` (Yang et al. 2014 eq. 8) with ``s ~ CN(0, P)``, white noise
 ``N ~ CN(0, sigma^2 I)``, ``L`` independent snapshots and
 ``eta = (theta, phi)``, the stochastic (unconditional) CRB of Stoica and
 Nehorai (IEEE Trans. ASSP 38(10), 1990, eq. 2.13) is
@@ -9,7 +9,7 @@ Nehorai (IEEE Trans. ASSP 38(10), 1990, eq. 2.13) is
 
 ``D = da / d eta`` and ``Pi = I - a a^H / M``.  With one source
 ``P a^H R^{-1} a P = M P^2 / (sigma^2 + M P)``, and since ``a = exp(j psi)``
-with the real phase ``psi(eta)`` of seed 003 eq. 20,
+with the real phase ``psi(eta)`` of Yang et al. 2014 eq. 20,
 ``D^H Pi D = G^T (I - 1 1^T / M) G`` with ``G = d psi / d eta`` ``(M, 2)``:
 
 ``CRB = (1 + 1 / (M SNR)) / (2 L SNR) [G^T (I - 1 1^T / M) G]^{-1}``,

@@ -1,4 +1,4 @@
-"""The DOA attitude measurement of seed 003 (eqs. 13-18) for filters and smoothers.
+"""The DOA attitude measurement of Yang et al. 2014 (eqs. 13-18) for filters and smoothers.
 
 For each visible ground station: ``D_o = G_o - S_do`` (eq. 13) is the vector
 from the satellite's centre of mass to the station in the reference (orbit)
@@ -9,7 +9,7 @@ the array centre (eq. 15) in the array frame (eq. 16) is
 ``S_r = C_rb (A D_o - R_b) / |A D_o - R_b|``
 
 with ``A = C_bo`` the attitude and ``C_rb`` the antenna mounting (body ->
-array; the seed's array is parallel to the body, ``C_rb = I``, eq. 2).  The
+array; Yang et al. 2014's array is parallel to the body, ``C_rb = I``, eq. 2).  The
 measurement is the DOA of ``S_r`` (eq. 12), ``h = (theta, phi)``, with a
 ``2 x 2`` covariance per station (one gating block each).  The far-field
 approximation (eq. 17, ``far_field=True``) drops ``R_b``: the line of sight
@@ -56,7 +56,7 @@ _ROWS_PER_STATION = 4
 
 
 def doa_model(attitude: Any, line_of_sight: Any, lever_arm: Any, mounting: Any) -> Any:
-    """``[theta, phi, x, y]`` per station of ``S_r`` (seed 003 eqs. 12-16; CasADi).
+    """``[theta, phi, x, y]`` per station of ``S_r`` (Yang et al. 2014 eqs. 12-16; CasADi).
 
     ``line_of_sight`` ``k x 3`` rows ``D_o`` (km), ``lever_arm`` ``3 x 1``
     ``R_b`` (km), ``mounting`` ``C_rb``; stacked station by station.

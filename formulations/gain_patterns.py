@@ -1,6 +1,6 @@
 """Receive-antenna gain patterns ``G(alpha)`` in dBi, main lobe only.
 
-``alpha`` is the off-boresight angle (seed 000 eq. 5).  Every pattern is
+``alpha`` is the off-boresight angle (Liu et al. 2023 eq. 5).  Every pattern is
 evaluated from two numbers computed accurately by the SNR model:
 
 * ``cos_alpha = l . b``, accurate near 90 degrees, and
@@ -12,11 +12,11 @@ definition serves numpy and CasADi, and none of them uses ``arccos``: their
 derivatives stay finite at ``alpha = 0``.  Each pattern states its main lobe
 (``max_off_boresight_rad`` and ``min_cos``): the region where it is valid and
 where the gain decreases monotonically with ``alpha``, as the attitude model
-of seed 000 sec. 2 requires.
+of Liu et al. 2023 sec. 2 requires.
 
-* :class:`CosinePowerPattern`: ``g = g_max cos^n(alpha)`` (seed 000 eq. 63).
+* :class:`CosinePowerPattern`: ``g = g_max cos^n(alpha)`` (Liu et al. 2023 eq. 63).
 * :class:`ParabolicPattern`: ``G = G_max - C (alpha / theta_3dB)^2`` dB
-  (seed 004 eq. 5).
+  (Pimienta-Penalver and Crassidis eq. 5).
 * :class:`TabulatedPattern`: measured gain in dBi against ``alpha``, smooth
   cubic B-spline in ``1 - cos(alpha)``.
 """
@@ -99,20 +99,20 @@ def _require(condition: bool, message: str) -> None:
 
 @dataclass(frozen=True)
 class CosinePowerPattern:
-    """``g(alpha) = peak_gain cos^exponent(alpha)`` (linear), seed 000 eq. 63.
+    """``g(alpha) = peak_gain cos^exponent(alpha)`` (linear), Liu et al. 2023 eq. 63.
 
-    The main lobe is where ``G = 10 lg g >= min_gain_dbi``; seed 000 sec. 5.1
+    The main lobe is where ``G = 10 lg g >= min_gain_dbi``; Liu et al. 2023 sec. 5.1
     uses ``G >= 4 dBi`` for its helix, ``g = 14.4598 cos^6 alpha``
     (:data:`SEED000_HELIX`, main lobe to 41.7 deg).  The pattern is a function
     of ``cos(alpha)`` alone: ``G = 10 lg(peak_gain) + 10 n lg(cos alpha)``.
     """
 
     peak_gain: float
-    """Linear boresight gain (14.4598 in seed 000 eq. 63)."""
+    """Linear boresight gain (14.4598 in Liu et al. 2023 eq. 63)."""
     exponent: float
-    """Power of ``cos(alpha)`` (6 in seed 000 eq. 63)."""
+    """Power of ``cos(alpha)`` (6 in Liu et al. 2023 eq. 63)."""
     min_gain_dbi: float
-    """Main-lobe edge (4 dBi in seed 000 sec. 5.1)."""
+    """Main-lobe edge (4 dBi in Liu et al. 2023 sec. 5.1)."""
 
     def __post_init__(self) -> None:
         _require(self.peak_gain > 0 and self.exponent > 0, f"bad cos^n pattern {self}")
@@ -137,12 +137,13 @@ class CosinePowerPattern:
 
 @dataclass(frozen=True)
 class ParabolicPattern:
-    """``G = G_max - C (alpha / theta_3dB)^2`` dB, seed 004 eq. 5.
+    """``G = G_max - C (alpha / theta_3dB)^2`` dB, Pimienta-Penalver and Crassidis eq. 5.
 
     With ``theta_3db_rad`` the full half-power beamwidth, ``C = 12`` dB puts
     the -3 dB points at ``alpha = theta_3dB / 2`` (the usual convention,
     e.g. Maral and Bousquet); with ``theta_3dB`` the half-power off-boresight
-    angle, as seed 004 words it, ``C = 3``.  Seed 004 table 1 uses ``C = 10``.
+    angle, as Pimienta-Penalver and Crassidis word it, ``C = 3``.  Their Table 1
+    uses ``C = 10``.
     The main lobe ends where ``G = min_gain_dbi``, i.e. at
     ``theta_3dB sqrt((G_max - G_min) / C)`` (at most 180 deg).
     ``alpha^2`` comes from :func:`off_boresight_angle_squared`, smooth at 0.
@@ -228,4 +229,4 @@ class TabulatedPattern:
 
 
 SEED000_HELIX = CosinePowerPattern(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)
-"""The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi`` (sec. 5.1)."""
+"""The helix of Liu et al. 2023 eq. 63, main lobe ``G >= 4 dBi`` (sec. 5.1)."""

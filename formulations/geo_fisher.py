@@ -1,12 +1,12 @@
-"""Attitude information in the SNRs of a GEO broadcaster (seed 004 sec. V, eqs. 13-25).
+"""Attitude information in a GEO broadcaster's SNRs (Pimienta-Penalver and Crassidis sec. V).
 
 With SNRs ``y = h(A) + n``, ``n ~ N(0, sigma^2 I)``, the Fisher information of
 the attitude error is ``F = H^T H / sigma^2`` (eqs. 13-14), ``H = dh / d delta``.
-Seed 004 derives ``H`` by hand (eqs. 15-24); here it is CasADi's automatic
-derivative of the one SNR model (:func:`attopt.formulations.geo_link.geo_snr_db` in
+Pimienta-Penalver and Crassidis derive ``H`` by hand (eqs. 15-24); here it is CasADi's
+automatic derivative of the one SNR model (:func:`attopt.formulations.geo_link.geo_snr_db` in
 the form of :func:`attopt.formulations.snr_model.predict_snr`), with respect to
-attopt's body-frame error ``delta`` of ``exp(delta) A``.  Seed 004's
-``delta alpha`` (eq. 17, ``A_hat = exp(-[delta alpha x]) A``) is ``-delta``:
+attopt's body-frame error ``delta`` of ``exp(delta) A``.  The paper's ``delta alpha``
+(eq. 17, ``A_hat = exp(-[delta alpha x]) A``) is ``-delta``:
 ``F`` and its nullspace are the same.
 
 A single SNR depends on the attitude only through ``theta_b``, the angle
@@ -14,8 +14,8 @@ between the boresight ``z_B`` and the line of sight ``l_B``.  Rotations about
 ``z_B`` (the pattern's symmetry axis) and about ``l_B`` (which keeps the line
 of sight) leave it unchanged, so the nullspace of one SNR's ``F`` is
 ``span{z_B, l_B}`` = ``span{[0 0 1], [l_x l_y 0]}``: the boresight and the
-line of sight projected on the body x-y plane, seed 004 eq. 25 (whose second
-vector ``[l_x / l_y, 1, 0]`` is the same direction).  The only non-zero
+line of sight projected on the body x-y plane, Pimienta-Penalver and Crassidis eq. 25
+(whose second vector ``[l_x / l_y, 1, 0]`` is the same direction).  The only non-zero
 eigenvalue, ``|H|^2 / sigma^2``, is the "information magnitude" of Fig. 8.
 """
 
@@ -66,7 +66,8 @@ def information_magnitude(jacobian: ArrayLike, sigma_db: ArrayLike) -> Array:
 def single_snr_nullspace(
     attitude: Rotation, satellite_km: ArrayLike, station_km: ArrayLike
 ) -> Array:
-    """Seed 004 eq. 25: ``(2, 3)`` unit rows ``[0 0 1]`` and ``[l_x l_y 0] / |.|`` (body frame).
+    """Pimienta-Penalver and Crassidis eq. 25: ``(2, 3)`` unit rows ``[0 0 1]`` and
+    ``[l_x l_y 0] / |.|`` (body frame).
 
     ``l = A (r_GS - r_RSO)``; eq. 25 writes ``r_RSO - r_GS``, the opposite
     sign, which spans the same line.
@@ -86,8 +87,9 @@ def information_map(
 ) -> Array:
     """Information magnitude ``(n_roll, n_pitch)`` about the attitude pointing at the station.
 
-    Seed 004 Fig. 8: the base attitude has its boresight on the line of sight
-    to ``station_km`` (``theta_b = 0``, :func:`attopt.formulations.geo_link.attitude_pointing`);
+    Pimienta-Penalver and Crassidis Fig. 8: the base attitude has its boresight on the line
+    of sight to ``station_km`` (``theta_b = 0``,
+    :func:`attopt.formulations.geo_link.attitude_pointing`);
     each grid point is ``exp([roll, pitch, 0]) A_base`` (body-frame rotations).
     """
     los = np.asarray(station_km, float) - np.asarray(satellite_km, float)

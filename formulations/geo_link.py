@@ -1,6 +1,7 @@
-"""Fixed-beam L-band link from a GEO broadcaster to ground stations (seed 004 sec. II, eqs. 1-7).
+"""Fixed-beam L-band link, GEO broadcaster to ground stations (Pimienta-Penalver and
+Crassidis sec. II, eqs. 1-7).
 
-The SNR at a ground station, in dB (seed 004 eq. 7)::
+The SNR at a ground station, in dB (Pimienta-Penalver and Crassidis eq. 7)::
 
     SNR = EIRP - L + G_r/T_r - k - R_s,   EIRP = P_t + G_t(theta_b)   (eq. 3)
 
@@ -9,21 +10,22 @@ The SNR at a ground station, in dB (seed 004 eq. 7)::
   of a parabolic dish ``10 lg[eta (pi D / lambda)^2]`` (eq. 4; the "phi" printed
   in eq. 4 is pi).  The efficiency is ``eta = 0.55``: eq. 4's approximation
   ``6.9 A / lambda^2`` (``A = pi D^2 / 4``) is ``eta = 6.9 / (4 pi) = 0.549``.
-  Seed 004 gives no ``theta_3dB``; attopt uses the textbook half-power
-  beamwidth of a parabolic dish, ``70 lambda / D`` degrees (1.13 deg for
+  Pimienta-Penalver and Crassidis give no ``theta_3dB``; attopt uses the textbook
+  half-power beamwidth of a parabolic dish, ``70 lambda / D`` degrees (1.13 deg for
   Garuda-1), with Table 1's ``C = 10``, so the -3 dB point lies at 0.55
   ``theta_3dB`` off the boresight.  The quadratic law is used over the
-  whole Earth disc seen from GEO (8.7 deg), as seed 004 does: the main-lobe
+  whole Earth disc seen from GEO (8.7 deg), as the paper does: the main-lobe
   edge is put at :data:`LOBE_EDGE_DEG`.
 * ``theta_b`` is the angle between the boresight (body ``+z``,
   :data:`BORESIGHT_BODY`) and the line of sight from the satellite to the
-  station (seed 004 eq. 15), computed by :func:`attopt.formulations.snr_model.off_boresight`.
+  station (Pimienta-Penalver and Crassidis eq. 15), computed by
+  :func:`attopt.formulations.snr_model.off_boresight`.
 * ``L = L0 + Delta L`` with ``L0 = 20 lg(4 pi d / lambda)`` and
   ``Delta L = 20 lg(d / h)`` (eq. 6): ``d`` the slant range and ``h`` the
   altitude of the satellite above the station, read as the difference of their
   geocentric radii, ``|r_sat| - |r_station|`` (so ``d = h`` for a station
   directly below the satellite on a sphere).
-* ``G_r / T_r``: receive gain ``G_r`` (seed 004 gives none; 0 dBi, an
+* ``G_r / T_r``: receive gain ``G_r`` (the paper gives none; 0 dBi, an
   omnidirectional station antenna) over ``T_r = 38 K``; ``k`` is Boltzmann's
   constant and ``R_s = 2.4`` kbit/s the noise bandwidth.
 
@@ -60,7 +62,8 @@ from attopt.formulations.symbolic import NUMPY, ArrayNamespace, namespace_of
 Array = NDArray[np.float64]
 
 BORESIGHT_BODY = np.array([0.0, 0.0, 1.0])
-"""Broadcast antenna boresight in the body frame (seed 004 eq. 15: ``[0 0 1]_B``)."""
+"""Broadcast antenna boresight in the body frame (Pimienta-Penalver and Crassidis eq. 15:
+``[0 0 1]_B``)."""
 HALF_POWER_BEAMWIDTH_DEG_PER_WAVELENGTH = 70.0
 """``theta_3dB = 70 lambda / D`` degrees, half-power beamwidth of a parabolic dish."""
 LOBE_EDGE_DEG = 9.0
@@ -82,11 +85,13 @@ class GeoLink:
     frequency_hz: float = 1.55e9
     """Broadcast frequency (Table 1)."""
     efficiency: float = 0.55
-    """``eta`` of eq. 4 (seed 004: 0.55-0.65; 0.549 is its ``6.9 A / lambda^2``)."""
+    """``eta`` of eq. 4 (Pimienta-Penalver and Crassidis: 0.55-0.65; 0.549 is their
+    ``6.9 A / lambda^2``)."""
     receiver_temperature_k: float = 38.0
-    """``T_r`` (seed 004 sec. II)."""
+    """``T_r`` (Pimienta-Penalver and Crassidis sec. II)."""
     receiver_gain_dbi: float = 0.0
-    """``G_r`` (not given by seed 004): an omnidirectional station antenna."""
+    """``G_r`` (not given by Pimienta-Penalver and Crassidis): an omnidirectional station
+    antenna."""
 
     def __post_init__(self) -> None:
         values = [getattr(self, name) for name in self.__dataclass_fields__]
@@ -162,7 +167,7 @@ class GeoLink:
 
 
 GARUDA1 = GeoLink()
-"""Garuda-1 / ACeS (seed 004 Table 1)."""
+"""Garuda-1 / ACeS (Pimienta-Penalver and Crassidis Table 1)."""
 
 
 def _norm(vectors: Any, xp: ArrayNamespace) -> Any:
@@ -198,7 +203,8 @@ def link_geometry(satellite_km: Any, stations_km: Any) -> tuple[Any, Any, Any]:
 def geo_snr_db(
     attitude_matrix: Any, satellite_km: Any, stations_km: Any, link: GeoLink = GARUDA1
 ) -> Any:
-    """SNR (dB) at each station, seed 004 eq. 7, numpy or CasADi (shapes of :func:`link_geometry`).
+    """SNR (dB) at each station, Pimienta-Penalver and Crassidis eq. 7, numpy or CasADi
+    (shapes of :func:`link_geometry`).
 
     numpy inputs are checked: :class:`InvalidObservationError` if the
     satellite is not above a station (``h <= 0``), a position is NaN/inf, or a

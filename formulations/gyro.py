@@ -1,6 +1,6 @@
-"""Rate-integrating gyro model of seed 000 eqs. 23-25 and its exact discretisation.
+"""Rate-integrating gyro model of Liu et al. 2023 eqs. 23-25 and its exact discretisation.
 
-Continuous model (seed 000 eqs. 23-25; Markley and Crassidis 2014, sec. 4.7)::
+Continuous model (Liu et al. 2023 eqs. 23-25; Markley and Crassidis 2014, sec. 4.7)::
 
     omega_measured = omega + beta + eta_v,     d beta / dt = eta_u,
 
@@ -10,10 +10,10 @@ independent white noises with power spectral densities ``sigma_v^2 I`` and
 ``sigma_u^2 I``.  Units: ``sigma_v`` in rad/s^(1/2) (angle random walk),
 ``sigma_u`` in rad/s^(3/2) (rate random walk), rates in rad/s.
 
-Seed 000 sec. 5.1 gives "sigma_v = sigma_u = 0.05 deg/s" without time units.
+Liu et al. 2023 sec. 5.1 gives "sigma_v = sigma_u = 0.05 deg/s" without time units.
 attopt reads both as spectral densities with the SI second, ``sigma_v = 0.05
 deg/s^(1/2)`` and ``sigma_u = 0.05 deg/s^(3/2)`` (:data:`SEED000_GYRO`):
-this is also what a discrete filter at the seed's 1 s step with ``Q_k = Q``
+this is also what a discrete filter at the paper's 1 s step with ``Q_k = Q``
 (eqs. 38-39, no ``T`` factor) assumes.  The rate random walk is enormous
 (the bias wanders by ``0.05 sqrt(3600) = 3 deg/s`` per axis in an hour), so
 the gyro contributes little beyond short-term smoothing; :data:`MEMS_GYRO` is
@@ -35,7 +35,7 @@ with ``omega_bar_j`` the constant rate that carries the true attitude from
 (:func:`simulate_gyro`).  The initial bias is drawn from ``N(0,
 initial_bias_sigma^2 I3)``.
 
-Error-state model of the multiplicative filters (seed 000 eqs. 36-39): state
+Error-state model of the multiplicative filters (Liu et al. 2023 eqs. 36-39): state
 ``[delta, delta_beta]`` with ``A_true = exp(delta) A_est`` (the body-frame
 error of ``docs/conventions.md``) and ``delta_beta = beta - beta_hat``.
 From ``dA/dt = -[omega x] A`` for both attitudes, ``d exp(delta)/dt =
@@ -44,7 +44,7 @@ From ``dA/dt = -[omega x] A`` for both attitudes, ``d exp(delta)/dt =
 
     d delta / dt = -[omega_hat x] delta + delta_beta + eta_v.
 
-Seed 000 eq. 36 (and Markley and Crassidis eq. 6.75) print ``- delta_beta -
+Liu et al. 2023 eq. 36 (and Markley and Crassidis eq. 6.75) print ``- delta_beta -
 eta_v``, which belongs to their quaternion-product convention; with attopt's
 convention the sign is ``+`` (pinned by the bias-convergence and Van Loan
 tests: the other sign drives the bias estimate away from the truth).  The
@@ -116,7 +116,8 @@ DEG = np.pi / 180.0
 SEED000_GYRO = GyroModel(
     name="seed000", sigma_v=0.05 * DEG, sigma_u=0.05 * DEG, initial_bias_sigma=0.1 * DEG
 )
-"""Seed 000 sec. 5.1 read literally (module docstring); initial bias 0.1 deg/s (not in the seed)."""
+"""Liu et al. 2023 sec. 5.1 read literally (module docstring); initial bias 0.1 deg/s (not in
+the paper)."""
 
 MEMS_GYRO = GyroModel(
     name="mems",

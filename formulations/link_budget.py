@@ -1,12 +1,12 @@
 """Link budget of the aircraft-to-satellite 1090ES (ADS-B) signal.
 
-Supplies the two terms of seed 000 eq. 4 that do not depend on the attitude:
+Supplies the two terms of Liu et al. 2023 eq. 4 that do not depend on the attitude:
 the isotropic received power ``P0`` (eq. 3) and the noise power
 ``P_n = k_B T B`` (eq. 2), both in dBW.  ``P0`` is the power a 0 dBi receive
 antenna would collect: transmit power plus aircraft antenna gain minus the
-free-space loss ``(4 pi d f / c)^2`` (seed 004 eq. 6, ``L0``) and a
-polarisation loss.  Seed 004's extra elevation-dependent attenuation
-``20 lg(d/h)`` (its eq. 6) is a ground-station model and is not used.
+free-space loss ``(4 pi d f / c)^2`` (Pimienta-Penalver and Crassidis eq. 6, ``L0``)
+and a polarisation loss.  Their extra elevation-dependent attenuation
+``20 lg(d/h)`` (the same eq. 6) is a ground-station model and is not used.
 """
 
 from __future__ import annotations
@@ -18,21 +18,22 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 BOLTZMANN_J_PER_K = 1.380649e-23
-"""Exact since the 2019 SI redefinition (seed 000 eq. 2 rounds it to 1.381e-23)."""
+"""Exact since the 2019 SI redefinition (Liu et al. 2023 eq. 2 rounds it to 1.381e-23)."""
 SPEED_OF_LIGHT_M_PER_S = 299_792_458.0
 ADSB_FREQUENCY_HZ = 1.090e9
-"""1090 MHz extended squitter (seed 000 sec. 1)."""
+"""1090 MHz extended squitter (Liu et al. 2023 sec. 1)."""
 
 
 def noise_power_dbw(temperature_k: ArrayLike, bandwidth_hz: ArrayLike) -> NDArray[np.float64]:
-    """``10 lg(k_B T B)`` (dBW), seed 000 eq. 2."""
+    """``10 lg(k_B T B)`` (dBW), Liu et al. 2023 eq. 2."""
     return 10.0 * np.log10(BOLTZMANN_J_PER_K * np.asarray(temperature_k) * bandwidth_hz)
 
 
 def free_space_loss_db(
     distance_m: ArrayLike, frequency_hz: ArrayLike = ADSB_FREQUENCY_HZ
 ) -> NDArray[np.float64]:
-    """``20 lg(4 pi d f / c)`` (dB), free-space path loss (seed 004 eq. 6, ``L0``)."""
+    """``20 lg(4 pi d f / c)`` (dB), free-space path loss (Pimienta-Penalver and Crassidis
+    eq. 6, ``L0``)."""
     d = np.asarray(distance_m, dtype=float)
     return 20.0 * np.log10(4.0 * np.pi * d * frequency_hz / SPEED_OF_LIGHT_M_PER_S)
 
@@ -44,7 +45,8 @@ def isotropic_power_dbw(
     frequency_hz: ArrayLike = ADSB_FREQUENCY_HZ,
     other_losses_db: ArrayLike = 0.0,
 ) -> NDArray[np.float64]:
-    """``P0`` (dBW) at a 0 dBi receive antenna: ``P_t + G_t - FSPL - losses`` (seed 000 eq. 3)."""
+    """``P0`` (dBW) at a 0 dBi receive antenna: ``P_t + G_t - FSPL - losses`` (Liu et al.
+    2023 eq. 3)."""
     return (
         np.asarray(transmit_power_dbw, dtype=float)
         + transmit_gain_dbi
@@ -57,9 +59,9 @@ def isotropic_power_dbw(
 class LinkBudget:
     """Nominal 1090ES link from an aircraft to a LEO ADS-B receiver.
 
-    With the defaults, an aircraft on the boresight of the seed-000 helix
+    With the defaults, an aircraft on the boresight of Liu et al. 2023's helix
     (11.6 dBi) at 1000 km gives an SNR of about 16.8 dB and at 2000 km about
-    10.8 dB, above the 6 dB reception threshold of seed 000 sec. 5.1
+    10.8 dB, above the 6 dB reception threshold of Liu et al. 2023 sec. 5.1
     (``tests/test_link_budget.py`` prints and checks them).
     """
 
@@ -74,7 +76,7 @@ class LinkBudget:
     that elevation dependence is not modelled)."""
     polarisation_loss_db: float = 3.0
     """Vertically polarised aircraft monopole received by a circularly
-    polarised antenna (the helix of seed 000 fig. 5): 3 dB."""
+    polarised antenna (the helix of Liu et al. 2023 fig. 5): 3 dB."""
     frequency_hz: float = ADSB_FREQUENCY_HZ
     """Carrier frequency (Hz)."""
     noise_temperature_k: float = 500.0
@@ -94,11 +96,11 @@ class LinkBudget:
 
     @property
     def noise_power_dbw(self) -> float:
-        """``10 lg(k_B T B)`` (dBW), seed 000 eq. 2."""
+        """``10 lg(k_B T B)`` (dBW), Liu et al. 2023 eq. 2."""
         return float(noise_power_dbw(self.noise_temperature_k, self.bandwidth_hz))
 
     def isotropic_power_dbw(self, distance_m: ArrayLike) -> NDArray[np.float64]:
-        """``10 lg P0`` (dBW) at slant range ``distance_m`` (seed 000 eq. 3)."""
+        """``10 lg P0`` (dBW) at slant range ``distance_m`` (Liu et al. 2023 eq. 3)."""
         return isotropic_power_dbw(
             self.transmit_power_dbw,
             distance_m,

@@ -1,6 +1,6 @@
-"""The SNR model of seed 000 parametrised by 3-2-1 Euler angles (eqs. 8, 13, 18).
+"""The SNR model of Liu et al. 2023 parametrised by 3-2-1 Euler angles (eqs. 8, 13, 18).
 
-The NLSE of seed 000 sec. 3.3 estimates ``z = [psi, theta, phi]`` (yaw, pitch,
+The NLSE of Liu et al. 2023 sec. 3.3 estimates ``z = [psi, theta, phi]`` (yaw, pitch,
 roll).  :func:`euler321_matrix` is eq. 8 written symbolically (CasADi), the
 same attitude as :func:`attopt.formulations.conventions.attitude_from_euler321`
 (pinned in ``tests/test_snr_solvers.py``), and
@@ -21,7 +21,8 @@ from attopt.formulations.snr_model import snr_db
 
 
 def euler321_matrix(angles: ca.SX | ca.MX) -> ca.SX | ca.MX:
-    """``C_o^B = R1(phi) R2(theta) R3(psi)``, seed 000 eq. 8, of ``angles = [psi, theta, phi]``."""
+    """``C_o^B = R1(phi) R2(theta) R3(psi)`` (Liu et al. 2023 eq. 8) of
+    ``angles = [psi, theta, phi]``."""
     psi, theta, phi = angles[0], angles[1], angles[2]
     cps, sps = ca.cos(psi), ca.sin(psi)
     cth, sth = ca.cos(theta), ca.sin(theta)
@@ -36,7 +37,7 @@ def euler321_matrix(angles: ca.SX | ca.MX) -> ca.SX | ca.MX:
 
 @lru_cache(maxsize=16)
 def euler321_matrix_function() -> ca.Function:
-    """``[psi, theta, phi] -> C_o^B`` (3 x 3), seed 000 eq. 8."""
+    """``[psi, theta, phi] -> C_o^B`` (3 x 3), Liu et al. 2023 eq. 8."""
     z = ca.SX.sym("z", 3)
     return ca.Function("euler321_matrix", [z], [euler321_matrix(z)], ["z"], ["attitude"])
 

@@ -1,17 +1,17 @@
 """SNRs of one epoch as an :class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement`.
 
-Each received message's SNR is a scalar measurement (seed 000 eqs. 4, 13):
+Each received message's SNR is a scalar measurement (Liu et al. 2023 eqs. 4, 13):
 the model ``f_k(A)`` of :func:`attopt.formulations.snr_model.snr_db`, with its
 Jacobian with respect to the body-frame attitude error by CasADi AD
 (:func:`~attopt.formulations.snr_model.predict_snr`).  Filtering with the SNRs
-themselves is seed 000's proposed future work (sec. 6).
+themselves is Liu et al. 2023's proposed future work (sec. 6).
 
 Two measurement models:
 
 * ``truncated=False``: ``y_k = f_k(A) + nu_k``, ``nu_k ~ N(0, sigma_k^2)``,
-  the Gaussian model of seed 000 eq. 19;
-* ``truncated=True``: a message is received only when ``y_k >= tau`` (seed
-  000 sec. 5.1, :mod:`attopt.formulations.snr_truncation`), so the received ``y_k``
+  the Gaussian model of Liu et al. 2023 eq. 19;
+* ``truncated=True``: a message is received only when ``y_k >= tau`` (Liu et
+  al. 2023 sec. 5.1, :mod:`attopt.formulations.snr_truncation`), so the received ``y_k``
   has mean ``f_k + sigma lambda(x_k)`` and variance ``sigma^2 (1 - x_k
   lambda - lambda^2)``, ``x_k = (f_k - tau) / sigma``, ``lambda`` the inverse
   Mills ratio.  Those two moments are the filter's measurement model (the
@@ -159,7 +159,7 @@ class SnrMeasurement(AttitudeMeasurement):
 
     def with_offsets(self, offsets: Array) -> SnrMeasurement:
         """The SNRs with each transmitter's power raised by ``offsets`` ``(m,)`` dB: the
-        offsets enter as ``10 lg P0 + o`` (seed 000 eq. 13)."""
+        offsets enter as ``10 lg P0 + o`` (Liu et al. 2023 eq. 13)."""
         epoch = replace(self.epoch, p0_dbw=self.epoch.p0_dbw + np.asarray(offsets, dtype=float))
         return SnrMeasurement(epoch, truncated=self.truncated)
 

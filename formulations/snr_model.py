@@ -1,6 +1,6 @@
-"""SNR measurement model of ADS-B attitude determination (seed 000 sec. 3.1).
+"""SNR measurement model of ADS-B attitude determination (Liu et al. 2023 sec. 3.1).
 
-``SNR = G(alpha) + 10 lg P0 - 10 lg(k_B T B) + nu`` dB (seed 000 eqs. 1-4, 11)
+``SNR = G(alpha) + 10 lg P0 - 10 lg(k_B T B) + nu`` dB (Liu et al. 2023 eqs. 1-4, 11)
 with ``G = 10 lg g`` the receive gain pattern (:mod:`attopt.formulations.gain_patterns`),
 ``P0`` and the noise power from :mod:`attopt.formulations.link_budget`, and
 ``cos alpha = (A l_o) . b_B`` (eqs. 5-7, 13): ``A = C_o^B`` the attitude
@@ -21,10 +21,10 @@ and observations, CasADi values give expressions from which
 ``casadi.Function`` objects whose Jacobian is CasADi's automatic derivative.
 The attitude is varied for optimisation as ``A = C(v) A_ref`` with ``C(v)``
 the rotation with modified Rodrigues parameters ``v / 4``
-(:func:`increment_matrix`; seed 000 eq. 28), so ``v`` is the body-frame
+(:func:`increment_matrix`; Liu et al. 2023 eq. 28), so ``v`` is the body-frame
 attitude error vector to first order.  :func:`predict_snr` gives numpy values
 and the Jacobian with respect to that error, from which
-:func:`fisher_information` and :func:`cramer_rao_bound` follow (seed 000 eq. 22).
+:func:`fisher_information` and :func:`cramer_rao_bound` follow (Liu et al. 2023 eq. 22).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from attopt.formulations.symbolic import NUMPY, namespace_of
 Array = NDArray[np.float64]
 
 SNR_SIGMA_DB = 1.0
-"""SNR measurement noise standard deviation (dB), seed 000 sec. 5.1."""
+"""SNR measurement noise standard deviation (dB), Liu et al. 2023 sec. 5.1."""
 
 _ROTATION_TOLERANCE = 1e-6
 _NULL_PROJECTOR_TOLERANCE = 1e-9
@@ -61,7 +61,7 @@ def line_of_sight(
 ) -> tuple[Array, Array]:
     """Unit line of sight from the satellite to the aircraft, and the range.
 
-    ``(x_a - x_s) / |x_a - x_s|`` (seed 000 eq. 9 with the sign of eq. 3's
+    ``(x_a - x_s) / |x_a - x_s|`` (Liu et al. 2023 eq. 9 with the sign of eq. 3's
     text, see the module docstring), in the frame of the positions (the orbit
     frame for :func:`snr_db`); the range is in the positions' unit.
     """
@@ -73,7 +73,7 @@ def line_of_sight(
 
 
 def off_boresight(attitude_matrix: Any, los_orbit: Any, boresight_body: Any) -> tuple[Any, Any]:
-    """``cos(alpha)`` and ``1 - cos(alpha)`` of seed 000 eqs. 6-7.
+    """``cos(alpha)`` and ``1 - cos(alpha)`` of Liu et al. 2023 eqs. 6-7.
 
     ``l_B = A l_o / |l_o|`` and ``b = b_B / |b_B|``; ``cos alpha = l_B . b``
     (accurate near 90 deg) and ``1 - cos alpha = |l_B - b|^2 / 2`` (accurate
@@ -104,7 +104,7 @@ def snr_db(
     noise_dbw: Any,
     pattern: GainPattern,
 ) -> Any:
-    """Noise-free SNR (dB), ``G(alpha) + 10 lg P0 - 10 lg P_n`` (seed 000 eqs. 4, 13).
+    """Noise-free SNR (dB), ``G(alpha) + 10 lg P0 - 10 lg P_n`` (Liu et al. 2023 eqs. 4, 13).
 
     The single definition of the model for numpy and CasADi inputs (shapes as
     in :func:`off_boresight`; ``p0_dbw`` and ``noise_dbw`` broadcast against the
@@ -324,7 +324,7 @@ def predict_snr(
 def fisher_information(
     jacobian: ArrayLike, sigma_db: ArrayLike = SNR_SIGMA_DB, mask: ArrayLike | None = None
 ) -> Array:
-    """``F = sum_i J_i^T J_i / sigma_i^2`` (rad^-2, body frame), seed 000 eq. 22.
+    """``F = sum_i J_i^T J_i / sigma_i^2`` (rad^-2, body frame), Liu et al. 2023 eq. 22.
 
     ``jacobian`` is ``(..., m, 3)`` from :func:`predict_snr`; ``sigma_db``
     broadcasts against ``(..., m)``; rows where ``mask`` is False are left out.
@@ -346,7 +346,7 @@ def cramer_rao_bound(fisher: ArrayLike, rtol: float = 1e-10) -> Array:
     span the unobservable subspace with projector ``Pi``; entries where
     ``|Pi| > 1e-9`` are ``sign(Pi) inf`` (so the diagonal is ``+inf`` on every
     body axis the unobservable rotation moves, e.g. the boresight axis when
-    all observations come from one antenna, seed 000 sec. 3.1), the others
+    all observations come from one antenna, Liu et al. 2023 sec. 3.1), the others
     are those of the inverse on the observable subspace.
     """
     f = np.asarray(fisher, dtype=float)

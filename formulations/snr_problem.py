@@ -1,7 +1,7 @@
-"""One epoch of the SNR attitude problem of seed 000 (secs. 3.1-3.3), validated.
+"""One epoch of the SNR attitude problem of Liu et al. 2023 (secs. 3.1-3.3), validated.
 
 An epoch holds ``m`` received ADS-B messages: the measured SNR ``y_k`` (dB,
-seed 000 eq. 4), the unit line of sight ``l_k`` in the orbit frame (satellite
+Liu et al. 2023 eq. 4), the unit line of sight ``l_k`` in the orbit frame (satellite
 to aircraft, :func:`attopt.formulations.snr_model.line_of_sight`), the index of the
 antenna that received it, the isotropic power ``10 lg P0_k`` (dBW, eq. 3) and
 the noise power ``10 lg P_n`` (dBW, eq. 2).  The antennas' boresights in the
@@ -26,13 +26,13 @@ Policy on bad input (mirrors :mod:`attopt.formulations.vector_observations`):
   - :class:`InvalidObservationError`: a line of sight or boresight that is
     NaN/inf or zero; NaN/inf isotropic or noise power; a standard deviation
     that is not finite and positive; a measured SNR that is NaN/inf or below
-    the reception threshold (seed 000 sec. 5.1: 6 dB; such a message is not
+    the reception threshold (Liu et al. 2023 sec. 5.1: 6 dB; such a message is not
     received, so its presence means a corrupted record);
   - :class:`UnobservableError`: fewer than three observations (three unknown
-    angles; seed 000 sec. 3.3 needs ``m_i >= 3`` per antenna, the one-step
+    angles; Liu et al. 2023 sec. 3.3 needs ``m_i >= 3`` per antenna, the one-step
     methods only three overall), or every observation received by antennas
     with (anti)parallel boresights, which leaves the rotation about that
-    boresight unobservable (seed 000 sec. 3.1, the symmetric gain pattern);
+    boresight unobservable (Liu et al. 2023 sec. 3.1, the symmetric gain pattern);
     for the two-step method (sec. 3.2) additionally fewer than two antennas
     with ``min_per_antenna`` observations each.
 
@@ -58,11 +58,11 @@ from attopt.formulations.snr_model import SNR_SIGMA_DB
 Array = NDArray[np.float64]
 
 RECEPTION_THRESHOLD_DB = 6.0
-"""Required SNR ``P_SNR^req`` of seed 000 sec. 5.1 (dB)."""
+"""Required SNR ``P_SNR^req`` of Liu et al. 2023 sec. 5.1 (dB)."""
 PARALLEL_BORESIGHT_TOLERANCE = 1e-3
 """Boresights with ``|b_i x b_j|`` below this (about 0.057 deg) count as parallel."""
 MIN_OBSERVATIONS = 3
-"""Three unknown attitude angles need at least three SNRs (seed 000 sec. 3.3)."""
+"""Three unknown attitude angles need at least three SNRs (Liu et al. 2023 sec. 3.3)."""
 
 
 def _readonly(x: ArrayLike, dtype: type = float) -> NDArray:
@@ -73,7 +73,7 @@ def _readonly(x: ArrayLike, dtype: type = float) -> NDArray:
 
 @dataclass(frozen=True, eq=False)
 class SnrEpoch:
-    """One epoch's SNR attitude problem (seed 000 eqs. 4, 7, 18-19).
+    """One epoch's SNR attitude problem (Liu et al. 2023 eqs. 4, 7, 18-19).
 
     Attributes:
         snr_db: ``(m,)`` measured SNRs ``y_k`` (dB).
@@ -88,7 +88,7 @@ class SnrEpoch:
         threshold_db: reception threshold; measured SNRs below it are rejected.
         transmitter: ``(m,)`` identifier of each observation's transmitter (the
             aircraft), or ``None``; the factor-graph smoother estimates one
-            power offset per transmitter with it (issue 6 sec. 2).
+            power offset per transmitter with it (``docs/smoother.md``).
 
     Arrays are stored as read-only float copies (``antenna`` as integers);
     instances compare and hash by identity.
@@ -220,7 +220,7 @@ class SnrEpoch:
 
     @property
     def weights(self) -> Array:
-        """``(m,)`` ``1 / sigma_k^2``: the diagonal of ``C`` in seed 000 eq. 22."""
+        """``(m,)`` ``1 / sigma_k^2``: the diagonal of ``C`` in Liu et al. 2023 eq. 22."""
         return np.asarray(self.sigma_db, dtype=float) ** -2
 
 
@@ -286,7 +286,7 @@ def _spans_two_axes(boresights: Array) -> bool:
 def epoch_issue(problem: SnrEpoch, *, min_per_antenna: int | None = None) -> EpochIssue | None:
     """``None`` if the epoch is solvable, else the first issue (module docstring).
 
-    ``min_per_antenna=None`` applies the one-step rule (NLSE/NLP, seed 000
+    ``min_per_antenna=None`` applies the one-step rule (NLSE/NLP, Liu et al. 2023
     sec. 3.3): at least :data:`MIN_OBSERVATIONS` observations overall, received
     by antennas whose boresights are not all (anti)parallel.  An integer
     applies the two-step rule (sec. 3.2): at least two non-parallel antennas

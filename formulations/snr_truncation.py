@@ -1,9 +1,9 @@
-"""The reception threshold as part of the SNR measurement model (seed 000 sec. 5.1).
+"""The reception threshold as part of the SNR measurement model (Liu et al. 2023 sec. 5.1).
 
 Truncation model.  A message is decoded only when its MEASURED SNR reaches the
-threshold ``tau`` (``P_SNR^req = 6 dB``, seed 000 sec. 5.1;
+threshold ``tau`` (``P_SNR^req = 6 dB``, Liu et al. 2023 sec. 5.1;
 :attr:`attopt.formulations.snr_problem.SnrEpoch.threshold_db`).  With the Gaussian
-measurement of seed 000 eq. 4, ``y = f(A) + nu``, ``nu ~ N(0, sigma^2)``, a
+measurement of Liu et al. 2023 eq. 4, ``y = f(A) + nu``, ``nu ~ N(0, sigma^2)``, a
 received ``y`` is therefore ``N(f, sigma^2)`` truncated below at ``tau``:
 
     p(y | y >= tau) = phi((y - f) / sigma) / (sigma Phi((f - tau) / sigma)),  y >= tau,
@@ -15,7 +15,7 @@ negative log-likelihood is, up to the constant ``log(sigma sqrt(2 pi))``,
 
 (:func:`truncated_nll`): the eq. 19 term plus a term that rewards predicted
 SNRs close to the threshold, which are the ones a selection on the noise
-favours.  Least squares (seed 000 eq. 19) drops the second term; for
+favours.  Least squares (Liu et al. 2023 eq. 19) drops the second term; for
 ``f - tau >> sigma`` it vanishes (``log Phi -> 0``) and the two agree.
 
 Information.  The score of one received ``y`` with respect to ``f`` is
@@ -200,7 +200,7 @@ def truncated_information_factor(
 def truncated_fisher_information(
     jacobian: ArrayLike, predicted_db: ArrayLike, sigma_db: ArrayLike, threshold_db: float
 ) -> Array:
-    """``F = sum_k c_k J_k^T J_k / sigma_k^2`` (rad^-2, body frame): seed 000 eq. 22 of the
+    """``F = sum_k c_k J_k^T J_k / sigma_k^2`` (rad^-2, body frame): Liu et al. 2023 eq. 22 of the
     thresholded measurements, ``c_k`` :func:`truncated_information_factor` at ``f_k``.
 
     ``jacobian`` ``(..., m, 3)`` and ``predicted_db`` ``(..., m)`` as from

@@ -1,8 +1,8 @@
-"""Vector observations for Wahba's problem (seed 002 sec. 2.3), validated.
+"""Vector observations for Wahba's problem (Cilden Guler et al. 2017 sec. 2.3), validated.
 
 A batch holds ``N`` epochs of up to ``n`` observation pairs: body-frame
 measurements ``b_i`` and reference-frame directions ``r_i`` with weights
-``a_i = 1 / sigma_i^2`` (seed 002 eq. 14).  An observation missing at an epoch
+``a_i = 1 / sigma_i^2`` (Cilden Guler et al. 2017 eq. 14).  An observation missing at an epoch
 (e.g. the Sun sensor in eclipse) is marked absent with the ``present`` mask.
 
 Policy on bad input:
@@ -66,7 +66,7 @@ class ObservationBatch:
 
     @cached_property
     def profile_matrix(self) -> NDArray[np.float64]:
-        """Attitude profile matrix ``B`` (seed 002 eq. 15), computed once per batch."""
+        """Attitude profile matrix ``B`` (Cilden Guler et al. 2017 eq. 15), once per batch."""
         return attitude_profile_matrix(self.body, self.reference, self.weights)
 
     def raise_if_invalid(self, epoch: int = 0) -> None:

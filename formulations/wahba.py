@@ -1,4 +1,4 @@
-"""Wahba's problem (seed 002 sec. 2.3-2.6), vectorised over epochs.
+"""Wahba's problem (Cilden Guler et al. 2017 sec. 2.3-2.6), vectorised over epochs.
 
 All functions take a leading epoch axis: body and reference vectors ``(N, n, 3)``
 and weights ``(N, n)``.  The attitude convention is ``b = A r``
@@ -14,7 +14,7 @@ Array = NDArray[np.float64]
 
 
 def wahba_loss(attitude_matrix: Array, b_matrix: Array, weights: Array) -> Array:
-    """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (seed 002 eq. 14).
+    """Wahba's loss ``L(A) = 1/2 sum_i a_i |b_i - A r_i|^2`` (Cilden Guler et al. 2017 eq. 14).
 
     Evaluated for unit vectors as ``lambda_0 - tr(A B^T)`` (eq. 16) from the
     profile matrix ``B`` of eq. 15, which costs no rotated residuals; its
@@ -26,12 +26,13 @@ def wahba_loss(attitude_matrix: Array, b_matrix: Array, weights: Array) -> Array
 
 
 def attitude_profile_matrix(body: Array, reference: Array, weights: Array) -> Array:
-    """``B = sum_i a_i b_i r_i^T`` (seed 002 eq. 15), shape ``(N, 3, 3)``."""
+    """``B = sum_i a_i b_i r_i^T`` (Cilden Guler et al. 2017 eq. 15), shape ``(N, 3, 3)``."""
     return np.swapaxes(weights[..., None] * body, 1, 2) @ reference
 
 
 def skew_axial(b_matrix: Array) -> Array:
-    """``z = [B23 - B32, B31 - B13, B12 - B21] = sum_i a_i b_i x r_i`` (seed 002 eq. 25)."""
+    """``z = [B23 - B32, B31 - B13, B12 - B21] = sum_i a_i b_i x r_i`` (Cilden Guler et al.
+    2017 eq. 25)."""
     return np.stack(
         [
             b_matrix[:, 1, 2] - b_matrix[:, 2, 1],
@@ -43,7 +44,7 @@ def skew_axial(b_matrix: Array) -> Array:
 
 
 def davenport_matrix(b_matrix: Array) -> Array:
-    """Davenport's ``K = [[S - I tr B, z], [z^T, tr B]]`` (seed 002 eqs. 23-25).
+    """Davenport's ``K = [[S - I tr B, z], [z^T, tr B]]`` (Cilden Guler et al. 2017 eqs. 23-25).
 
     ``q^T K q = tr(A(q) B^T)`` (eq. 22) for the Shuster quaternion ``q``
     (scalar last), so the optimal quaternion is the eigenvector of the largest
@@ -69,7 +70,7 @@ def davenport_characteristic(b_matrix: Array) -> Array:
     ``lambda^4 - (a + b) lambda^2 - c lambda + (a b + c sigma - d)`` with
     ``sigma = tr B``, ``S = B + B^T``, ``kappa = tr adj S``, ``a = sigma^2 - kappa``,
     ``b = sigma^2 + z^T z``, ``c = det S + z^T S z``, ``d = z^T S^2 z``: the
-    characteristic equation QUEST solves (seed 002 sec. 2.5).  Shape ``(N, 5)``.
+    characteristic equation QUEST solves (Cilden Guler et al. 2017 sec. 2.5).  Shape ``(N, 5)``.
     """
     sigma = trace3(b_matrix)
     s = b_matrix + np.swapaxes(b_matrix, 1, 2)
@@ -87,7 +88,7 @@ def davenport_characteristic(b_matrix: Array) -> Array:
 def foam_characteristic(b_matrix: Array) -> Array:
     """Coefficients of FOAM's ``(lambda^2 - |B|_F^2)^2 - 8 lambda det B - 4 |adj B|_F^2``.
 
-    Markley's characteristic equation behind seed 002 eqs. 34-36; its largest
+    Markley's characteristic equation behind Cilden Guler et al. 2017 eqs. 34-36; its largest
     root is the same ``lambda_max`` as Davenport's.  Shape ``(N, 5)``.
     """
     fro2 = np.einsum("eij,eij->e", b_matrix, b_matrix)
@@ -125,6 +126,6 @@ def trace3(m: Array) -> Array:
 
 
 def proper_svd(b_matrix: Array) -> tuple[Array, Array, Array, Array]:
-    """``B = U Sigma V^T`` (seed 002 eq. 17) and ``d = det U det V``."""
+    """``B = U Sigma V^T`` (Cilden Guler et al. 2017 eq. 17) and ``d = det U det V``."""
     u, s, vt = np.linalg.svd(b_matrix)
     return u, s, vt, det3(u) * det3(vt)

@@ -1,4 +1,4 @@
-"""Attitude-error covariances of the single-frame methods (seed 002).
+"""Attitude-error covariances of the single-frame methods (Cilden Guler et al. 2017).
 
 All are ``(N, 3, 3)`` in rad^2, body frame, for weights ``a_i = 1 / sigma_i^2``
 with ``sigma_i`` the per-axis (direction-cosine) noise of observation ``i``.
@@ -17,11 +17,11 @@ Array = NDArray[np.float64]
 
 
 def triad_covariance(anchor: Array, partner: Array, var_anchor: Array, var_partner: Array) -> Array:
-    """TRIAD covariance (seed 002 eq. 11; Shuster and Oh 1981).
+    """TRIAD covariance (Cilden Guler et al. 2017 eq. 11; Shuster and Oh 1981).
 
     ``P = s1^2 I + [(s2^2 - s1^2) u u^T + s1^2 (u.v)(u v^T + v u^T)] / |u x v|^2``
     with ``u`` the anchor body vector (``s1^2`` its variance) and ``v`` the
-    partner (``s2^2``).  Seed 002 labels ``s1`` as the magnetometer while
+    partner (``s2^2``).  Cilden Guler et al. 2017 label ``s1`` as the magnetometer while
     anchoring on the Sun vector; the variance belongs to the anchor, which the
     Monte Carlo test in ``tests/test_wahba_covariance.py`` confirms.
     """
@@ -36,7 +36,7 @@ def triad_covariance(anchor: Array, partner: Array, var_anchor: Array, var_partn
 
 
 def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
-    """``P = U diag[(s2+s3)^-1, (s3+s1)^-1, (s1+s2)^-1] U^T`` (seed 002 eq. 19).
+    """``P = U diag[(s2+s3)^-1, (s3+s1)^-1, (s1+s2)^-1] U^T`` (Cilden Guler et al. 2017 eq. 19).
 
     ``s1, s2 = Sigma11, Sigma22`` and ``s3 = det(U) det(V) Sigma33`` for
     ``B = U Sigma V^T`` (eq. 17).  At the optimal ``A`` (eq. 18),
@@ -53,7 +53,7 @@ def svd_covariance(b_matrix: Array, attitude_matrix: Array) -> Array:
 
 
 def quest_covariance(body: Array, weights: Array) -> Array:
-    """``P = [sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32)."""
+    """``P = [sum_i a_i (I - b_i b_i^T)]^-1`` (Cilden Guler et al. 2017 eq. 32)."""
     m00, m01, m02, _, m11, m12, _, _, m22 = _entries(
         np.swapaxes(weights[..., None] * body, 1, 2) @ body
     )
@@ -62,7 +62,8 @@ def quest_covariance(body: Array, weights: Array) -> Array:
 
 
 def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
-    """``P = [kappa lambda - det B]^-1 (kappa I + B B^T)`` (seed 002 eqs. 34, 37)."""
+    """``P = [kappa lambda - det B]^-1 (kappa I + B B^T)`` (Cilden Guler et al. 2017
+    eqs. 34, 37)."""
     fro2 = np.einsum("eij,eij->e", b_matrix, b_matrix)
     kappa = 0.5 * (lambda_max**2 - fro2)
     zeta = kappa * lambda_max - det3(b_matrix)

@@ -1,6 +1,6 @@
 """Semidefinite relaxation of Wahba's problem, as a parametrised cvxpy problem.
 
-``max tr(K X)  s.t.  tr X = 1,  X PSD`` with Davenport's ``K`` (seed 002
+``max tr(K X)  s.t.  tr X = 1,  X PSD`` with Davenport's ``K`` (Cilden Guler et al. 2017
 eqs. 22-26) as a cvxpy ``Parameter``.  ``X = q q^T`` for the optimal Shuster
 quaternion whenever ``lambda_max(K)`` is simple, so the relaxation is tight and
 its value equals ``lambda_max(K)``.  The problem is DPP: repeated solves with a

@@ -1,6 +1,6 @@
 """Vectorised Newton-Raphson for the largest root of quartic characteristic equations.
 
-Shared by QUEST and FOAM (seed 002 secs. 2.5-2.6): both start from
+Shared by QUEST and FOAM (Cilden Guler et al. 2017 secs. 2.5-2.6): both start from
 ``lambda_0 = sum_i a_i``, which bounds ``lambda_max`` from above.  All roots
 of these polynomials are real (they are characteristic polynomials of
 symmetric matrices), so from above the largest root Newton's steps decrease

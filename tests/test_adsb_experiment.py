@@ -1,4 +1,4 @@
-"""End to end: the adsb-snr experiment (seed 000 sec. 5) through the sweep runner."""
+"""End to end: the adsb-snr experiment (Liu et al. 2023 sec. 5) through the sweep runner."""
 
 from __future__ import annotations
 
@@ -265,9 +265,9 @@ def test_factor_graph_rows_beat_the_filters_and_carry_the_posterior_bound(sweep,
 
 
 def test_power_offsets_modelled_by_the_smoother():
-    """Aircraft power offsets of 2 dB (issue 6 sec. 2) on a short pass: the
-    smoother that estimates one offset per aircraft is far better than the one
-    that does not (measured on 300 s: RMS 0.20 deg against 2.3 deg)."""
+    """Aircraft power offsets of 2 dB on a short pass: the smoother that estimates one
+    offset per aircraft is far better than the one that does not (measured on 300 s:
+    RMS 0.20 deg against 2.3 deg)."""
     setting = {
         **PARAMETERS,
         "duration_s": 90.0,

@@ -1,4 +1,4 @@
-"""Tests of the ``adsb-snr`` geometry and the air-traffic model (seed 000 sec. 5.1)."""
+"""Tests of the ``adsb-snr`` geometry and the air-traffic model (Liu et al. 2023 sec. 5.1)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ from attopt.experiments.environment.traffic import (
 )
 from attopt.formulations.conventions import euler321_from_attitude
 
-MAIN_LOBE_DEG = 41.67  # cos^6(a) = 10**0.4 / 14.4598: G >= 4 dBi (seed 000 eq. 63)
+MAIN_LOBE_DEG = 41.67  # cos^6(a) = 10**0.4 / 14.4598: G >= 4 dBi (Liu et al. 2023 eq. 63)
 SIDEREAL_NODE_RATE_DEG_DAY = 0.9856473598  # 360 deg per tropical year
 
 
@@ -257,7 +257,7 @@ def test_prefilter_drops_no_visible_aircraft(geometry: AdsbGeometry) -> None:
 def test_counts_match_observations_and_cover_every_epoch(geometry: AdsbGeometry) -> None:
     counts = visible_counts(geometry, MAIN_LOBE_DEG)
     assert counts.shape == (geometry.t.size, 2)
-    assert np.all(counts >= 3)  # seed 000 sec. 5.1: at least three per antenna
+    assert np.all(counts >= 3)  # Liu et al. 2023 sec. 5.1: at least three per antenna
     for k in (0, 2500):
         observations = visible_observations(geometry, k, MAIN_LOBE_DEG)
         assert [a.aircraft.size for a in observations.antennas] == counts[k].tolist()

@@ -62,7 +62,7 @@ def central_differences(
 
 
 def euler_rate_matrix(pitch: float, roll: float) -> np.ndarray:
-    """Seed 000 eq. 42 / eq. 44's ``H_v``: body rates ``(x, y, z)`` to
+    """Liu et al. 2023 eq. 42 / eq. 44's ``H_v``: body rates ``(x, y, z)`` to
     ``(yaw, pitch, roll)`` rates."""
     st_, ct = math.sin(pitch), math.cos(pitch)
     sr, cr = math.sin(roll), math.cos(roll)
@@ -163,7 +163,7 @@ def test_referenced_euler_jacobian_matches_central_differences(body_from_orbit, 
     np.testing.assert_allclose(jacobian[0], numeric, rtol=1e-6, atol=1e-7)
 
 
-# --- Euler angles (seed 000 eqs. 41-46) -----------------------------------------------------
+# --- Euler angles (Liu et al. 2023 eqs. 41-46) ----------------------------------------------
 
 
 @settings(max_examples=100, deadline=None)
@@ -185,7 +185,7 @@ def test_euler_prediction_is_vectorised_over_attitudes():
 
 
 def test_seed_euler_rate_matrix_maps_body_rates_to_euler_rates():
-    """Eq. 42 of seed 000 (``H_v`` of eq. 44 at the estimate) with ``dA/dt = -[w x] A``."""
+    """Eq. 42 of Liu et al. 2023 (``H_v`` of eq. 44 at the estimate) with ``dA/dt = -[w x] A``."""
     rng = np.random.default_rng(4)
     for yaw, pitch, roll in rng.uniform([-3, -1.3, -3], [3, 1.3, 3], size=(20, 3)):
         attitude = attitude_from_euler321(yaw, pitch, roll)
@@ -205,7 +205,7 @@ def test_seed_euler_rate_matrix_maps_body_rates_to_euler_rates():
 )
 def test_euler_jacobian_is_minus_seed000_h_v(yaw, pitch, roll):
     """The Jacobian w.r.t. attopt's error ``delta`` (``A_true = exp(delta) A_est``)
-    is ``-H_v`` of seed 000 eq. 44.  The seed's error vector ``v`` is the
+    is ``-H_v`` of Liu et al. 2023 eq. 44.  The paper's error vector ``v`` is the
     opposite rotation: its ``delta q(v) (x) q_hat`` in Shuster's product has
     ``A(delta q) = I - [v x]``, and its eq. 36 reads ``-[w x] v - delta_beta``
     where attopt's reads ``+ delta_beta`` (``formulations/gyro.py``); so

@@ -22,7 +22,7 @@ pitches = st.floats(-np.pi / 2 + 1e-3, np.pi / 2 - 1e-3)
 
 
 def seed000_eq8(psi: float, theta: float, phi: float) -> np.ndarray:
-    """C_o^B of seed 000 eq. 8, typed in from the paper."""
+    """C_o^B of Liu et al. 2023 eq. 8, typed in from the paper."""
     c, s = np.cos, np.sin
     return np.array(
         [
@@ -49,7 +49,7 @@ def test_euler321_is_seed000_eq8(psi, theta, phi):
 
 
 def test_attitude_maps_reference_to_body():
-    """b = A r: a +90 deg yaw puts the reference x axis on body -y (seed 000 eq. 8)."""
+    """b = A r: a +90 deg yaw puts the reference x axis on body -y (Liu et al. 2023 eq. 8)."""
     attitude = attitude_from_euler321(np.pi / 2, 0.0, 0.0)
     np.testing.assert_allclose(attitude.apply([1.0, 0, 0]), [0, -1.0, 0], atol=1e-15)
     np.testing.assert_allclose(attitude.as_matrix() @ [1.0, 0, 0], attitude.apply([1.0, 0, 0]))
@@ -58,7 +58,7 @@ def test_attitude_maps_reference_to_body():
 @settings(max_examples=50)
 @given(attitude=attitudes())
 def test_shuster_quaternion_is_conjugate_of_scipy(attitude):
-    """A(q) of seed 002 eq. 21 evaluated on shuster_quaternion(A) gives A back."""
+    """A(q) of Cilden Guler et al. 2017 eq. 21 evaluated on shuster_quaternion(A) gives A back."""
     q = shuster_quaternion(attitude)
     qv, q4 = q[:3], q[3]
     cross = np.array([[0, -qv[2], qv[1]], [qv[2], 0, -qv[0]], [-qv[1], qv[0], 0]])

@@ -1,4 +1,4 @@
-"""Seed 003's array (``formulations/doa_array.py``) and the DOA Cramer-Rao bound
+"""Yang et al. 2014's array (``formulations/doa_array.py``) and the DOA Cramer-Rao bound
 (``formulations/doa_crb.py``): conventions, steering-vector properties, AD
 Jacobians, snapshot and sample-covariance statistics and the closed-form UCA
 bound."""

@@ -34,7 +34,7 @@ from attopt.solvers.results import Track
 
 PASS_S = 1200.0
 STEP_S = 1.0
-"""Coarser than the seed's 250 ms to keep the test cheap; the model is the same."""
+"""Coarser than the paper's 250 ms to keep the test cheap; the model is the same."""
 
 
 def _step(omega: np.ndarray, attitude: np.ndarray, turn: np.ndarray):

@@ -1,4 +1,4 @@
-"""Scenario and experiment ``doa-ground`` (seed 003 secs. 4.2, 6)."""
+"""Scenario and experiment ``doa-ground`` (Yang et al. 2014 secs. 4.2, 6)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The DOA attitude measurement (``formulations/doa_measurement.py``, seed 003
+"""The DOA attitude measurement (``formulations/doa_measurement.py``, Yang et al. 2014
 eqs. 13-18): invertibility, AD Jacobian, far-field error, the array-axis and
 horizon treatments, angle wrapping and input checks."""
 

@@ -1,4 +1,4 @@
-"""Tests of the environment models and the ``wahba-mag-sun`` geometry (seed 002 sec. 3)."""
+"""The environment models and the ``wahba-mag-sun`` geometry (Cilden Guler et al. 2017 sec. 3)."""
 
 from __future__ import annotations
 
@@ -184,7 +184,7 @@ def test_geometry_vectors_are_consistent(geometry: VectorGeometry, times: Time) 
     eci_to_orbit = orbit_frame_attitude(geometry.position_eci_km, geometry.velocity_eci_kms)
     sun_eci = sun_direction_eci(times, geometry.position_eci_km)
     np.testing.assert_allclose(eci_to_orbit.apply(sun_eci), geometry.sun_orbit, atol=1e-12)
-    # Sun and field never (anti)parallel, as in seed 002 Fig. 2
+    # Sun and field never (anti)parallel, as in Cilden Guler et al. 2017 Fig. 2
     angle = _angle_deg(geometry.sun_orbit, geometry.mag_orbit)
     assert 20.0 < angle.min() and angle.max() < 160.0
 

@@ -1,4 +1,5 @@
-"""Gain patterns: seed 000 eq. 63, seed 004 eq. 5, tabulated splines; numpy = CasADi."""
+"""Gain patterns: Liu et al. 2023 eq. 63, Pimienta-Penalver and Crassidis eq. 5, tabulated
+splines; numpy = CasADi."""
 
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ PATTERNS = {"cos6": SEED000_HELIX, "parabolic": PARABOLIC, "tabulated": TABULATE
 
 
 def test_seed000_helix_peak_and_main_lobe_edge():
-    # Seed 000 eq. 63: g = 14.4598 cos^6(alpha); main lobe G >= 4 dBi (sec. 5.1).
+    # Liu et al. 2023 eq. 63: g = 14.4598 cos^6(alpha); main lobe G >= 4 dBi (sec. 5.1).
     assert gain_dbi_at_angle(SEED000_HELIX, 0.0) == pytest.approx(
         10 * math.log10(14.4598), abs=1e-12
     )

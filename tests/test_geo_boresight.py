@@ -1,4 +1,5 @@
-"""Seed 004 sec. IV: boresight by cone intersection (eq. 12) and least squares; LOS on the belt."""
+"""Pimienta-Penalver and Crassidis sec. IV: boresight by cone intersection (eq. 12) and least
+squares; LOS on the belt."""
 
 from __future__ import annotations
 

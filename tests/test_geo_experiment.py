@@ -1,4 +1,5 @@
-"""The ``geo-snr-stations`` experiment's trial (``experiments/geo_snr_stations/``; seed 004).
+"""The ``geo-snr-stations`` experiment's trial (``experiments/geo_snr_stations/``;
+Pimienta-Penalver and Crassidis).
 
 One quick-setting trial with the manoeuvre (one hour, 60 s epochs), run twice
 with the same seed: the rows must be identical, complete and sane.

@@ -1,4 +1,5 @@
-"""Seed 004 sec. V: Fisher information of SNRs from AD Jacobians; single-SNR nullspace (eq. 25)."""
+"""Pimienta-Penalver and Crassidis sec. V: Fisher information of SNRs from AD Jacobians;
+single-SNR nullspace (eq. 25)."""
 
 from __future__ import annotations
 

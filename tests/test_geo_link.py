@@ -1,4 +1,5 @@
-"""Seed 004 link (eqs. 1-7): hand computation from Table 1, numpy = CasADi, AD Jacobian."""
+"""Pimienta-Penalver and Crassidis's link (eqs. 1-7): hand computation from Table 1,
+numpy = CasADi, AD Jacobian."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Manoeuvre detection and re-initialisation (solvers/geo/manoeuvre.py; seed 004 sec. V.B, Fig. 10).
+"""Manoeuvre detection and re-initialisation (solvers/geo/manoeuvre.py; Pimienta-Penalver and
+Crassidis sec. V.B, Fig. 10).
 
 Seeded one-hour passes at 60 s epochs (the quick setting of ``geo-snr-stations``) and
 10 s epochs (its default):

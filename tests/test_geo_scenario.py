@@ -1,4 +1,5 @@
-"""Scenario geo-snr-stations (seed 004 secs. II.A, V.B): orbit, stations, attitude, SNRs."""
+"""Scenario geo-snr-stations (Pimienta-Penalver and Crassidis secs. II.A, V.B): orbit,
+stations, attitude, SNRs."""
 
 from __future__ import annotations
 

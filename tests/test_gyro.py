@@ -1,4 +1,4 @@
-"""Gyro model of seed 000 eqs. 23-25 (``formulations/gyro.py``): discretisation,
+"""Gyro model of Liu et al. 2023 eqs. 23-25 (``formulations/gyro.py``): discretisation,
 error-state convention and the simulator's statistics.
 
 The error state is ``[delta, delta_beta]`` with ``A_true = exp(delta) A_est``
@@ -321,7 +321,7 @@ def test_gyro_model_rejects_bad_statistics(kwargs):
 
 
 def test_seed000_gyro_is_the_seeds_numbers_in_si_units():
-    """Seed 000 sec. 5.1: sigma_v = sigma_u = 0.05 deg/s read as 0.05 deg/s^(1/2)
+    """Liu et al. 2023 sec. 5.1: sigma_v = sigma_u = 0.05 deg/s read as 0.05 deg/s^(1/2)
     and 0.05 deg/s^(3/2); 0.1 deg/s initial bias; 10 Hz."""
     assert SEED000_GYRO.sigma_v == pytest.approx(8.726646259971648e-4, rel=1e-15)
     assert SEED000_GYRO.sigma_u == pytest.approx(8.726646259971648e-4, rel=1e-15)

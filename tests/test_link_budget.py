@@ -1,4 +1,4 @@
-"""Link budget (seed 000 eqs. 2-4) against hand computations."""
+"""Link budget (Liu et al. 2023 eqs. 2-4) against hand computations."""
 
 from __future__ import annotations
 
@@ -65,5 +65,5 @@ def test_boresight_snr_is_plausible(distance_km, expected_db):
     )
     print(f"boresight SNR at {distance_km:.0f} km: {snr[0]:.2f} dB")
     assert snr[0] == pytest.approx(expected_db, abs=1e-4)
-    # Above the 6 dB reception threshold of seed 000 sec. 5.1, below a strong-signal 30 dB.
+    # Above the 6 dB reception threshold of Liu et al. 2023 sec. 5.1, below a strong-signal 30 dB.
     assert 6.0 < snr[0] < 30.0

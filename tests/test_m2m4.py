@@ -1,4 +1,5 @@
-"""M2M4 SNR estimator (seed 004 eqs. 8-11, Table 3): unbiased at high SNR, flags invalid input."""
+"""M2M4 SNR estimator (Pimienta-Penalver and Crassidis eqs. 8-11, Table 3): unbiased at high
+SNR, flags invalid input."""
 
 from __future__ import annotations
 

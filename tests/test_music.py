@@ -1,4 +1,4 @@
-"""MUSIC (``solvers/doa/music.py``, seed 003 eq. 11): exactness, agreement with
+"""MUSIC (``solvers/doa/music.py``, Yang et al. 2014 eq. 11): exactness, agreement with
 pyroomacoustics, efficiency against the CRB, the flagged bad inputs, the grid
 peak search against a plain reference and the sample-covariance entry point."""
 
@@ -46,7 +46,7 @@ def noise_free(theta: float, phi: float, n_snapshots: int, seed: int) -> np.ndar
 def test_noise_free_snapshots_recover_the_doa(
     theta: float, phi: float, n_snapshots: int, seed: int
 ) -> None:
-    """Issue 7: to 1e-6 rad, anywhere up to 84 deg (beyond the grid's 70 deg cone);
+    """To 1e-6 rad, anywhere up to 84 deg (beyond the grid's 70 deg cone);
     the estimated SNR is infinite, so the covariance is zero."""
     result = MUSIC.estimate(noise_free(theta, phi, n_snapshots, seed))
     assert result.valid[0], result.reason[0]
@@ -162,7 +162,7 @@ def test_rank_deficient_covariance_is_flagged_and_still_estimated() -> None:
 def test_ambiguous_peaks_are_rejected_not_reported() -> None:
     """At -25 dB, L = 10 (seeded, 200 sets) the peak-ratio test rejects at least
     95 % as ambiguous; at -14 dB, L = 100 (400 sets, random directions in the
-    seed's 62-degree cone) at most 1 % of the accepted estimates are outside the
+    paper's 62-degree cone) at most 1 % of the accepted estimates are outside the
     main lobe of the truth (measured: 0.2 %)."""
     rng = np.random.default_rng(12)
     hopeless = MUSIC.estimate(

@@ -613,7 +613,7 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
 def test_single_frame_initialisation_reaches_the_same_optimum():
     """Starting from single-epoch solutions (1 deg noise, a third of the epochs
     invalid and filled by gyro integration) the smoother converges to the
-    optimum it reaches from the RTS estimate (issue 6 sec. 1)."""
+    optimum it reaches from the RTS estimate."""
     rng = np.random.default_rng(41)
     run = simulate_pass(rng, duration=90.0)
     prior = drawn_prior(rng, run, prior_covariance(np.radians(5.0)))

@@ -1,4 +1,4 @@
-"""Transmitter power offsets in the smoother (issue 6 sec. 2).
+"""Transmitter power offsets in the smoother.
 
 Each transmitter (aircraft) ``a`` adds an unknown offset ``o_a`` to ``10 lg
 P0`` of every SNR it produces; ``OffsetBatchSmoother(offset_sigma=s)`` estimates

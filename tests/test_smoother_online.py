@@ -1,4 +1,4 @@
-"""Online (causal) factor-graph smoother (``solvers/smoother/online.py``, issue 6 sec. 1).
+"""Online (causal) factor-graph smoother (``solvers/smoother/online.py``).
 
 Scenarios from ``tests/filter_passes.py`` and ``tests/test_smoother.py``:
 two inertial unit vectors at 1 Hz with a gyro at 2 Hz, and a 40 s SNR pass.

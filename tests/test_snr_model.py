@@ -1,4 +1,4 @@
-"""SNR model of seed 000 (eqs. 1-14): one definition, numpy = CasADi, AD Jacobians, CRB."""
+"""SNR model of Liu et al. 2023 (eqs. 1-14): one definition, numpy = CasADi, AD Jacobians, CRB."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from tests.strategies import attitudes
 from tests.test_gain_patterns import PATTERNS
 
 TRUTH = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)
-TILT = math.radians(50.77)  # seed 000 eq. 64 mounting angle, used here as a tilt from nadir
+TILT = math.radians(50.77)  # Liu et al. 2023 eq. 64 mounting angle, used here as a tilt from nadir
 ANTENNAS = np.array([[math.sin(TILT), 0.0, math.cos(TILT)], [-math.sin(TILT), 0.0, math.cos(TILT)]])
 
 
@@ -59,7 +59,7 @@ def _casadi_snr(pattern, v, attitude_ref, los, boresight, p0, noise):
 
 def test_line_of_sight_points_from_satellite_to_aircraft():
     # Orbit frame: z_o is nadir.  An aircraft below the satellite is seen along +z_o,
-    # on the boresight of a nadir antenna (seed 000 eq. 9 with the sign of eq. 3's text).
+    # on the boresight of a nadir antenna (Liu et al. 2023 eq. 9 with the sign of eq. 3's text).
     los, distance = line_of_sight([0.0, 0.0, 0.0], [0.0, 0.0, 600.0])
     np.testing.assert_array_equal(los, [0.0, 0.0, 1.0])
     assert distance == 600.0
@@ -247,7 +247,7 @@ def _crb_for(antennas, m=30, seed=8):
 
 
 def test_crb_is_infinite_about_the_boresight_of_a_single_antenna():
-    # Seed 000 sec. 3.1: the gain is symmetric about the boresight, so one antenna
+    # Liu et al. 2023 sec. 3.1: the gain is symmetric about the boresight, so one antenna
     # cannot see a rotation about it.  Nadir boresight = body z.
     fisher, crb = _crb_for(np.array([[0.0, 0.0, 1.0]]))
     assert fisher[2, 2] == pytest.approx(0.0, abs=1e-10 * np.trace(fisher))

@@ -1,8 +1,8 @@
-"""Single-epoch solvers of the SNR attitude problem (seed 000 secs. 3.2-3.3, 5.1).
+"""Single-epoch solvers of the SNR attitude problem (Liu et al. 2023 secs. 3.2-3.3, 5.1).
 
 Synthetic geometry built here: two antennas tilted 50.77 deg from nadir
-(seed 000 eq. 64) towards +y and -y body, aircraft directions inside the main
-lobes of the seed-000 helix (eq. 63) at slant ranges of 1000-2000 km with
+(Liu et al. 2023 eq. 64) towards +y and -y body, aircraft directions inside the main
+lobes of Liu et al. 2023's helix (eq. 63) at slant ranges of 1000-2000 km with
 ``P0`` from the link budget, and (unless a test says otherwise) a true SNR of
 at least 10 dB, so that 1 dB noise stays above the 6 dB reception threshold.
 """
@@ -251,7 +251,7 @@ def test_noise_free_recovery_with_other_patterns(name, pattern_name):
 
 @pytest.mark.parametrize("name", ONE_STEP)
 def test_multistart_without_prior_when_two_step_is_unavailable(name):
-    # Antenna 2 has two observations: the two-step method is flagged (seed 000 needs
+    # Antenna 2 has two observations: the two-step method is flagged (Liu et al. 2023 needs
     # m_i >= 3), so the one-step solvers start from the 24 attitudes around nadir.
     rng = np.random.default_rng(6)
     truth = attitude_from_euler321(*np.radians([130.0, 5.0, -8.0]))

@@ -2,8 +2,8 @@
 information (formulations/snr_truncation.py), and the ``"nlp_truncated"`` solver.
 
 Geometry from ``tests/test_snr_solvers.py`` (two antennas tilted 50.77 deg,
-seed 000 eq. 64); for the threshold to matter the isotropic powers are shifted
-so that the true SNRs lie within a few dB of the 6 dB threshold (seed 000
+Liu et al. 2023 eq. 64); for the threshold to matter the isotropic powers are shifted
+so that the true SNRs lie within a few dB of the 6 dB threshold (Liu et al. 2023
 sec. 5.1), where a 1 dB noise decides whether a message is received.
 """
 

@@ -1,4 +1,5 @@
-"""Each method's covariance formula against Monte Carlo scatter (seed 002 eqs. 11, 19, 32, 37)."""
+"""Each method's covariance formula against Monte Carlo scatter (Cilden Guler et al. 2017
+eqs. 11, 19, 32, 37)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-# (reference vectors, sigmas): seed 002's Sun + magnetometer pair at 90 and
+# (reference vectors, sigmas): Cilden Guler et al. 2017's Sun + magnetometer pair at 90 and
 # 30 degrees, and five vectors of mixed accuracy.
 GEOMETRIES = {
     "sun-mag-90deg": (_unit([[1, 0, 0], [0, 1, 0]]), np.array([0.002, 0.008])),
@@ -60,7 +61,8 @@ def test_sdp_covariance_matches_monte_carlo():
 
 
 def test_triad_variance_belongs_to_the_anchor():
-    """Seed 002 eq. 11 labels s1 the magnetometer; the anchor's variance is the right one.
+    """Cilden Guler et al. 2017 eq. 11 labels s1 the magnetometer; the anchor's variance is
+    the right one.
 
     With the swapped labels the formula misses the scatter by far more than 10%.
     """

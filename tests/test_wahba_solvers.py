@@ -1,4 +1,4 @@
-"""Contract tests every registered Wahba solver must pass (seed 002)."""
+"""Contract tests every registered Wahba solver must pass (Cilden Guler et al. 2017)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Whole-pass batch least squares over Yang et al. 2014's deterministic dynamics (``Q = 0``).
 
-The truth of seed 003's problem is torque free with known inertia, wheel
+The truth of Yang et al. 2014's problem is torque free with known inertia, wheel
 momentum and orbit (sec. 4.2, eqs. 23-25), so the whole pass is fixed by the
 state at epoch 0, ``x_0 = [omega_bi, C_bo]``.  Its maximum-likelihood
 estimate minimises the weighted squared innovations of every unit vector of
@@ -12,7 +12,7 @@ with ``f`` the EKF's step map (:func:`attopt.solvers.doa.ekf.step_function`, eq.
 and ``nu`` the geodesic innovation of the filters.  The Cramer-Rao bound of
 this problem is the ``crb_*`` column of experiment ``doa-ground`` (the EKF's
 posterior bound with ``Q = 0``, :func:`attopt.solvers.doa.eks.posterior_bound_ekf`),
-so this estimator shows how much of the gap between the seed's EKF and the
+so this estimator shows how much of the gap between the paper's EKF and the
 bound an estimator can close.
 
 Gauss-Newton with Levenberg-Marquardt damping on the error state ``delta_0 =

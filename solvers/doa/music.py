@@ -1,4 +1,4 @@
-"""MUSIC direction-of-arrival estimation with continuous peak refinement (seed 003 eq. 11).
+"""MUSIC direction-of-arrival estimation with continuous peak refinement (Yang et al. 2014 eq. 11).
 
 For each snapshot set ``X`` (``M x L``):
 
@@ -18,7 +18,7 @@ For each snapshot set ``X`` (``M x L``):
    (first-null radius) are both refined.
 3. Refinement: damped Newton ascent on ``s(p)`` with gradient and Hessian by
    CasADi AD, vectorised over all sets, to a step below ``1e-8``, so no grid
-   quantisation remains.  The seed's own DOA errors level off at 0.287 and
+   quantisation remains.  Yang et al. 2014's own DOA errors level off at 0.287 and
    0.289 deg (its Tables 1-2), which is ``1 deg / sqrt(12)``: the
    quantisation of a 1-degree search grid.
 4. Covariance: the stochastic CRB (:func:`attopt.formulations.doa_crb.stochastic_crb`)
@@ -145,11 +145,11 @@ class MusicEstimator:
     """MUSIC on ``array`` (module docstring); call :meth:`estimate`.
 
     Attributes:
-        array: the array (default: seed 003's UCA).
+        array: the array (default: Yang et al. 2014's UCA).
         cone_half_angle: polar angle of the grid's visible cone (rad); the
-            default covers seed 003's ``theta <= 62 deg`` with a margin.
+            default covers Yang et al. 2014's ``theta <= 62 deg`` with a margin.
         grid_step: lattice spacing in direction cosines (the main lobe's
-            first-null radius is 0.38 for the seed's UCA).
+            first-null radius is 0.38 for the paper's UCA).
         peak_ratio_threshold: ambiguous when the second peak's MUSIC
             spectrum is at least this fraction of the main peak's.
         horizon_angle: estimates with ``theta`` at or beyond it are rejected.

@@ -1,6 +1,6 @@
 """Passes run in CasADi's virtual machine: the epoch loop and the symmetric covariance.
 
-Shared by the seed-003 EKF and its smoother (:mod:`attopt.solvers.doa.ekf`,
+Shared by Yang et al. 2014's EKF and its smoother (:mod:`attopt.solvers.doa.ekf`,
 :mod:`attopt.solvers.doa.eks`) and by the multiplicative RTS backward pass
 (:mod:`attopt.solvers.filters.rts`).
 """

@@ -11,10 +11,10 @@ need not be gyro sample times: the record is cut at them
 (:func:`attopt.solvers.gyro_timeline.gyro_timeline`) and every step is
 propagated with its own length.  The error state is ``[delta, delta_beta]``
 with ``delta`` four times the modified Rodrigues parameters of ``A_true
-A_est^T`` (seed 000 eq. 28; the generalised Rodrigues parameters with ``a =
+A_est^T`` (Liu et al. 2023 eq. 28; the generalised Rodrigues parameters with ``a =
 1, f = 4`` of USQUE), equal to the body-frame rotation vector to first order.
 
-Faults (issue 5, sec. 5), all counted in the result's diagnostics:
+Faults, all counted in the result's diagnostics:
 
 * gyro gaps (NaN samples): the last valid sample is held and the attitude
   variance grows by ``sigma_hold^2 ((s + dt)^2 - s^2)`` per step, ``s`` the

@@ -1,20 +1,20 @@
-"""Multiplicative extended Kalman filter with gyro bias (seed 000 secs. 4.2-4.5).
+"""Multiplicative extended Kalman filter with gyro bias (Liu et al. 2023 secs. 4.2-4.5).
 
 Lefferts, Markley and Shuster (1982); Markley and Crassidis (2014), ch. 6.
 Error state ``x = [delta, delta_beta]`` (:mod:`attopt.solvers.filters.common`).
 
 Propagation over each step ``dt`` of the gyro timeline (the record cut at the
 epochs, :mod:`attopt.solvers.gyro_timeline`) with the estimated rate
-``w = omega_measured - beta_hat`` (seed 000 eqs. 33-36): the attitude by
+``w = omega_measured - beta_hat`` (Liu et al. 2023 eqs. 33-36): the attitude by
 ``exp(-[w x] dt)`` and the covariance by ``P <- Phi P Phi^T + Q`` with the
 closed-form :func:`~attopt.formulations.gyro.error_state_transition` and
 :meth:`~attopt.formulations.gyro.GyroModel.process_noise` (Markley and Crassidis eq.
-6.93, instead of the seed's truncated series of eq. 47 and ``Q_k = Q``).
+6.93, instead of the paper's truncated series of eq. 47 and ``Q_k = Q``).
 
 Update at an epoch with a measurement: ``H = [dh/d delta, 0]`` from the
 measurement's own (AD) Jacobian, ``K = P H^T S^-1``, ``S = H P H^T + R``
 (iterated after a large correction, :func:`update`), the
-Joseph form ``P <- (I - K H) P (I - K H)^T + K R K^T`` (instead of the seed's
+Joseph form ``P <- (I - K H) P (I - K H)^T + K R K^T`` (instead of the paper's
 eq. 56), then the reset: the attitude is corrected by ``delta`` (eq. 61),
 the bias by ``delta_beta`` (eq. 59), and the error state returns to zero
 (eq. 62).  All blocks of an epoch are processed in one update after gating.

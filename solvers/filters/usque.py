@@ -1,9 +1,10 @@
-"""USQUE: the unscented quaternion estimator with gyro bias (seed 004 sec. V.B).
+"""USQUE, the unscented quaternion estimator with gyro bias (Pimienta-Penalver and
+Crassidis sec. V.B).
 
 Crassidis and Markley (2003), "Unscented filtering for spacecraft attitude
 estimation", JGCD 26(4) 536-542 ("CM"; its text is not among the project's
 sources, so the equations below are numbered (U1)-(U9) here rather than by
-CM's numbering).  Seed 004 sec. V.B runs this filter on SNR measurements
+CM's numbering).  Pimienta-Penalver and Crassidis sec. V.B runs this filter on SNR measurements
 with the multiplicative body-frame error of its eq. 26.  Same inputs,
 outputs, diagnostics and fault handling as the MEKF
 (:mod:`attopt.solvers.filters.mekf`; both run by
@@ -103,7 +104,7 @@ Deviations from CM:
   part of the MEKF's covariance propagation.  Drawing fresh sigma points at
   every gyro step instead (CM propagate one gyro step per filter step)
   changed the estimates by less than 1e-6 of the filter sigma at 10 Hz over
-  1 s intervals, with both a MEMS-class and seed 000's gyro, and took four
+  1 s intervals, with both a MEMS-class and Liu et al. 2023's gyro, and took four
   times as long.
 * *Fresh sigma points at the update* (CM reuse the propagated ones), centred
   on the folded estimate so that their mean error is zero; ``Q_interval`` is

@@ -1,7 +1,7 @@
 """Boresight of a GEO broadcaster from SNRs at ground stations (Pimienta-Penalver and
 Crassidis sec. IV.B, eq. 12), as snapshot estimators.
 
-Each station's SNR is inverted through the link of seed 004 eq. 7
+Each station's SNR is inverted through the link of Pimienta-Penalver and Crassidis eq. 7
 (:mod:`attopt.formulations.geo_link`, satellite position and RF parameters known) for
 the transmit gain and, through the main lobe of eq. 5
 (:func:`attopt.solvers.snr.pattern_inverse.cos_from_gain`), for the off-boresight
@@ -52,7 +52,7 @@ normalising them again would change them by rounding.  Whether the stations
 see the satellite is not in the epoch: :func:`check_elevations` rejects a
 station with the satellite below its horizon.  :func:`rf_sensitivity`
 measures the boresight error when the solver is given wrong RF parameters
-(seed 004 Fig. 6).
+(Pimienta-Penalver and Crassidis Fig. 6).
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ from attopt.solvers.snr.pattern_inverse import cos_from_gain
 Array = NDArray[np.float64]
 
 MIN_STATIONS = 3
-"""Two cones meet in two directions; a third cone is needed to choose (seed 004 sec. IV.B)."""
+"""Two cones meet in two directions; a third cone is needed to choose (Pimienta-Penalver
+and Crassidis sec. IV.B)."""
 UNIT_TOLERANCE = 1e-12
 """Largest ``| |l| - 1 |`` of a line of sight the estimators accept."""
 BORESIGHT_DIAGNOSTICS = ("boresight_x", "boresight_y", "boresight_z")
@@ -337,7 +338,7 @@ SENSITIVITY_METHODS: dict[str, BoresightEstimator] = {
     "cone_intersection": GEO_CONE,
     "least_squares": GEO_LSQ,
 }
-"""The two methods of seed 004 sec. IV.B by the names of its Fig. 6."""
+"""The two methods of Pimienta-Penalver and Crassidis sec. IV.B by the names of its Fig. 6."""
 
 
 def rf_sensitivity(
@@ -352,7 +353,7 @@ def rf_sensitivity(
 ) -> RfSensitivity:
     """Boresight error with noise-free SNRs of ``link`` inverted with wrong ``P_t`` and ``D``.
 
-    Seed 004 Fig. 6: the SNRs are those of the true attitude and ``link``;
+    Pimienta-Penalver and Crassidis Fig. 6: the SNRs are those of the true attitude and ``link``;
     the solver (:data:`SENSITIVITY_METHODS`) assumes each (``P_t``, ``D``)
     pair of the grid instead.
     """

@@ -1,4 +1,5 @@
-"""M2M4 SNR estimator on constant-modulus (PSK) samples in AWGN (seed 004 sec. III, eqs. 8-11).
+"""M2M4 SNR estimator on constant-modulus (PSK) samples in AWGN (Pimienta-Penalver and
+Crassidis sec. III, eqs. 8-11).
 
 Samples ``y_k = x_k + n_k`` (eq. 8), ``|x_k|^2 = S``, ``n_k`` circular complex
 Gaussian with ``E|n_k|^2 = N``; ``SNR = S / N`` (eq. 9).  With the sample
@@ -15,7 +16,7 @@ invalid with the reason, never returned as NaN dB.  ``N = 0`` (noise-free
 samples) is flagged too: the SNR is unbounded.
 
 M2M4 needs a constant-modulus signal: it does not apply to the on-off keyed
-(pulse-position modulated) ADS-B pulses of seed 000, whose envelope has the
+(pulse-position modulated) ADS-B pulses of Liu et al. 2023, whose envelope has the
 same kurtosis as complex noise, so the moments carry no SNR information.
 """
 
@@ -31,9 +32,9 @@ from attopt.formulations.errors import InvalidObservationError
 Array = NDArray[np.float64]
 
 TABLE3_SNR_DB = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0)
-"""True SNRs of seed 004 Table 3."""
+"""True SNRs of Pimienta-Penalver and Crassidis Table 3."""
 TABLE3_PAPER_DB = (0.02, 2.025, 4.034, 5.98, 7.99, 10.04)
-"""Mean estimated SNRs printed in seed 004 Table 3 (mean error 0.0148 dB)."""
+"""Mean estimated SNRs printed in Pimienta-Penalver and Crassidis Table 3 (mean error 0.0148 dB)."""
 NEGATIVE_DISCRIMINANT = "negative discriminant 2 M2^2 - M4 <= 0: no signal power in the moments"
 ZERO_NOISE = "noise power estimate M2 - S <= 0: SNR unbounded (noise-free samples)"
 
@@ -118,7 +119,8 @@ def snr_table(
     true_db: ArrayLike = TABLE3_SNR_DB,
     order: int = 4,
 ) -> SnrTable:
-    """Table 3 of seed 004: M2M4 on ``n_trials`` records of ``n_samples`` at each SNR."""
+    """Table 3 of Pimienta-Penalver and Crassidis: M2M4 on ``n_trials`` records of
+    ``n_samples`` at each SNR."""
     truth = np.asarray(true_db, dtype=float)
     estimate = estimate_snr(
         simulate_psk(np.repeat(truth[:, None], n_trials, axis=1), n_samples, rng, order)

@@ -1,8 +1,8 @@
 """Manoeuvre detection from a filter's innovations and re-initialisation from the boresight.
 
-Seed 004 sec. V.B, Fig. 10: the unscented filter is given the broadcaster's
-*assumed* body rate; an unannounced 25 deg manoeuvre makes that rate wrong and
-the filter "breaks", which the seed proposes as a way to sense the manoeuvre,
+Pimienta-Penalver and Crassidis sec. V.B, Fig. 10: the unscented filter is given the
+broadcaster's *assumed* body rate; an unannounced 25 deg manoeuvre makes that rate wrong and
+the filter "breaks", which the paper proposes as a way to sense the manoeuvre,
 leaving the restart to the user.  Here both steps are automatic.
 
 Detection: a windowed chi-square test on the normalised innovation squared
@@ -16,7 +16,7 @@ scalars) and independent between epochs, so over the last ``W`` epochs::
 
 and a manoeuvre is declared at the first ``k`` with ``P(chi2 >= S_k) <
 p_FA`` (:attr:`DetectionOptions.false_alarm`, per window).  The filter is run
-without its innovation gate (``gate_probability = 1``, as the seed's filter):
+without its innovation gate (``gate_probability = 1``, as the paper's filter):
 a gate would drop exactly the rows that carry the evidence.
 
 Re-initialisation at the detection epoch ``k_d``: the snapshot boresight

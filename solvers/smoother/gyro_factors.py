@@ -24,12 +24,12 @@ epochs between them; ``T = t_{i+1} - t_i``):
   holds ``b_i`` (Markley and Crassidis 2014, eq. 6.93's ``Q11``; its
   correlation with the bias step, ``Q12``, is neglected: the correlation
   coefficient is ``sigma_u T / (2 sqrt(sigma_v^2 + sigma_u^2 T^2 / 3))``,
-  8e-5 for the MEMS gyro over 1 s, 0.43 for seed 000's), ``h`` the gyro-gap growth of
+  8e-5 for the MEMS gyro over 1 s, 0.43 for Liu et al. 2023's), ``h`` the gyro-gap growth of
   :func:`attopt.solvers.filters.common.prepare_gyro` summed over the interval (the
   filters' rule: a missing sample is replaced by the last valid one, and a
   gap of ``T_g`` adds ``(sigma_hold T_g)^2``);
 * bias random walk: ``gtsam.BetweenFactorVector(b_i, b_{i+1}, 0,
-  sigma_u sqrt(T))`` (seed 000 eq. 24).
+  sigma_u sqrt(T))`` (Liu et al. 2023 eq. 24).
 
 The prior (:class:`JointPrior`) is the full ``6 x 6`` covariance of the
 ``[attitude, bias]`` :class:`~attopt.formulations.passes.Prior`, attitude-bias

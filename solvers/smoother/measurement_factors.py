@@ -1,8 +1,8 @@
 """Measurement factors of the smoother: one stacked linear factor per epoch, interface only.
 
 Every measurement is an
-:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` (SNRs of seed
-000 eq. 10 / seed 004 eq. 7 through
+:class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` (SNRs of Liu et
+al. 2023 eq. 10 / Pimienta-Penalver and Crassidis eq. 7 through
 :class:`~attopt.formulations.snr_measurement.SnrMeasurement`, unit vectors, Euler
 angles; nothing here is measurement-specific).  At an attitude estimate ``A``
 of the epoch's node, ``predict`` gives ``h`` and ``J = dh/d delta`` (CasADi

@@ -1,4 +1,4 @@
-"""Online (causal) factor-graph smoother over attitude and gyro bias (issue 6 sec. 1).
+"""Online (causal) factor-graph smoother over attitude and gyro bias.
 
 The variables and factors of the batch smoother (:mod:`attopt.solvers.smoother.problem`,
 ``docs/smoother.md``), added one node at a time to GTSAM's

@@ -1,4 +1,4 @@
-"""Solvers of the SNR attitude problem of seed 000 as snapshot estimators.
+"""Solvers of the SNR attitude problem of Liu et al. 2023 as snapshot estimators.
 
 Every solver is an :class:`~attopt.solvers.snr.driver.SnrSolver` in
 :data:`ESTIMATORS`: a :class:`~attopt.solvers.estimator.SnapshotEstimator`

@@ -1,6 +1,6 @@
-"""Boresight direction in the orbit frame from off-boresight cones (seed 000 secs. 3.1-3.2).
+"""Boresight direction in the orbit frame from off-boresight cones (Liu et al. 2023 secs. 3.1-3.2).
 
-Each observation of an antenna gives ``l_k . b = c_k`` (seed 000 eqs. 5, 7, 15)
+Each observation of an antenna gives ``l_k . b = c_k`` (Liu et al. 2023 eqs. 5, 7, 15)
 with ``l_k`` the unit line of sight and ``c_k = cos(alpha_k)`` from the
 pattern inverse (:mod:`attopt.solvers.snr.pattern_inverse`), with standard deviation
 ``sigma_k``.  The boresight ``b`` (orbit frame) is the constrained weighted

@@ -1,18 +1,18 @@
-"""Deterministic two-step method of seed 000 sec. 3.2 (boresights, then QUEST).
+"""Deterministic two-step method of Liu et al. 2023 sec. 3.2 (boresights, then QUEST).
 
 Step 1, per antenna with enough observations: invert the gain pattern for
-each SNR to get ``cos(alpha_k)`` (seed 000 eqs. 4, 63;
+each SNR to get ``cos(alpha_k)`` (Liu et al. 2023 eqs. 4, 63;
 :mod:`attopt.solvers.snr.pattern_inverse`) and fit the antenna's boresight in the
 orbit frame, ``{b_i}_o``, to the cones ``l_k . b = cos(alpha_k)`` (eq. 15) by
 least squares on the unit sphere (:mod:`attopt.solvers.snr.boresight`).
 
 Step 2: Wahba's problem (eqs. 16-17) with the pairs
 ``({b_i}_B, {b_i}_o)`` (body = mounting direction, reference = estimate),
-solved by QUEST (:data:`attopt.solvers.wahba.QUEST`, as in seed 000
+solved by QUEST (:data:`attopt.solvers.wahba.QUEST`, as in Liu et al. 2023
 sec. 5.1).  QUEST's weights are ``a_i = 1 / sigma_i^2`` with ``sigma_i^2`` the
 mean tangent-plane variance of the estimated boresight, whose covariance
 comes from the SNR noise through step 1; the returned covariance is QUEST's
-``[sum_i a_i (I - b_i b_i^T)]^-1`` (seed 002 eq. 32).  QUEST's measurement
+``[sum_i a_i (I - b_i b_i^T)]^-1`` (Cilden Guler et al. 2017 eq. 32).  QUEST's measurement
 model has isotropic direction noise; the boresight estimates' is not (it is
 elongated along the narrower spread of their lines of sight), so the
 covariance is an approximation: in the Monte Carlo test of
@@ -21,7 +21,7 @@ scatter's, which the test holds to within 25%.
 The reported ``loss`` is the SNR loss (eq. 19) of the two-step attitude, so
 all SNR solvers are scored alike; Wahba's loss (eq. 17) is a diagnostic.
 
-Observations.  Seed 000 sec. 3.3 requires ``m_i >= 3`` per antenna; with the
+Observations.  Liu et al. 2023 sec. 3.3 requires ``m_i >= 3`` per antenna; with the
 default ``min_per_antenna = 3`` an antenna with fewer is not used and the
 epoch is flagged (:class:`~attopt.formulations.errors.UnobservableError`) unless two
 non-parallel antennas remain.  ``min_per_antenna = 2`` also uses antennas with
@@ -56,7 +56,7 @@ from attopt.solvers.wahba import QUEST
 Array = NDArray[np.float64]
 
 SEED000_MIN_PER_ANTENNA = 3
-"""``m_i >= 3`` of seed 000 sec. 3.3."""
+"""``m_i >= 3`` of Liu et al. 2023 sec. 3.3."""
 NOMINAL_ATTITUDE = Rotation.identity()
 """Earth pointing: body frame = orbit frame (``docs/conventions.md``)."""
 
@@ -91,7 +91,7 @@ def _antenna_boresight(
     problem: SnrEpoch, antenna: int, prior: Rotation
 ) -> tuple[BoresightEstimate, int]:
     rows = problem.antenna == antenna
-    gain = problem.snr_db[rows] - problem.p0_dbw[rows] + problem.noise_dbw  # seed 000 eq. 4
+    gain = problem.snr_db[rows] - problem.p0_dbw[rows] + problem.noise_dbw  # Liu et al. 2023 eq. 4
     cos_alpha, dcos_dgain, clamped = cos_from_gain(problem.pattern, gain)
     sigma_cos = np.abs(dcos_dgain) * problem.sigma_db[rows]
     prior_direction = prior.inv().apply(problem.unit_boresights[antenna])
@@ -104,7 +104,7 @@ def two_step(
     prior: Rotation | None = None,
     min_per_antenna: int = SEED000_MIN_PER_ANTENNA,
 ) -> TwoStep:
-    """Seed 000 sec. 3.2 on a validated epoch (see the module docstring)."""
+    """Liu et al. 2023 sec. 3.2 on a validated epoch (see the module docstring)."""
     prior = NOMINAL_ATTITUDE if prior is None else prior
     antennas = np.flatnonzero(problem.counts >= max(min_per_antenna, 2))
     diagnostics = dict.fromkeys(DETERMINISTIC_DIAGNOSTICS, np.nan)
@@ -156,7 +156,9 @@ class DeterministicSolver(SnrSolver):
 
     min_per_antenna: int = SEED000_MIN_PER_ANTENNA
     name: str = "deterministic"
-    description: str = "two-step: pattern inverse, boresight cones, QUEST (seed 000 sec. 3.2)"
+    description: str = (
+        "two-step: pattern inverse, boresight cones, QUEST (Liu et al. 2023 sec. 3.2)"
+    )
     diagnostic_names: ClassVar[tuple[str, ...]] = DETERMINISTIC_DIAGNOSTICS
 
     def __post_init__(self) -> None:

@@ -20,7 +20,7 @@ turns that into the project's result types:
 * :meth:`SnrSolver.solve_sequence` solves consecutive epochs, flags invalid or
   failed ones with the reason (never an attitude) and, with
   :attr:`SnrSolver.warm_start`, starts each epoch from the most recent valid
-  estimate (seed 000 sec. 5.1 solves one epoch per second of a slowly moving
+  estimate (Liu et al. 2023 sec. 5.1 solves one epoch per second of a slowly moving
   Earth-pointing attitude);
 * :meth:`SnrSolver.solve_epochs` is the same on the epochs themselves.
 """
@@ -76,7 +76,7 @@ def start_attitude(prior: Rotation | Prior | None) -> Rotation | None:
 
 @dataclass(frozen=True, repr=False)
 class SnrSolver(SnapshotEstimator):
-    """A solver of the SNR attitude problem (seed 000 secs. 3.2-3.3).
+    """A solver of the SNR attitude problem (Liu et al. 2023 secs. 3.2-3.3).
 
     Subclasses set ``name``, ``description`` and :attr:`diagnostic_names`
     and implement :meth:`estimate_epoch`.

@@ -1,8 +1,8 @@
 """Loss and covariance of an attitude for an SNR epoch, shared by every SNR solver.
 
-* Loss: ``F = 1/2 sum_k (y_k - f_k(A))^2 / sigma_k^2``, seed 000 eq. 19
+* Loss: ``F = 1/2 sum_k (y_k - f_k(A))^2 / sigma_k^2``, Liu et al. 2023 eq. 19
   weighted by the ``C`` of eq. 22 (with ``sigma = 1 dB`` exactly eq. 19).
-* Covariance: ``R = (J^T C J)^-1`` (seed 000 eq. 22) with ``J`` the Jacobian of
+* Covariance: ``R = (J^T C J)^-1`` (Liu et al. 2023 eq. 22) with ``J`` the Jacobian of
   the predicted SNRs with respect to the body-frame rotation-vector error at
   ``A`` (``docs/conventions.md``), i.e. the Cramer-Rao bound of the epoch
   evaluated at the estimate instead of the truth
@@ -16,7 +16,7 @@
   just outside it while it still is part of the loss that was minimised.  The
   number of such observations is reported (:attr:`Fit.outside_lobe`).
 
-Objectives (:data:`Objective`).  ``"least_squares"`` is the above (seed 000
+Objectives (:data:`Objective`).  ``"least_squares"`` is the above (Liu et al. 2023
 eqs. 19, 22).  ``"truncated_ml"`` models the reception threshold
 (:mod:`attopt.formulations.snr_truncation`): the loss is the negative log-likelihood
 of the received, threshold-truncated measurements,
@@ -55,7 +55,8 @@ OBJECTIVES: tuple[Objective, ...] = ("least_squares", "truncated_ml")
 
 
 def snr_loss(measured: Any, predicted: Any, weights: Any) -> Any:
-    """``1/2 sum_k w_k (y_k - f_k)^2`` (seed 000 eq. 19, ``w_k = 1/sigma_k^2``), numpy or CasADi."""
+    """``1/2 sum_k w_k (y_k - f_k)^2`` (Liu et al. 2023 eq. 19, ``w_k = 1/sigma_k^2``), numpy
+    or CasADi."""
     residual = measured - predicted
     if isinstance(residual, ca.SX | ca.MX | ca.DM):
         return 0.5 * ca.dot(weights, residual * residual)
@@ -112,7 +113,7 @@ class Fit:
     """What an attitude explains of an epoch.
 
     Attributes:
-        loss: the objective's loss: seed 000 eq. 19 weighted by ``C``, or the
+        loss: the objective's loss: Liu et al. 2023 eq. 19 weighted by ``C``, or the
             truncated negative log-likelihood (see the module docstring).
         covariance: ``(3, 3)`` inverse Fisher information of the objective's
             model (eq. 22, or eq. 22 of the truncated measurements), rad^2, body frame.

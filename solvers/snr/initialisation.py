@@ -1,6 +1,6 @@
 """Starting points of the one-step SNR solvers (NLSE, NLP), with or without a prior.
 
-The SNR loss (seed 000 eq. 19) is not convex in the attitude, so a local
+The SNR loss (Liu et al. 2023 eq. 19) is not convex in the attitude, so a local
 solver needs a start in the basin of the global minimum.
 
 * With a prior (the previous epoch's estimate while tracking, or a caller's
@@ -8,7 +8,7 @@ solver needs a start in the basin of the global minimum.
   (e.g. the prior puts an observation behind an antenna, where the model is
   not finite), the epoch is initialised as without a prior.
 * Without a prior (first epoch, after a gap): from the deterministic two-step
-  solution of seed 000 sec. 3.2 (:mod:`attopt.solvers.snr.deterministic`) when it is
+  solution of Liu et al. 2023 sec. 3.2 (:mod:`attopt.solvers.snr.deterministic`) when it is
   valid and the local solve from it converges; otherwise by multi-start from
   the fixed set :data:`START_ATTITUDES` around nadir pointing, keeping the
   converged solve of lowest loss.
@@ -46,9 +46,9 @@ START_ATTITUDES = attitude_from_euler321(
     *np.radians([(yaw, pitch, roll) for yaw in START_YAWS_DEG for pitch, roll in START_TILTS_DEG]).T
 )
 """24 starts around nadir pointing: every 45 deg of yaw, each level and rolled
-by +-20 deg (3-2-1 Euler angles of seed 000 eq. 8).  An Earth-pointing
+by +-20 deg (3-2-1 Euler angles of Liu et al. 2023 eq. 8).  An Earth-pointing
 spacecraft without a prior may have any yaw, while roll and pitch stay small;
-roll is the tilt that moves both cross-track main lobes (seed 000 fig. 7).
+roll is the tilt that moves both cross-track main lobes (Liu et al. 2023 fig. 7).
 In a trial of 40 noise-free epochs (16 observations, yaw anywhere, roll and
 pitch within 14 deg) the NLP converged from 9-12 of the 24 starts, always to
 the truth; most other starts put an observation behind an antenna
@@ -69,7 +69,7 @@ class LocalResult:
 
     Attributes:
         attitude: the final iterate.
-        loss: seed 000 eq. 19 (weighted) at ``attitude``.
+        loss: Liu et al. 2023 eq. 19 (weighted) at ``attitude``.
         converged: whether the solver reports convergence.
         status: the solver's status text.
         iterations: iterations of the solver.
@@ -165,7 +165,7 @@ def multistart(
 
 
 def two_step_start(problem: SnrEpoch) -> Rotation | None:
-    """The deterministic two-step solution of seed 000 sec. 3.2, if it is valid."""
+    """The deterministic two-step solution of Liu et al. 2023 sec. 3.2, if it is valid."""
     return two_step(problem).attitude
 
 

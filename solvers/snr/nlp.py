@@ -1,13 +1,13 @@
-"""The SNR attitude problem as a CasADi NLP solved by IPOPT (seed 000 eqs. 19-20, 22).
+"""The SNR attitude problem as a CasADi NLP solved by IPOPT (Liu et al. 2023 eqs. 19-20, 22).
 
 Problem.  ``min_v 1/2 sum_k w_k (y_k - f_k(C(v) A_ref))^2`` with ``f_k`` the
-SNR model of seed 000 eq. 13 (:func:`attopt.formulations.snr_model.snr_function`),
+SNR model of Liu et al. 2023 eq. 13 (:func:`attopt.formulations.snr_model.snr_function`),
 ``w_k = 1 / sigma_k^2`` (the ``C`` of eq. 22; 0 for padding rows) and
 ``C(v)`` :func:`attopt.formulations.snr_model.increment_matrix`, the rotation with
 modified Rodrigues parameters ``v / 4``.
 
 Objective (:attr:`NlpSolver.objective`, :data:`attopt.solvers.snr.fit.Objective`).
-``"least_squares"`` (registry ``"nlp"``) is the loss above, seed 000 eq. 19.
+``"least_squares"`` (registry ``"nlp"``) is the loss above, Liu et al. 2023 eq. 19.
 It is the maximum-likelihood estimator only if every measurement is
 ``N(f_k, sigma_k^2)``; but messages are decoded only when the MEASURED SNR
 reaches the threshold ``tau`` (sec. 5.1), so the received ones are truncated
@@ -47,7 +47,7 @@ constraint ``|q| = 1``:
 * three variables, the problem's true dimension, and ``v`` is directly the
   error vector in which the covariance (eq. 22) is expressed.
 
-Euler angles (the NLSE's parametrisation, seed 000 eq. 8) would do as well
+Euler angles (the NLSE's parametrisation, Liu et al. 2023 eq. 8) would do as well
 near nadir pointing but are singular at 90 deg pitch and not body-frame.
 
 Size classes.  The NLP is built once per (pattern, bucket size, options) and
@@ -216,7 +216,7 @@ class NlpSolver(OneStepSolver):
     options: IpoptOptions = field(default_factory=IpoptOptions)
     objective: Objective = "least_squares"
     name: str = "nlp"
-    description: str = "CasADi NLP on the MRP increment, IPOPT (seed 000 eqs. 19-20, 22)"
+    description: str = "CasADi NLP on the MRP increment, IPOPT (Liu et al. 2023 eqs. 19-20, 22)"
     status_label: ClassVar[str] = "IPOPT"
 
     def __post_init__(self) -> None:
@@ -240,7 +240,7 @@ TRUNCATED_NLP = NlpSolver(
     name="nlp_truncated",
     description=(
         "CasADi NLP on the MRP increment, IPOPT, maximum likelihood of the threshold-"
-        "truncated SNRs (seed 000 eqs. 19, 22 with the sec. 5.1 reception threshold)"
+        "truncated SNRs (Liu et al. 2023 eqs. 19, 22 with the sec. 5.1 reception threshold)"
     ),
 )
 """Registry entry ``"nlp_truncated"``: the NLP of the truncated likelihood (module docstring)."""

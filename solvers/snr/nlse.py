@@ -1,6 +1,6 @@
-"""The NLSE of seed 000 sec. 3.3: Levenberg-Marquardt over 3-2-1 Euler angles.
+"""The NLSE of Liu et al. 2023 sec. 3.3: Levenberg-Marquardt over 3-2-1 Euler angles.
 
-``z = [psi, theta, phi]`` (yaw, pitch, roll, seed 000 eq. 8) minimises
+``z = [psi, theta, phi]`` (yaw, pitch, roll, Liu et al. 2023 eq. 8) minimises
 ``F(z) = 1/2 sum_k (y_k - f_k(z))^2 / sigma_k^2`` (eq. 19, weighted by the
 ``C`` of eq. 22; equal to eq. 19 for ``sigma = 1 dB``) by MINPACK's
 Levenberg-Marquardt (``scipy.optimize.least_squares(method="lm")``, eq. 21).
@@ -114,7 +114,7 @@ def solve_local(problem: SnrEpoch, start: Rotation, options: LmOptions) -> Local
 
 @dataclass(frozen=True, repr=False)
 class NlseSolver(OneStepSolver):
-    """Registry entry ``"nlse"``: seed 000's NLSE.
+    """Registry entry ``"nlse"``: Liu et al. 2023's NLSE.
 
     Initialised by :mod:`attopt.solvers.snr.initialisation`.
 
@@ -123,7 +123,7 @@ class NlseSolver(OneStepSolver):
 
     options: LmOptions = field(default_factory=LmOptions)
     name: str = "nlse"
-    description: str = "Levenberg-Marquardt on 3-2-1 Euler angles (seed 000 eqs. 8, 18-22)"
+    description: str = "Levenberg-Marquardt on 3-2-1 Euler angles (Liu et al. 2023 eqs. 8, 18-22)"
     status_label: ClassVar[str] = "least_squares(lm)"
 
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:

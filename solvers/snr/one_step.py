@@ -1,10 +1,10 @@
-"""What the one-step SNR solvers (NLSE, NLP; seed 000 sec. 3.3) share.
+"""What the one-step SNR solvers (NLSE, NLP; Liu et al. 2023 sec. 3.3) share.
 
 A one-step solver supplies a local solve (epoch, start attitude ->
 :class:`~attopt.solvers.snr.initialisation.LocalResult`).  This class starts it by
 :func:`~attopt.solvers.snr.initialisation.initialise`, flags a solve that does not
 converge with the solver's status as reason, and scores a converged one with
-the shared loss and covariance (seed 000 eqs. 19, 22; :mod:`attopt.solvers.snr.fit`).
+the shared loss and covariance (Liu et al. 2023 eqs. 19, 22; :mod:`attopt.solvers.snr.fit`).
 """
 
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""Inverse of a gain pattern: ``cos(alpha)`` from a gain, first step of seed 000 sec. 3.2.
+"""Inverse of a gain pattern: ``cos(alpha)`` from a gain, first step of Liu et al. 2023 sec. 3.2.
 
-From a measured SNR, seed 000 eq. 4 gives the gain ``G = y - 10 lg P0 + 10 lg P_n``
+From a measured SNR, Liu et al. 2023 eq. 4 gives the gain ``G = y - 10 lg P0 + 10 lg P_n``
 and, through the pattern's inverse, ``cos(alpha)`` (the cone of eq. 15 on which
 the boresight lies, ``l . b = cos(alpha)``).
 
-* :class:`~attopt.formulations.gain_patterns.CosinePowerPattern` (seed 000 eq. 63,
+* :class:`~attopt.formulations.gain_patterns.CosinePowerPattern` (Liu et al. 2023 eq. 63,
   ``G = 10 lg g_max + 10 n lg cos(alpha)``): closed form
   ``cos(alpha) = 10^((G - 10 lg g_max) / (10 n))``, not clamped: a noisy gain
   above the peak gives ``cos(alpha) > 1``, the unbiased continuation of the

@@ -4,7 +4,7 @@ A solver supplies only its method: a function from validated observations
 (:class:`attopt.formulations.vector_observations.ObservationBatch`) to an
 :class:`Estimate` for every epoch (:meth:`attopt.solvers.wahba.WahbaSolver.estimate`).
 This module turns that into a :class:`attopt.solvers.results.Track` with
-Wahba's loss (seed 002 eq. 14), the validity mask and reasons.
+Wahba's loss (Cilden Guler et al. 2017 eq. 14), the validity mask and reasons.
 """
 
 from __future__ import annotations

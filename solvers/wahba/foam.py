@@ -1,4 +1,4 @@
-"""FOAM, Markley's fast optimal attitude matrix (seed 002 eqs. 33-37)."""
+"""FOAM, Markley's fast optimal attitude matrix (Cilden Guler et al. 2017 eqs. 33-37)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Davenport's q-method (seed 002 eqs. 20-26): the top eigenvector of ``K``."""
+"""Davenport's q-method (Cilden Guler et al. 2017 eqs. 20-26): the top eigenvector of ``K``."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ from attopt.solvers.wahba.driver import Estimate
 
 
 def estimate(obs: ObservationBatch) -> Estimate:
-    """Symmetric eigensolver on ``K`` (eq. 26); covariance from eq. 19 as in seed 002 sec. 2.4."""
+    """Symmetric eigensolver on ``K`` (eq. 26); covariance from eq. 19 as in Cilden Guler et al.
+    2017 sec. 2.4."""
     b = obs.profile_matrix
     eigenvalues, eigenvectors = np.linalg.eigh(davenport_matrix(b))
     attitude = attitude_from_shuster_quaternion(eigenvectors[:, :, -1])

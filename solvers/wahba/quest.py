@@ -1,4 +1,4 @@
-"""QUEST (seed 002 eqs. 27-32) with Shuster's method of sequential rotations.
+"""QUEST (Cilden Guler et al. 2017 eqs. 27-32) with Shuster's method of sequential rotations.
 
 ``lambda_max`` comes from Newton-Raphson on Davenport's characteristic
 equation started at ``lambda_0 = sum a_i``; the quaternion from eqs. 27-31.
@@ -7,7 +7,7 @@ so the solution is computed with the reference frame turned by 180 degrees
 about x, y or z, whichever makes ``|q4|`` largest (Shuster and Oh 1981), and
 turned back: attitudes near 180 degrees are exact.
 
-Beyond the seed: ``lambda_max`` from the quartic carries a rounding error of
+Beyond the paper: ``lambda_max`` from the quartic carries a rounding error of
 about ``eps lambda_0^2 / gap`` (``gap`` the eigen-gap of ``K``), which eq. 31
 turns into an attitude error of about ``eps (lambda_0 / gap)^2``: 4e-6 rad for
 nearly parallel Sun and field vectors.  One Rayleigh quotient ``q^T K q`` of
@@ -47,7 +47,7 @@ _TURN_COMPOSE = np.stack(
 
 
 def _quest_scalars(b_matrix: np.ndarray, lambda_max: np.ndarray):
-    """``S``, ``alpha``, ``beta`` and ``gamma`` of seed 002 eqs. 24, 27-29."""
+    """``S``, ``alpha``, ``beta`` and ``gamma`` of Cilden Guler et al. 2017 eqs. 24, 27-29."""
     s = b_matrix + np.swapaxes(b_matrix, 1, 2)
     sigma = trace3(b_matrix)
     trace_adj_s = 0.5 * ((2.0 * sigma) ** 2 - np.sum(s * s, axis=(1, 2)))
@@ -58,7 +58,7 @@ def _quest_scalars(b_matrix: np.ndarray, lambda_max: np.ndarray):
 
 
 def _quest_quaternion(b_matrix: np.ndarray, lambda_max: np.ndarray) -> np.ndarray:
-    """Normalised Shuster quaternion ``[x; gamma]`` of seed 002 eqs. 30-31."""
+    """Normalised Shuster quaternion ``[x; gamma]`` of Cilden Guler et al. 2017 eqs. 30-31."""
     s, alpha, beta, gamma = _quest_scalars(b_matrix, lambda_max)
     z = skew_axial(b_matrix)
     sz = (s @ z[:, :, None])[:, :, 0]

@@ -1,4 +1,4 @@
-"""SVD solution of Wahba's problem (seed 002 eqs. 17-19)."""
+"""SVD solution of Wahba's problem (Cilden Guler et al. 2017 eqs. 17-19)."""
 
 from __future__ import annotations
 

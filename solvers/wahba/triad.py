@@ -1,9 +1,9 @@
-"""TRIAD, the algebraic method (seed 002 eqs. 5-10) with its covariance (eq. 11).
+"""TRIAD, the algebraic method (Cilden Guler et al. 2017 eqs. 5-10) with its covariance (eq. 11).
 
 With more than two observations TRIAD uses two: the anchor ``u`` is the most
 accurate one (largest weight) and the partner ``v`` the one that best fixes the
 rotation about it (largest ``a_j |u x b_j|^2``, the information about that
-axis).  The seed's magnetometer + Sun case anchors on the Sun sensor.
+axis).  The paper's magnetometer + Sun case anchors on the Sun sensor.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ def _triad_frame(u: NDArray, v: NDArray) -> NDArray:
 
 
 def estimate(obs: ObservationBatch) -> Estimate:
-    """``A = M_B M_R^T`` (seed 002 eq. 10) for every epoch."""
+    """``A = M_B M_R^T`` (Cilden Guler et al. 2017 eq. 10) for every epoch."""
     epochs = np.arange(obs.n_epochs)
     anchor = np.argmax(obs.weights, axis=1)
     u_b = obs.body[epochs, anchor]
