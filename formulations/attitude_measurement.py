@@ -60,7 +60,26 @@ Array = NDArray[np.float64]
 
 
 class AttitudeMeasurement(ABC):
-    """One epoch's measurement ``z = h(A) + noise``, ``noise ~ N(0, R)``."""
+    """One epoch's measurement ``z = h(A) + noise``, ``noise ~ N(0, R)``.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import AttitudeMeasurement, SymbolicModel
+        >>> def boresight_z(attitude, reference):  # a type of your own: z of A r, in one function
+        ...     return (attitude @ reference)[2]
+        >>> class Boresight(AttitudeMeasurement):
+        ...     def __init__(self, value, reference, sigma):
+        ...         self.z = np.atleast_1d(float(value))
+        ...         self.reference = np.asarray(reference, float)
+        ...         self.noise_covariance, self.blocks = np.array([sigma**2]), np.zeros(1, int)
+        ...     def symbolic(self):
+        ...         return SymbolicModel(boresight_z, (self.reference,))
+        >>> h, jacobian = Boresight(1.0, [0.0, 0.0, 1.0], 1e-3).predict(Rotation.identity())
+        >>> h.tolist(), (jacobian.round(12) + 0.0).tolist()
+        ([[1.0]], [[[0.0, 0.0, 0.0]]])
+    """
 
     z: Array
     """``(m,)`` measured values."""
@@ -170,6 +189,17 @@ class EulerAngleMeasurement(AttitudeMeasurement):
     Euler-rate kinematics matrix at the predicted angles: the paper's error
     vector is the opposite rotation of attopt's ``delta`` (its eq. 36 has
     ``- delta_beta``, see :mod:`attopt.formulations.gyro`).  One gating block.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import EulerAngleMeasurement, Snapshot, attitude_from_euler321, estimator
+        >>> angles = np.radians([30.0, -10.0, 5.0])  # yaw, pitch, roll
+        >>> measured = EulerAngleMeasurement(angles, np.radians(1.0) ** 2 * np.eye(3))
+        >>> solution = estimator("map_nlp").solve(Snapshot.of(measured))
+        >>> error = solution.attitude * attitude_from_euler321(*angles).inv()
+        >>> bool(error.magnitude() < 1e-9)
+        True
     """
 
     def __init__(self, angles: ArrayLike, covariance: ArrayLike) -> None:
@@ -225,6 +255,15 @@ class VectorMeasurement(AttitudeMeasurement):
     gate; and a reversed vector gets ``theta = pi``, not zero (an exactly
     antipodal one is NaN: left out).  The innovation has two degrees of freedom
     per vector, so the gate (chi-square with three) is slightly lenient.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import VectorMeasurement
+        >>> reference = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+        >>> m = VectorMeasurement(reference, reference, covariance=np.diag([1e-6, 4e-6, 4e-6]))
+        >>> m.sigma.round(4).tolist()  # each vector's isotropic equivalent (Wahba weight 1/sigma^2)
+        [0.002, 0.0016]
     """
 
     def __init__(
@@ -314,6 +353,17 @@ class ReferencedMeasurement(AttitudeMeasurement):
     (the orbit frame).  With ``frame = A_oi`` (inertial -> model reference),
     ``A_bo = A_bi A_oi^T``; a body-frame error is the same for both, so values
     and Jacobians are the inner model's at ``A_bi * frame.inv()``.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import ReferencedMeasurement, VectorMeasurement
+        >>> orbit = Rotation.from_rotvec([0.0, 0.0, 0.3])  # A_oi: inertial -> orbit
+        >>> in_orbit = VectorMeasurement([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], 1e-3)  # of A_bo
+        >>> inertial = ReferencedMeasurement(in_orbit, orbit)  # of A_bi = A_bo A_oi
+        >>> bool(np.allclose(inertial.predict(orbit)[0], in_orbit.predict(Rotation.identity())[0]))
+        True
     """
 
     def __init__(self, inner: AttitudeMeasurement, frame: Rotation) -> None:

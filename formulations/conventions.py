@@ -29,13 +29,32 @@ EULER_SEQUENCE = "ZYX"
 
 
 def attitude_from_euler321(yaw: ArrayLike, pitch: ArrayLike, roll: ArrayLike) -> Rotation:
-    """Attitude ``A = R1(roll) R2(pitch) R3(yaw)`` of Liu et al. 2023 eq. 8 (angles in rad)."""
+    """Attitude ``A = R1(roll) R2(pitch) R3(yaw)`` of Liu et al. 2023 eq. 8 (angles in rad).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import attitude_from_euler321, euler321_from_attitude
+        >>> attitude = attitude_from_euler321(*np.radians([30.0, -10.0, 5.0]))
+        >>> np.degrees(euler321_from_attitude(attitude)).round(6).tolist()
+        [30.0, -10.0, 5.0]
+    """
     angles = np.stack(np.broadcast_arrays(yaw, pitch, roll), axis=-1)
     return Rotation.from_euler(EULER_SEQUENCE, angles).inv()
 
 
 def euler321_from_attitude(attitude: Rotation) -> NDArray[np.float64]:
-    """Return ``[yaw, pitch, roll]`` (rad, last axis) of Liu et al. 2023 eq. 8."""
+    """Return ``[yaw, pitch, roll]`` (rad, last axis) of Liu et al. 2023 eq. 8.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import euler321_from_attitude
+        >>> yawed = Rotation.from_rotvec([0.0, 0.0, -0.5])  # A = R3(0.5 rad)
+        >>> np.degrees(euler321_from_attitude(yawed)).round(3).tolist()
+        [28.648, 0.0, 0.0]
+    """
     return attitude.inv().as_euler(EULER_SEQUENCE)
 
 
@@ -53,6 +72,16 @@ def attitude_error(estimate: Rotation, truth: Rotation) -> NDArray[np.float64]:
     """Body-frame rotation vector (rad) of ``estimate * truth.inv()``.
 
     Components are along body x (roll), y (pitch) and z (yaw).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import attitude_error
+        >>> truth = Rotation.from_rotvec([0.1, 0.2, 0.3])
+        >>> estimate = Rotation.from_rotvec([1e-3, 0.0, 0.0]) * truth  # 1 mrad about body x
+        >>> (attitude_error(estimate, truth).round(6) + 0.0).tolist()
+        [0.001, 0.0, 0.0]
     """
     return (estimate * truth.inv()).as_rotvec()
 

@@ -84,6 +84,17 @@ class DoaMeasurement(AttitudeMeasurement):
 
     Stations with a non-finite angle, covariance or line of sight are left
     out; ``z`` holds the others.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import DoaMeasurement
+        >>> stations = np.array([[300.0, 100.0, 800.0], [-200.0, 400.0, 900.0]])  # km, orbit frame
+        >>> doas = np.array([[0.4, 0.3], [0.5, 2.0]])  # theta, phi (rad); replaced below
+        >>> m = DoaMeasurement(doas, np.tile(1e-6 * np.eye(2), (2, 1, 1)), stations)
+        >>> m.predict(Rotation.identity())[0].round(3).tolist()  # the true DOAs at A = I
+        [[0.376, 0.322, 0.461, 2.034]]
     """
 
     def __init__(

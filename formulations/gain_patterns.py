@@ -105,6 +105,14 @@ class CosinePowerPattern:
     uses ``G >= 4 dBi`` for its helix, ``g = 14.4598 cos^6 alpha``
     (:data:`SEED000_HELIX`, main lobe to 41.7 deg).  The pattern is a function
     of ``cos(alpha)`` alone: ``G = 10 lg(peak_gain) + 10 n lg(cos alpha)``.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import CosinePowerPattern
+        >>> helix = CosinePowerPattern(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)
+        >>> round(helix.peak_gain_dbi, 2), round(float(np.degrees(helix.max_off_boresight_rad)), 1)
+        (11.6, 41.7)
     """
 
     peak_gain: float
@@ -147,6 +155,14 @@ class ParabolicPattern:
     The main lobe ends where ``G = min_gain_dbi``, i.e. at
     ``theta_3dB sqrt((G_max - G_min) / C)`` (at most 180 deg).
     ``alpha^2`` comes from :func:`off_boresight_angle_squared`, smooth at 0.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import ParabolicPattern
+        >>> dish = ParabolicPattern(35.0, np.radians(2.0), min_gain_dbi=25.0)
+        >>> round(float(np.degrees(dish.max_off_boresight_rad)), 3)
+        1.826
     """
 
     peak_gain_dbi: float
@@ -187,6 +203,17 @@ class TabulatedPattern:
     boresight and finite everywhere.  numpy evaluates the same CasADi function,
     so both back-ends give identical values.  The main lobe is the table's
     range, ``[0, angles_rad[-1]]``.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import TabulatedPattern
+        >>> measured = TabulatedPattern(
+        ...     angles_rad=tuple(np.radians([0.0, 10.0, 20.0, 30.0, 40.0])),
+        ...     gains_dbi=(12.0, 11.2, 9.0, 6.5, 3.0),
+        ... )
+        >>> measured.peak_gain_dbi, round(float(np.degrees(measured.max_off_boresight_rad)), 1)
+        (12.0, 40.0)
     """
 
     angles_rad: tuple[float, ...]

@@ -78,6 +78,18 @@ class GyroModel:
         sigma_u: rate random walk, rad/s^(3/2).
         initial_bias_sigma: standard deviation of each initial bias component, rad/s.
         rate_hz: sampling rate.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import GyroModel
+        >>> deg = np.radians(1.0)
+        >>> tactical = GyroModel(
+        ...     "tactical", sigma_v=0.05 * deg / 60, sigma_u=deg / 3600 / 60,
+        ...     initial_bias_sigma=deg / 3600, rate_hz=100.0,
+        ... )
+        >>> tactical.dt, tactical.process_noise(tactical.dt).shape
+        (0.01, (6, 6))
     """
 
     name: str
@@ -219,6 +231,17 @@ def simulate_gyro(
     Exact discrete statistics of the module docstring; ``t`` must be uniform
     with step ``model.dt``.  The draws are, in order: initial bias, bias steps,
     rate noise.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import MEMS_GYRO, simulate_gyro
+        >>> t = np.arange(0.0, 10.01, MEMS_GYRO.dt)
+        >>> truth = Rotation.from_rotvec(-np.outer(t, [0.0, 0.0, 0.01]))  # 0.01 rad/s about z
+        >>> gyro = simulate_gyro(t, truth, MEMS_GYRO, np.random.default_rng(0))
+        >>> gyro.samples.rates.shape, bool(np.allclose(gyro.true_rates[:, 2], 0.01))
+        ((100, 3), True)
     """
     t = np.asarray(t, dtype=float)
     dt = model.dt

@@ -63,6 +63,13 @@ class LinkBudget:
     (11.6 dBi) at 1000 km gives an SNR of about 16.8 dB and at 2000 km about
     10.8 dB, above the 6 dB reception threshold of Liu et al. 2023 sec. 5.1
     (``tests/test_link_budget.py`` prints and checks them).
+
+    Example::
+
+        >>> from attopt import LinkBudget
+        >>> budget = LinkBudget()  # 250 W transponder, 1090 MHz, 500 K, 2.6 MHz
+        >>> round(float(budget.isotropic_power_dbw(1.0e6)), 2), round(budget.noise_power_dbw, 2)
+        (-132.22, -137.46)
     """
 
     transmit_power_w: float = 250.0

@@ -145,6 +145,18 @@ class SymbolicModel:
         innovation: ``(z, h, *innovation_parameters) -> nu`` in CasADi
             (:func:`difference`, :func:`wrapped_difference`, :func:`geodesic_difference`).
         innovation_parameters: values of the innovation's extra parameters.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import SymbolicModel
+        >>> def body_vector(attitude, reference):  # h(A) = A r, written once
+        ...     return attitude @ reference
+        >>> model = SymbolicModel(body_vector, (np.array([1.0, 0.0, 0.0]),))
+        >>> h, jacobian = model.evaluate(Rotation.identity())
+        >>> h.tolist(), (jacobian[0].round(12) + 0.0).tolist()  # d(A r)/d(delta) = -[A r x]
+        ([[1.0, 0.0, 0.0]], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
     """
 
     model: Callable[..., Any]

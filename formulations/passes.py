@@ -62,6 +62,17 @@ class GyroRecord:
     Raises:
         GyroRateMismatchError: the sample spacing is not the model's declared step.
         InvalidObservationError: wrong shapes or times.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import MEMS_GYRO, GyroRateMismatchError, GyroRecord
+        >>> record = GyroRecord(np.arange(11) / 10.0, np.zeros((10, 3)), MEMS_GYRO)  # 10 Hz
+        >>> try:
+        ...     GyroRecord(np.arange(21) / 20.0, np.zeros((20, 3)), MEMS_GYRO)  # 20 Hz samples
+        ... except GyroRateMismatchError as error:
+        ...     print(error)
+        gyro 'mems' is declared at 10 Hz (step 0.1 s) but its samples are 0.05-0.05 s apart
     """
 
     t: Array
@@ -119,6 +130,16 @@ class Prior:
         bias: ``(3,)`` gyro bias estimate (rad/s) for gyro-aided estimators.
         rate: ``(3,)`` body rate relative to inertial space (rad/s, body axes)
             for dynamics-based estimators.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import Prior
+        >>> prior = Prior(Rotation.identity(), np.radians(5.0) ** 2 * np.eye(3))
+        >>> with_bias = prior.with_bias_covariance(1e-3)  # zero bias, 1e-3 rad/s per axis
+        >>> np.degrees(np.sqrt(np.diag(with_bias.covariance))).round(3).tolist()
+        [5.0, 5.0, 5.0, 0.057, 0.057, 0.057]
     """
 
     attitude: Rotation
@@ -162,6 +183,16 @@ class RigidBody:
         orbit_frames: ``A_oi`` (inertial -> orbit) at the epochs; the attitude
             estimated is ``C_bo`` (orbit -> body).
         wheel_momentum: ``(3,)`` or ``(N, 3)`` reaction-wheel momentum (N m s, body).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import RigidBody
+        >>> frames = Rotation.from_rotvec(np.outer(np.arange(4), [0.0, -1e-3, 0.0]))  # A_oi
+        >>> body = RigidBody(np.diag([6.6, 8.9, 9.5]), frames)
+        >>> body.orbit_turns.magnitude().round(6).tolist()
+        [0.001, 0.001, 0.001]
     """
 
     inertia: Array
@@ -188,6 +219,16 @@ class Pass:
     Raises:
         InvalidObservationError: epochs not increasing or not covered by the
             gyro record, or lengths that do not match.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import MEMS_GYRO, GyroRecord, Pass
+        >>> gyro = GyroRecord(np.arange(51) / 10.0, np.zeros((50, 3)), MEMS_GYRO)
+        >>> directions = np.eye(3)[:2]
+        >>> body = np.tile(directions, (3, 1, 1))
+        >>> Pass.from_vectors([0.25, 1.25, 2.25], body, directions, 1e-3, gyro)
+        Pass(3 epochs, t 0.25-2.25 s, 3 with measurements, gyro mems at 10 Hz)
     """
 
     t: Array

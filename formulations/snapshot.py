@@ -56,6 +56,17 @@ class StackedMeasurement(AttitudeMeasurement):
     smoother that consumes one measurement per epoch consumes any mix.  Parts
     are independent (block-diagonal ``R``).  Transmitter offsets (``sources``)
     are kept only when every part has them.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import EulerAngleMeasurement, Snapshot, VectorMeasurement
+        >>> sun = VectorMeasurement([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], 1e-3)
+        >>> angles = EulerAngleMeasurement([0.0, 0.0, 0.0], 1e-4 * np.eye(3))
+        >>> stacked = Snapshot.of(sun, angles).measurement()
+        >>> stacked.size, stacked.predict(Rotation.identity())[1].shape
+        (6, (1, 6, 3))
     """
 
     def __init__(self, parts: Sequence[AttitudeMeasurement]) -> None:
@@ -108,6 +119,15 @@ class Snapshot:
         measurements: the epoch's measurements, of any
             :class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` types.
         t: the epoch's time (s); NaN when not given.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import EulerAngleMeasurement, Snapshot, VectorMeasurement
+        >>> sun = VectorMeasurement([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], 1e-3)
+        >>> angles = EulerAngleMeasurement([0.0, 0.0, 0.0], 1e-4 * np.eye(3))
+        >>> Snapshot.of(sun, angles, t=12.0)
+        Snapshot(t=12, VectorMeasurement x 1, EulerAngleMeasurement x 1: 6 rows)
     """
 
     measurements: tuple[AttitudeMeasurement, ...]

@@ -80,6 +80,19 @@ class SnrMeasurement(AttitudeMeasurement):
 
     ``truncated=True`` uses the moments of the threshold-truncated measurement
     (module docstring); it needs one standard deviation for the whole epoch.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import CosinePowerPattern, LinkBudget, SnrEpoch, SnrMeasurement
+        >>> helix = CosinePowerPattern(peak_gain=14.46, exponent=6.0, min_gain_dbi=4.0)
+        >>> epoch = SnrEpoch.from_ranges(
+        ...     [12.0, 10.0], [[0.0, 0.0, 1.0], [0.1, 0.0, 0.995]], [0, 0], [[0.0, 0.0, 1.0]],
+        ...     [1.2e6, 1.5e6], helix, LinkBudget(),
+        ... )
+        >>> SnrMeasurement(epoch).predict(Rotation.identity())[0].round(2).tolist()  # dB
+        [[15.26, 13.19]]
     """
 
     def __init__(self, epoch: SnrEpoch, truncated: bool = False) -> None:

@@ -92,6 +92,17 @@ class SnrEpoch:
 
     Arrays are stored as read-only float copies (``antenna`` as integers);
     instances compare and hash by identity.
+
+    Example::
+
+        >>> from attopt import CosinePowerPattern, LinkBudget, SnrEpoch
+        >>> helix = CosinePowerPattern(peak_gain=14.46, exponent=6.0, min_gain_dbi=4.0)
+        >>> epoch = SnrEpoch.from_ranges(
+        ...     [12.0, 10.0, 9.0], [[0, 0, 1.0], [0.1, 0, 0.995], [0, 0.1, 0.995]], [0, 0, 0],
+        ...     [[0.0, 0.0, 1.0]], [1.2e6, 1.5e6, 1.4e6], helix, LinkBudget(),
+        ... )
+        >>> epoch.m, epoch.n_antennas
+        (3, 1)
     """
 
     snr_db: NDArray[np.float64]

@@ -87,7 +87,17 @@ def snapshot_information(snapshot: Snapshot, attitude: Rotation) -> Array:
 
 def crb(snapshot: Snapshot, truth: Rotation) -> Array:
     """The snapshot Cramer-Rao bound ``F(truth)^-1`` ``(3, 3)`` (rad^2, body frame), infinite
-    on the axes the snapshot cannot see (module docstring)."""
+    on the axes the snapshot cannot see (module docstring).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import Snapshot, crb
+        >>> one_vector = Snapshot.from_vectors([[0.0, 0.0, 1.0]], [[0.0, 0.0, 1.0]], 1e-3)
+        >>> np.sqrt(np.diag(crb(one_vector, Rotation.identity()))).tolist()  # z is not seen
+        [0.001, 0.001, inf]
+    """
     return cramer_rao_bound(snapshot_information(snapshot, truth))
 
 
@@ -116,6 +126,19 @@ def posterior_bound(pass_: Pass, truth_attitude: Rotation, truth_bias: ArrayLike
     Raises:
         InvalidObservationError: the pass has no gyro record or prior, or the truth
             has another number of epochs.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import MEMS_GYRO, GyroRecord, Pass, Prior, posterior_bound
+        >>> gyro = GyroRecord(np.arange(51) / 10.0, np.zeros((50, 3)), MEMS_GYRO)
+        >>> v = np.eye(3)[:2]
+        >>> prior = Prior(Rotation.identity(), 1e-4 * np.eye(3))
+        >>> pass_ = Pass.from_vectors(np.arange(5.0), np.tile(v, (5, 1, 1)), v, 1e-3, gyro, prior)
+        >>> sigma = posterior_bound(pass_, Rotation.identity(5), np.zeros((5, 3)))
+        >>> sigma.shape, bool((sigma < 1e-3).all())
+        ((5, 3), True)
     """
     track = AT_THE_TRUTH.solve(pass_, fixed_start(truth_attitude, truth_bias))
     return np.sqrt(np.diagonal(track.state_covariance[:, :3, :3], axis1=1, axis2=2))

@@ -47,6 +47,13 @@ class Estimator(ABC):
         description: one line naming the method and the equations it implements.
         accepts: the measurement classes it can use;
             ``(AttitudeMeasurement,)`` means any (generic estimators).
+
+    Example::
+
+        >>> from attopt import VectorMeasurement, estimator
+        >>> quest = estimator("quest")
+        >>> quest.kind, [a.__name__ for a in quest.accepts]
+        ('snapshot', ['VectorMeasurement'])
     """
 
     kind: ClassVar[str]
@@ -72,7 +79,19 @@ class Estimator(ABC):
 
 
 class SnapshotEstimator(Estimator):
-    """Solves single epochs (module docstring)."""
+    """Solves single epochs (module docstring).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import Snapshot, UnobservableError, estimator
+        >>> one_vector = Snapshot.from_vectors([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], 1e-3)
+        >>> try:
+        ...     estimator("svd").solve(one_vector)
+        ... except UnobservableError as error:
+        ...     print(error)
+        svd: fewer than two vector observations
+    """
 
     kind: ClassVar[str] = "snapshot"
 
@@ -108,6 +127,12 @@ class PassEstimator(Estimator):
         starts_from: registry names of estimators whose track this one can
             start from, in order of preference (the first one run on the same
             pass is used; :func:`attopt.solvers.pipeline.run_estimators`).
+
+    Example::
+
+        >>> from attopt import estimator
+        >>> estimator("rts").starts_from, estimator("fg_batch").starts_from
+        (('mekf',), ('fg_online', 'rts'))
     """
 
     kind: ClassVar[str] = "pass"

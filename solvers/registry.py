@@ -43,6 +43,13 @@ def estimator(name: str, **options: Any) -> Estimator:
     Raises:
         UnknownEstimatorError: ``name`` is not registered (the message lists the names).
         TypeError: an option that the estimator does not have.
+
+    Example::
+
+        >>> from attopt import FilterOptions, estimator
+        >>> gated = estimator("mekf", filter=FilterOptions(gate_probability=0.999))
+        >>> gated.filter.gate_probability, estimator("mekf").filter.gate_probability
+        (0.999, 0.9999)
     """
     try:
         found = ESTIMATORS[name]
@@ -57,7 +64,14 @@ def estimators(
     kind: str | None = None, accepts: type[AttitudeMeasurement] | None = None
 ) -> list[str]:
     """Registered names, optionally of one ``kind`` (``"snapshot"`` or ``"pass"``) and
-    only those accepting measurement class ``accepts``."""
+    only those accepting measurement class ``accepts``.
+
+    Example::
+
+        >>> from attopt import SnrMeasurement, estimators
+        >>> estimators("snapshot", accepts=SnrMeasurement)
+        ['deterministic', 'nlse', 'nlp', 'nlp_truncated', 'geo_cone', 'geo_lsq', 'map_nlp']
+    """
     if kind not in (None, "snapshot", "pass"):
         raise ValueError(f"kind must be 'snapshot', 'pass' or None, not {kind!r}")
     return [

@@ -121,6 +121,21 @@ class Solution(_Uncertainty):
         reason: why not, empty when valid.
         error: the exception class :meth:`raise_if_invalid` raises, ``None`` when valid.
         t: epoch time (s), NaN when not given.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import Snapshot, estimator
+        >>> from attopt import attitude_from_euler321
+        >>> truth = attitude_from_euler321(*np.radians([30.0, -10.0, 5.0]))
+        >>> vectors = np.eye(3)[:2]
+        >>> snapshot = Snapshot.from_vectors(truth.apply(vectors), vectors, 1e-3)
+        >>> solution = estimator("quest").solve(snapshot)
+        >>> solution  # doctest: +NORMALIZE_WHITESPACE
+        Solution('quest', yaw/pitch/roll 30.000 / -10.000 / 5.000 deg,
+                 sigma x/y/z 0.0569 / 0.0572 / 0.0413 deg)
+        >>> list(solution.to_dataframe(truth).columns)[-5:]
+        ['reason', 'err_x_deg', 'err_y_deg', 'err_z_deg', 'nees']
     """
 
     method: str
@@ -185,6 +200,20 @@ class Track(_Uncertainty):
         state: names of the error state's blocks, e.g. ``("attitude", "bias")``.
         history: what a backward (RTS) pass needs, for filters that keep it.
         report: the optimiser's or pass's own report (smoothers), if any.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import Snapshot, estimator
+        >>> vectors = np.eye(3)[:2]
+        >>> track = estimator("quest").solve_sequence(
+        ...     [Snapshot.from_vectors(vectors, vectors, 1e-3), None]
+        ... )
+        >>> track.valid.tolist(), track.reason.tolist()
+        ([True, False], ['', 'fewer than two vector observations'])
+        >>> track.to_dataframe(Rotation.identity(2))["err_x_deg"].isna().tolist()
+        [False, True]
     """
 
     method: str

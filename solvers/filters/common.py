@@ -129,6 +129,14 @@ class FilterOptions:
             filter can re-acquire (:class:`~attopt.solvers.sequential.TrackMonitor`;
             the bias covariance is inflated by the prior's).
         recover_sigma: that inflation (rad).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import FilterOptions, estimator
+        >>> no_gate = FilterOptions(gate_probability=1.0, max_gyro_gap_s=5.0)
+        >>> estimator("usque", filter=no_gate).filter.max_gyro_gap_s
+        5.0
     """
 
     gate_probability: float = GATE_PROBABILITY

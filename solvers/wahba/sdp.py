@@ -53,6 +53,15 @@ class SdpOptions:
             eigen-gap of ``K`` is small; tight ones cost about 2 iterations.
         rank_one_tolerance: largest accepted ``lambda_2 / lambda_1`` of ``X``.
         gap_tolerance: largest accepted duality gap.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt import SdpOptions, Snapshot, estimator
+        >>> snapshot = Snapshot.from_vectors(np.eye(3)[:2], np.eye(3)[:2], sigma=1e-3)
+        >>> scs = estimator("sdp", options=SdpOptions(solver="SCS", tolerance=1e-9))
+        >>> bool(scs.solve(snapshot).attitude.magnitude() < 1e-6)
+        True
     """
 
     solver: str = "CLARABEL"
