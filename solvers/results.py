@@ -65,7 +65,7 @@ def attitude_errors(quaternion: Array, truth: Rotation) -> Array:
     error = np.full((quaternion.shape[0], 3), np.nan)
     known = np.isfinite(quaternion).all(axis=1)
     if known.any():
-        truth = Rotation.from_quat(truth.as_quat().reshape(-1, 4))
+        truth = Rotation.concatenate([truth])  # one or N rotations, quaternions as stored
         error[known] = (Rotation.from_quat(quaternion[known]) * truth[known].inv()).as_rotvec()
     return error
 

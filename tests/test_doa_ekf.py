@@ -20,9 +20,9 @@ from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import ConvergenceError
 from attopt.formulations.passes import Pass, Prior, RigidBody, epoch_snapshots
+from attopt.formulations.rigid_body import INERTIA_SEED003
 from attopt.solvers.doa import DoaEkf
 from attopt.solvers.doa.ekf import (
-    INERTIA_SEED003,
     MAX_STEP_ANGLE,
     PRIOR_ORDER,
     step_function,

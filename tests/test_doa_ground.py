@@ -15,7 +15,7 @@ from attopt.experiments.doa_ground.scenario import (
 )
 from attopt.experiments.sweep.seeding import trial_seed
 from attopt.formulations.doa_measurement import DoaMeasurement
-from attopt.solvers.doa.ekf import INERTIA_SEED003
+from attopt.formulations.rigid_body import INERTIA_SEED003
 
 COARSE_STEP_S = 10.0
 """The whole pass at a coarse step keeps the geometry cheap."""

@@ -13,6 +13,7 @@ from attopt.experiments.geo_snr_stations.scenario import (
     stations_ecef_km,
 )
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
+from attopt.formulations.geo_geometry import belt_position, line_of_sight_errors
 from attopt.formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db, geo_snr_epoch
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -29,12 +30,7 @@ from attopt.solvers.geo.boresight import (
     intersect_cones,
     rf_sensitivity,
 )
-from attopt.solvers.geo.los import (
-    _belt_snr_function,
-    belt_position,
-    line_of_sight_errors,
-    locate_on_geo_belt,
-)
+from attopt.solvers.geo.los import _belt_snr_function, locate_on_geo_belt
 
 
 @pytest.fixture(scope="module")

@@ -18,8 +18,9 @@ from attopt.experiments.geo_snr_stations.experiment import (
     summary_columns,
     trial,
 )
+from attopt.experiments.geo_snr_stations.los_study import los_geometry_study
 from attopt.experiments.geo_snr_stations.report import report
-from attopt.experiments.geo_snr_stations.scenario import MANOEUVRE_START_S
+from attopt.experiments.geo_snr_stations.scenario import MANOEUVRE_START_S, STATIONS
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import summarise
 from attopt.solvers.geo.m2m4 import snr_table
@@ -44,15 +45,22 @@ def test_trial_is_reproducible(rows: pd.DataFrame) -> None:
     pd.testing.assert_frame_equal(rows, again)
 
 
-def test_rows_are_complete_and_yaw_is_flagged_unobservable(rows: pd.DataFrame) -> None:
+def test_rows_are_complete_and_yaw_is_nan_everywhere(rows: pd.DataFrame) -> None:
     assert get_experiment("geo-snr-stations") is EXPERIMENT
     n = int(SETTING["duration_s"] / SETTING["step_s"])
     assert rows.groupby("method").size().to_dict() == dict.fromkeys(METHODS, n)
-    assert rows["valid"].all()
-    assert (rows["err_z_deg"] == 0).all() and not rows["yaw_observable"].any()
+    assert rows["valid"].all() and not rows["yaw_observable"].any()
+    assert rows["err_z_deg"].isna().all()
+    assert rows[["err_x_deg", "err_y_deg"]].notna().all().all()
     filters = rows["method"].isin(["usque", "usque_detect", "fg_batch"])
     assert rows.loc[filters, "yaw_err_deg"].notna().all()
     assert rows.loc[~filters, "yaw_err_deg"].isna().all()
+    # the NLP's variance about the boresight is infinite: its yaw sigma is NaN, not inf
+    nlp = rows[rows["method"] == "nlp"]
+    assert nlp["sigma_z_deg"].isna().all() and nlp["sigma_x_deg"].notna().all()
+    assert np.isfinite(
+        rows[["sigma_x_deg", "sigma_y_deg", "sigma_z_deg"]].to_numpy()[filters]
+    ).all()
 
 
 def test_errors_match_their_bounds(rows: pd.DataFrame) -> None:
@@ -108,6 +116,11 @@ def test_report_tables_from_the_trials_rows(rows: pd.DataFrame, tmp_path) -> Non
         cells = row(bounds, {"manoeuvre": str(line["manoeuvre"]), "method": line["method"]})
         assert cells["roll RMS"] == f"{line['roll_rms_deg']:.2e}"
         assert cells["pitch bound"] == f"{line['pitch_bound_deg']:.2e}"
+        assert cells["yaw RMS"] == "n/a" and np.isnan(line["yaw_rms_deg"])
+        assert np.isnan(line["yaw_mean_deg"]) and line["valid_fraction"] == 1.0
+        assert line["total_rms_deg"] == pytest.approx(
+            np.hypot(line["roll_rms_deg"], line["pitch_rms_deg"]), rel=1e-12
+        )
     sensitivity = table(
         text,
         "Boresight error with perturbed RF parameters (Pimienta-Penalver and Crassidis Fig. 6)",
@@ -123,3 +136,14 @@ def test_report_tables_from_the_trials_rows(rows: pd.DataFrame, tmp_path) -> Non
     assert set(integrity["mean NEES"]) == {"n/a"}  # the rows carry no NEES
     assert set(integrity["valid"]) == {"1.000"}
     assert (tmp_path / "usque_3sigma.png").stat().st_size > 10_000
+
+
+def test_los_study_recovers_the_lines_of_sight_as_the_noise_vanishes() -> None:
+    """Figs. 2-3's study: the belt fit's line-of-sight errors scale with the SNR noise."""
+    quiet = los_geometry_study(123.0, np.random.default_rng(4), 2, sigma_db=1e-6)
+    noisy = los_geometry_study(123.0, np.random.default_rng(4), 2)
+    assert [r.station for r in quiet] == [r.station for r in noisy]
+    assert {r.station for r in quiet} <= {s.name for s in STATIONS} and len(quiet) >= 3
+    for q, n in zip(quiet, noisy, strict=True):
+        assert q.joint_rms_deg < 1e-6 and q.single_rms_deg < 1e-5
+        assert n.joint_rms_deg > 1e3 * q.joint_rms_deg

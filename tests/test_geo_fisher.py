@@ -15,8 +15,8 @@ from attopt.formulations.geo_fisher import (
     snr_attitude_jacobian,
     snr_fisher_information,
 )
+from attopt.formulations.geo_geometry import belt_position
 from attopt.formulations.geo_link import attitude_pointing
-from attopt.solvers.geo.los import belt_position
 
 EARTH_KM = 6_378.0
 

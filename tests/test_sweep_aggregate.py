@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from attopt.experiments.reporting.statistics import valid_mask
 from attopt.experiments.sweep import summarise
 from attopt.experiments.sweep.aggregate import invalid_reasons
 
@@ -107,3 +110,61 @@ def test_experiment_summary_columns_are_joined_per_group():
     )
     assert list(summary["roll_max_abs_deg"]) == [100.0, 2.0]
     assert summary["n_rows"].tolist() == [4, 1]
+
+
+def _rows_with_axes(errors: np.ndarray, valid: np.ndarray) -> pd.DataFrame:
+    n = len(errors)
+    return pd.DataFrame(
+        {
+            "setting_index": 0,
+            "method": np.where(np.arange(n) % 2, "a", "b"),
+            **{f"err_{a}_deg": errors[:, i] for i, a in enumerate("xyz")},
+            **{f"bound_{a}_deg": np.abs(errors[:, i]) + 1.0 for i, a in enumerate("xyz")},
+            "valid": valid,
+        }
+    )
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(-10, 10, allow_nan=False), st.floats(-10, 10, allow_nan=False), st.booleans()
+        ),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_an_unobservable_axis_is_nan_in_every_summary_column(data):
+    """Yaw NaN on every row (an axis the estimator cannot see): the yaw columns are NaN, not
+    0, and every other column is bit-identical to the summary of the same rows with yaw 0."""
+    roll_pitch = np.array([d[:2] for d in data])
+    valid = np.array([d[2] for d in data])
+    unseen = np.column_stack([roll_pitch, np.full(len(data), np.nan)])
+    zero = np.column_stack([roll_pitch, np.zeros(len(data))])
+    a, b = _rows_with_axes(unseen, valid), _rows_with_axes(zero, valid)
+    b["bound_z_deg"] = np.nan
+    a["bound_z_deg"] = np.nan
+    kwargs = {"setting_columns": [], "group_by": ["method"]}
+    with_nan, with_zero = (
+        summarise(a, no_failures(), **kwargs),
+        summarise(b, no_failures(), **kwargs),
+    )
+    yaw = [c for c in with_nan.columns if c.startswith("yaw_")]
+    assert yaw == ["yaw_rms_deg", "yaw_mean_deg", "yaw_bound_deg", "yaw_ratio"]
+    assert with_nan[yaw].isna().all().all()
+    assert (with_zero.loc[with_zero["n_valid"] > 0, "yaw_rms_deg"] == 0).all()
+    pd.testing.assert_frame_equal(with_nan.drop(columns=yaw), with_zero.drop(columns=yaw))
+
+
+def test_rows_valid_with_an_unobservable_axis_and_invalid_when_all_nan():
+    errors = np.array([[1.0, 2.0, NAN], [NAN, NAN, NAN], [3.0, 4.0, 1.0], [3.0, 4.0, NAN]])
+    frame = _rows_with_axes(errors, np.array([True, True, True, False]))
+    assert valid_mask(frame).tolist() == [True, False, True, False]
+    summary = summarise(
+        frame.assign(method="a"), no_failures(), setting_columns=[], group_by=["method"]
+    )
+    line = summary.iloc[0]
+    assert (line["n_rows"], line["n_valid"]) == (4, 2)
+    assert line["yaw_rms_deg"] == 1.0  # over the rows that have a yaw error
+    assert line["total_rms_deg"] == pytest.approx(np.sqrt((5.0 + 26.0) / 2))

@@ -1,6 +1,6 @@
-"""Experiment ``adsb-snr``: the SNR attitude solvers over seed 000's one-hour pass.
+"""Experiment ``adsb-snr``: the SNR attitude solvers over Liu et al. 2023's one-hour pass.
 
-Scenario (seed 000 sec. 5.1): :mod:`attopt.experiments.adsb_snr.scenario` gives the
+Scenario (Liu et al. 2023 sec. 5.1): :mod:`attopt.experiments.adsb_snr.scenario` gives the
 orbit, the true attitude, the two tilted helices and a modelled global aircraft
 population (``n_aircraft`` great-circle flights of ``traffic_seed``).  The
 geometry and the noise-free SNRs are deterministic scenario inputs, computed
@@ -32,7 +32,9 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    of seed 0, before ``nlp_truncated``): the NLP's RMS / CRLB was 1.33 +/- 0.01
    with mean NEES 11.2 at 6 dB, and 0.99 +/- 0.01 with mean NEES 2.99 with
    ``threshold_db = -100`` (nothing discarded, same noise).
-5. Each method's ``solve_sequence`` over the pass's snapshots (one
+5. Each method (``methods``: the registry's snapshot estimators that accept
+   SNRs, labelled by their registry names) runs ``solve_sequence`` over the
+   pass's snapshots (one
    :class:`~attopt.formulations.snr_measurement.SnrMeasurement` of the epoch's
    :class:`~attopt.formulations.snr_problem.SnrEpoch` each), warm-started from the previous
    valid estimate as a flight estimator would be (the first epoch has no
@@ -47,7 +49,7 @@ root of the diagonal of the Cramer-Rao bound ``(J^T C J)^-1`` (eq. 22) at the
 TRUE attitude with the received observations (conditional on which were
 received; inf where unobservable); ``sigma_{x,y,z}_deg`` and ``nees`` from the
 method's own covariance; 3-2-1 Euler-angle differences
-``euler_{yaw,pitch,roll}_err_deg`` wrapped to [-180, 180) (what seed 000
+``euler_{yaw,pitch,roll}_err_deg`` wrapped to [-180, 180) (what Liu et al. 2023
 Table 2 tabulates); ``loss`` (the method's own objective: eq. 19 weighted by
 ``C``, for ``nlp_truncated`` the truncated negative log-likelihood,
 :mod:`attopt.solvers.snr.fit`); ``wrong_minimum`` and
@@ -62,7 +64,7 @@ that the one-off construction of CasADi functions and IPOPT problems per
 process (:mod:`attopt.solvers.snr.padding`) is not charged to the pass, as flight
 code would be compiled beforehand.
 
-Wrong local minima (issue 4 sec. 3).  Every ``wrong_minimum_every``-th epoch
+Wrong local minima.  Every ``wrong_minimum_every``-th epoch
 (0, k, 2k, ...) that the method solved is solved again with the TRUE attitude
 as prior.  ``loss_from_truth`` is that solve's loss (of the method's own
 objective); ``wrong_minimum`` is 1
@@ -100,6 +102,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.filters import (
     DEFAULT_FILTERS,
+    PAPER_FILTER,
     PAPER_SOURCE,
     check_parameters,
     filter_rows,
@@ -110,15 +113,16 @@ from attopt.experiments.adsb_snr.scenario import (
     build_adsb_geometry,
     observation_chunks,
 )
+from attopt.experiments.estimators import registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.filtering import INITIAL_ATTITUDE_SIGMA_DEG, child_rng
-from attopt.experiments.metrics import AXES, error_columns
+from attopt.experiments.metrics import error_columns
 from attopt.experiments.reporting.statistics import (
     bounded_valid_rows,
     rms_ratio_by_group,
     signed_max,
     valid_mask,
 )
+from attopt.experiments.simulation import INITIAL_ATTITUDE_SIGMA_DEG, child_rng
 from attopt.formulations.gain_patterns import SEED000_HELIX
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snapshot import Snapshot
@@ -126,26 +130,32 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
-from attopt.solvers.results import Track
+from attopt.solvers.estimator import SnapshotEstimator
+from attopt.solvers.registry import estimator
+from attopt.solvers.results import AXES, Track
 from attopt.solvers.smoother import OFFSET_PRIOR_SIGMA_DB
-from attopt.solvers.snr import ESTIMATORS
 from attopt.solvers.snr.driver import SnrSolver, snr_epoch
 from attopt.solvers.snr.initialisation import StartSource
 from attopt.solvers.snr.padding import bucket_size
 
 PATTERN = SEED000_HELIX
-"""The helix of seed 000 eq. 63, main lobe ``G >= 4 dBi``."""
+"""The helix of Liu et al. 2023 eq. 63, main lobe ``G >= 4 dBi``."""
 LINK_BUDGET = LinkBudget()
 NO_GYRO = "none"
 """``gyro`` column of the single-frame rows."""
 OFFSET_STREAM = 100
-"""Child stream (:func:`~attopt.experiments.filtering.child_rng`) of the power offsets."""
+"""Child stream (:func:`~attopt.experiments.simulation.child_rng`) of the power offsets."""
 WRONG_MINIMUM_RTOL = 1e-6
 """Relative loss excess over the truth-started solve that counts as a wrong minimum."""
 WRONG_MINIMUM_ATOL = 1e-9
 """Absolute loss excess (dB^2 / sigma^2) added to the relative tolerance."""
-SOLVERS = {solver.name: solver for solver in ESTIMATORS}
-"""The SNR solvers by registry name."""
+
+
+def method_labels() -> dict[str, str]:
+    """Row label -> registry name of the ``methods``: the snapshot estimators that accept
+    SNRs, by name."""
+    return registered_labels("snapshot", SnrMeasurement)
+
 
 PARAMETERS: dict[str, Any] = {
     "duration_s": 3600.0,
@@ -167,10 +177,14 @@ PARAMETERS: dict[str, Any] = {
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting: seed 000 sec. 5.1's noise and threshold; methods compared inside a trial."""
-    unknown = sorted(set(parameters["methods"]) - set(SOLVERS))
-    if unknown:
-        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SOLVERS)}")
+    """One setting: Liu et al. 2023 sec. 5.1's noise and threshold; methods compared inside a
+    trial.
+
+    Raises:
+        ValueError: a method or filter the registry does not have (the message lists the
+            registered ones), or another bad parameter.
+    """
+    resolve(parameters["methods"], method_labels(), "methods")
     if parameters["wrong_minimum_every"] < 1:
         raise ValueError("wrong_minimum_every must be at least 1")
     check_parameters(parameters)
@@ -268,7 +282,7 @@ def power_offsets(
 ) -> NDArray[np.float64]:
     """Each row's transmitter power offset (dB): one ``N(0, sigma_db^2)`` draw per
     aircraft of the fleet from child stream :data:`OFFSET_STREAM` of the trial's seed
-    (issue 6 sec. 2; zeros when ``sigma_db`` is 0)."""
+    (zeros when ``sigma_db`` is 0)."""
     if sigma_db == 0:
         return np.zeros(scenario.aircraft.size)
     n_fleet = int(scenario.aircraft.max()) + 1 if scenario.aircraft.size else 0
@@ -367,8 +381,11 @@ def snr_snapshots(epochs: list[SnrEpoch]) -> list[Snapshot]:
     return [Snapshot.of(SnrMeasurement(epoch)) for epoch in epochs]
 
 
-def warm_up(solver: SnrSolver, snapshots: list[Snapshot]) -> None:
-    """Solve one epoch of each padding bucket size (untimed), building the cached functions."""
+def warm_up(solver: SnapshotEstimator, snapshots: list[Snapshot]) -> None:
+    """Solve one epoch of each padding bucket size of an SNR solver (untimed), building the
+    cached functions; other estimators have none."""
+    if not isinstance(solver, SnrSolver):
+        return
     seen: set[int] = set()
     for snapshot in snapshots:
         problem = snr_epoch(snapshot)
@@ -378,7 +395,7 @@ def warm_up(solver: SnrSolver, snapshots: list[Snapshot]) -> None:
             solver.solve_sequence([snapshot])
 
 
-def timed_pass(solver: SnrSolver, snapshots: list[Snapshot]) -> tuple[Track, float]:
+def timed_pass(solver: SnapshotEstimator, snapshots: list[Snapshot]) -> tuple[Track, float]:
     """The method's warm-started pass and its wall time (s)."""
     warm_up(solver, snapshots)
     start = time.perf_counter()
@@ -387,7 +404,11 @@ def timed_pass(solver: SnrSolver, snapshots: list[Snapshot]) -> tuple[Track, flo
 
 
 def wrong_minima(
-    solver: SnrSolver, snapshots: list[Snapshot], solution: Track, truth: Rotation, every: int
+    solver: SnapshotEstimator,
+    snapshots: list[Snapshot],
+    solution: Track,
+    truth: Rotation,
+    every: int,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``wrong_minimum`` (1/0/NaN) and ``loss_from_truth`` per epoch (module docstring)."""
     n = len(snapshots)
@@ -407,18 +428,18 @@ def wrong_minima(
 
 
 def _method_rows(
-    name: str,
+    label: str,
+    solver: SnapshotEstimator,
     snapshots: list[Snapshot],
     truth: Rotation,
     common: Mapping[str, np.ndarray],
     every: int,
 ) -> tuple[pd.DataFrame, Track]:
-    solver = SOLVERS[name]
     solution, seconds = timed_pass(solver, snapshots)
     wrong, loss_from_truth = wrong_minima(solver, snapshots, solution, truth, every)
     frame = pd.DataFrame(
         {
-            "method": name,
+            "method": label,
             "gyro": NO_GYRO,
             **common,
             **error_columns(solution, truth),
@@ -447,14 +468,19 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
     snapshots = snr_snapshots(noisy.epochs)
     frames, solutions = [], {}
-    for name in setting["methods"]:
-        frame, solutions[name] = _method_rows(
-            name, snapshots, scenario.truth, common, setting["wrong_minimum_every"]
+    for label, name in resolve(setting["methods"], method_labels(), "methods").items():
+        frame, solutions[label] = _method_rows(
+            label,
+            estimator(name),
+            snapshots,
+            scenario.truth,
+            common,
+            setting["wrong_minimum_every"],
         )
         frames.append(frame)
     nlse = solutions.get(PAPER_SOURCE)
-    if nlse is None and "mekf_paper" in setting["filters"]:
-        nlse = SOLVERS[PAPER_SOURCE].solve_sequence(snapshots)
+    if nlse is None and PAPER_FILTER in setting["filters"]:
+        nlse = estimator(PAPER_SOURCE).solve_sequence(snapshots)
     frames += filter_rows(setting, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 

@@ -1,43 +1,43 @@
-"""Gyro-aided filter rows of the ``adsb-snr`` experiment (issue 5).
+"""Gyro-aided filter rows of the ``adsb-snr`` experiment.
 
 On the same measured SNRs as the single-frame methods, with a simulated
 rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
-``gyros`` parameter (``seed000``: seed 000 sec. 5.1 read literally;
-``mems``: a MEMS-class unit):
+``gyros`` parameter (``seed000``: Liu et al. 2023 sec. 5.1 read literally;
+``mems``: a MEMS-class unit), the pass estimators of the registry that accept
+SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimators`:
 
-* ``mekf_paper``: seed 000's MEKF (secs. 4.2-4.5): the observation is the
-  3-2-1 Euler angles of the NLSE solution of each epoch (eqs. 41-46) with
-  ``R = (paper_sigma_deg)^2 I`` (sec. 5.1's ``R``, read as degrees); epochs
-  where the NLSE has no valid solution are propagated only.  Its
-  ``runtime_s`` is the filter's alone (add the NLSE's for the pipeline).
-* ``mekf_snr``: the MEKF with the received SNRs themselves as scalar
-  measurements (seed 000 sec. 6's proposed future work), through the
+* ``mekf_paper``: Liu et al. 2023's MEKF (secs. 4.2-4.5, registry ``mekf``): the
+  observation is the 3-2-1 Euler angles of the NLSE solution of each epoch
+  (eqs. 41-46) with ``R = (paper_sigma_deg)^2 I`` (sec. 5.1's ``R``, read as
+  degrees); epochs where the NLSE has no valid solution are propagated only.
+  Its ``runtime_s`` is the filter's alone (add the NLSE's for the pipeline).
+* ``<name>_snr`` (``mekf_snr``, ``usque_snr``, ``rts_snr``, ...): the registry
+  estimator ``<name>`` with the received SNRs themselves as scalar
+  measurements (Liu et al. 2023 sec. 6's proposed future work), through the
   threshold-truncated measurement model by default (``filter_snr_model =
   "truncated"``; ``"gaussian"`` is eq. 19's model, which integrates the
-  selection bias of near-threshold messages, :mod:`attopt.formulations.snr_measurement`).
-* ``usque_snr``: the USQUE unscented filter on the same SNR measurements.
-* ``rts_snr``: the multiplicative RTS backward pass over ``mekf_snr`` (its
-  ``runtime_s`` includes the forward MEKF).
-* ``fg_online``: the causal fixed-lag factor-graph smoother
-  (:class:`attopt.solvers.smoother.OnlineSmoother`) on the same SNR measurements.
-* ``fg_batch``: the whole-pass factor-graph smoother
-  (:class:`attopt.solvers.smoother.BatchSmoother`) started from ``fg_online``'s estimates (or
-  from ``rts_snr``'s when ``fg_online`` is not asked for); ``runtime_s``
-  includes that start.
-* ``fg_batch_offsets``: ``fg_batch`` with one power-offset variable per
-  aircraft (prior ``offset_prior_sigma_db``), for data simulated with
-  ``power_offset_sigma_db > 0`` (issue 6 sec. 2).  Not in the default list:
-  its cost grows with the number of aircraft in view at once (``docs/smoother.md``).
+  selection bias of near-threshold messages,
+  :mod:`attopt.formulations.snr_measurement`).  ``rts_snr`` is the
+  multiplicative RTS backward pass over ``mekf_snr`` (its ``runtime_s``
+  includes the forward MEKF).
+* the factor-graph smoothers keep their registry names: ``fg_online``, the
+  causal fixed-lag smoother; ``fg_batch``, the whole-pass smoother started
+  from ``fg_online``'s estimates (or from ``rts_snr``'s when ``fg_online`` is
+  not asked for; ``runtime_s`` includes that start); ``fg_batch_offsets``:
+  ``fg_batch`` with one power-offset variable per aircraft (prior
+  ``offset_prior_sigma_db``), for data simulated with ``power_offset_sigma_db
+  > 0``.  Not in the default list: its cost grows with the number of aircraft
+  in view at once (``docs/smoother.md``).
 
-Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a ``fg_*``
-row is asked for: the posterior Cramer-Rao bound of the pass
-(:func:`attopt.solvers.bounds.posterior_bound`, offsets not modelled), the
-same for every method of that gyro.
+Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
+smoother is asked for: the posterior Cramer-Rao bound of the pass
+(:func:`attopt.experiments.metrics.posterior_bound_columns`, offsets not
+modelled), the same for every method of that gyro.
 
 Every filter starts from the prior of
-:func:`attopt.experiments.filtering.simulate_filter_inputs` (attitude error drawn
+:func:`attopt.experiments.simulation.simulate_filter_inputs` (attitude error drawn
 with ``initial_sigma_deg`` per axis, bias estimate 0) and works in ECI
-(:mod:`attopt.experiments.filtering`); errors are reported in the orbit frame like
+(:mod:`attopt.experiments.simulation`); errors are reported in the orbit frame like
 the single-frame rows.  The gyro of the ``i``-th entry of ``gyros`` and the
 prior are drawn from child stream ``1 + i`` of the trial's seed.
 """
@@ -50,53 +50,71 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, true_attitude
-from attopt.experiments.filtering import (
-    FilterInputs,
-    GyroTruth,
-    bound_columns,
-    child_rng,
-    filter_columns,
-    gyro_truth,
+from attopt.experiments.estimators import FACTOR_GRAPH, registered_labels, resolve
+from attopt.experiments.metrics import (
+    error_columns,
+    gyro_columns,
     in_orbit_frame,
-    method_name,
-    run_filter,
-    run_filters,
+    posterior_bound_columns,
+    status_columns,
+)
+from attopt.experiments.simulation import (
+    GyroPass,
+    GyroTruth,
+    child_rng,
+    gyro_truth,
     simulate_filter_inputs,
 )
-from attopt.experiments.metrics import error_columns
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
 from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
 from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.estimator import Estimator
+from attopt.solvers.pipeline import Run, run_estimators
+from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
 
 SNR_SUFFIX = "_snr"
-FILTER_METHODS = {
-    "mekf_paper": "mekf",
-    "mekf_snr": "mekf",
-    "usque_snr": "usque",
-    "rts_snr": "rts",
-    "fg_online": "fg_online",
-    "fg_batch": "fg_batch",
-    "fg_batch_offsets": "fg_batch_offsets",
-}
-"""Filter rows and the filter kind each runs."""
+PAPER_FILTER = "mekf_paper"
+"""The row of Liu et al. 2023's MEKF on the NLSE's Euler angles."""
+PAPER_SOURCE = "nlse"
+"""The single-frame method whose Euler angles ``mekf_paper`` filters (Liu et al. 2023)."""
 DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online", "fg_batch"]
 """The filter rows of a default run (``fg_batch_offsets`` is asked for with the
 power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
-PAPER_SOURCE = "nlse"
-"""The single-frame method whose Euler angles ``mekf_paper`` filters (seed 000)."""
+
+
+def filter_label(name: str) -> str:
+    """The row label of registry estimator ``name`` on the SNRs: ``name + "_snr"``; the
+    factor-graph smoothers keep their names."""
+    return name if name in FACTOR_GRAPH else name + SNR_SUFFIX
+
+
+def filter_labels() -> dict[str, str]:
+    """Row label -> registry name of every ``filters`` entry: ``mekf_paper`` and the pass
+    estimators that accept SNRs (:func:`filter_label`)."""
+    return {PAPER_FILTER: "mekf", **registered_labels("pass", SnrMeasurement, filter_label)}
+
+
+def filter_estimators(setting: Mapping[str, Any]) -> dict[str, Estimator]:
+    """Row label -> configured estimator of each of ``setting["filters"]`` (the offsets'
+    prior of ``fg_batch_offsets`` from ``offset_prior_sigma_db``)."""
+    options = {"fg_batch_offsets": {"offset_sigma": setting["offset_prior_sigma_db"]}}
+    return {
+        label: estimator(name, **options.get(name, {}))
+        for label, name in resolve(setting["filters"], filter_labels(), "filters").items()
+    }
 
 
 def check_parameters(parameters: Mapping[str, Any]) -> None:
-    """Raise ValueError on unknown filter methods, gyro models or SNR models."""
-    unknown = sorted(set(parameters["filters"]) - set(FILTER_METHODS))
-    if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {sorted(FILTER_METHODS)}")
+    """Raise ValueError on filters the registry does not have (naming the registered ones),
+    unknown gyro models or SNR models."""
+    resolve(parameters["filters"], filter_labels(), "filters")
     gyros = sorted(set(parameters["gyros"]) - set(GYRO_MODELS))
     if gyros:
         raise ValueError(f"unknown gyros {gyros}; known: {sorted(GYRO_MODELS)}")
@@ -115,7 +133,7 @@ def adsb_gyro_truth(
 
 
 def paper_measurements(solution: Track, sigma_deg: float) -> list[AttitudeMeasurement | None]:
-    """Euler angles of the valid single-frame solutions (seed 000 eqs. 41-46)."""
+    """Euler angles of the valid single-frame solutions (Liu et al. 2023 eqs. 41-46)."""
     covariance = np.radians(sigma_deg) ** 2 * np.eye(3)
     out: list[AttitudeMeasurement | None] = [None] * len(solution)
     if solution.valid.any():
@@ -132,29 +150,26 @@ def snr_measurements(epochs: list[SnrEpoch], model: str) -> list[AttitudeMeasure
 
 
 def _rows(
-    method: str,
+    label: str,
     gyro: str,
-    result: Track,
-    seconds: float,
-    inputs: FilterInputs,
-    truth: GyroTruth,
+    run: Run,
+    simulated: GyroPass,
     common: Mapping[str, np.ndarray],
-    true_attitude_orbit: Any,
+    true_attitude_orbit: Rotation,
 ) -> pd.DataFrame:
-    solution = in_orbit_frame(result, truth.epoch_frames)
+    track = in_orbit_frame(run.track, simulated.frames)
     return pd.DataFrame(
         {
-            "method": method,
+            "method": label,
             "gyro": gyro,
             **common,
-            **error_columns(solution, true_attitude_orbit),
-            **filter_columns(result, inputs, truth),
-            "loss": solution.loss,
+            **error_columns(track, true_attitude_orbit),
+            **gyro_columns(run.track, simulated),
+            "loss": track.loss,
             "wrong_minimum": np.nan,
             "loss_from_truth": np.nan,
-            "valid": solution.valid,
-            "reason": solution.reason.astype(str),
-            "runtime_s": seconds,
+            **status_columns(track),
+            "runtime_s": run.seconds,
         }
     )
 
@@ -165,12 +180,13 @@ def filter_rows(
     epochs: list[SnrEpoch],
     nlse: Track | None,
     common: Mapping[str, np.ndarray],
-    true_attitude_orbit: Any,
+    true_attitude_orbit: Rotation,
 ) -> list[pd.DataFrame]:
     """Rows of every requested filter for every gyro model (module docstring)."""
-    wanted = list(setting["filters"])
-    if not wanted:
+    methods = filter_estimators(setting)
+    if not methods:
         return []
+    paper_filter = methods.pop(PAPER_FILTER, None)
     truth = adsb_gyro_truth(
         setting["duration_s"],
         setting["step_s"],
@@ -187,19 +203,17 @@ def filter_rows(
             raise ValueError("every gyro of a setting must have the same rate")
         rng = child_rng(seed, 1 + index)
         inputs = simulate_filter_inputs(truth, model, rng, setting["initial_sigma_deg"])
-        runs: dict[str, tuple[Track, float]] = {}
-        if "mekf_paper" in wanted:
+        simulated = inputs.gyro_pass(truth, snr)
+        runs: dict[str, Run] = {}
+        if paper_filter is not None:
             if paper is None:
-                raise ValueError(f"mekf_paper needs the {PAPER_SOURCE} solution")
-            runs["mekf_paper"] = run_filter("mekf", inputs, truth, paper, "mekf_paper")
-        kinds = [FILTER_METHODS[m] for m in wanted if m != "mekf_paper"]
-        for kind, run in run_filters(
-            kinds, inputs, truth, snr, SNR_SUFFIX, setting["offset_prior_sigma_db"]
-        ).items():
-            runs[method_name(kind, SNR_SUFFIX)] = run
-        bound = bound_columns(runs, inputs, truth, snr)
-        for method in wanted:
-            result, seconds = runs[method]
-            frame = _rows(method, gyro, result, seconds, inputs, truth, common, true_attitude_orbit)
+                raise ValueError(f"{PAPER_FILTER} needs the {PAPER_SOURCE} solution")
+            paper_pass = inputs.gyro_pass(truth, paper).pass_
+            runs |= run_estimators(paper_pass, {PAPER_FILTER: paper_filter})
+        runs |= run_estimators(simulated.pass_, methods)
+        wanted = {e.name for e in methods.values()}
+        bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
+        for label in setting["filters"]:
+            frame = _rows(label, gyro, runs[label], simulated, common, true_attitude_orbit)
             frames.append(frame.assign(**bound))
     return frames

@@ -1,12 +1,12 @@
-"""Scaling benchmark of the batch factor-graph smoother on ``adsb-snr`` (issue 6 sec. 4).
+"""Scaling benchmark of the batch factor-graph smoother on ``adsb-snr``.
 
 For each pass length (default 15 min, 1 h, 4 h) on the ``adsb-snr``
-scenario (:mod:`attopt.experiments.adsb_snr.experiment`: seed 000's noise and 6 dB threshold,
-10,000 aircraft, 1 s epochs), with the measurements the SNR filters use
+scenario (:mod:`attopt.experiments.adsb_snr.experiment`: Liu et al. 2023's noise and 6 dB
+threshold, 10,000 aircraft, 1 s epochs), with the measurements the SNR filters use
 (:func:`attopt.experiments.adsb_snr.filters.snr_measurements`, threshold-truncated
 model, wrapped for the inertial attitude by
-:func:`attopt.experiments.filtering.referenced`) and the ``mems`` gyro at 10 Hz
-(:func:`attopt.experiments.filtering.simulate_filter_inputs`, 10 deg initial
+:func:`attopt.experiments.simulation.referenced`) and the ``mems`` gyro at 10 Hz
+(:func:`attopt.experiments.simulation.simulate_filter_inputs`, 10 deg initial
 attitude error), it times:
 
 * ``mekf``: the forward MEKF (``mekf_snr``), and ``rts`` its backward pass;
@@ -49,7 +49,7 @@ import numpy as np
 
 from attopt.experiments.adsb_snr.experiment import PARAMETERS, noise_free_pass, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
-from attopt.experiments.filtering import child_rng, referenced, simulate_filter_inputs
+from attopt.experiments.simulation import child_rng, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
 from attopt.solvers.bounds import posterior_bound
@@ -108,13 +108,12 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
         PARAMETERS["snr_sigma_db"],
         PARAMETERS["threshold_db"],
     )
-    orbit_frame = snr_measurements(noisy.epochs, "truncated")
-    measurements = referenced(orbit_frame, truth.epoch_frames)
     model = GYRO_MODELS[gyro]
     inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))
-    pass_ = inputs.filter_pass(truth, orbit_frame)
-    t = truth.t[truth.epoch_samples]
-    true_attitude = truth.attitude[truth.epoch_samples]
+    simulated = inputs.gyro_pass(truth, snr_measurements(noisy.epochs, "truncated"))
+    pass_, true_attitude = simulated.pass_, simulated.attitude
+    measurements = pass_.measurements()
+    t = pass_.t
     late = t >= t[0] + BURN_IN_S
 
     start = time.perf_counter()
@@ -134,8 +133,7 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     smoother_s = time.perf_counter() - start
     report = result.report
 
-    true_bias = inputs.gyro.bias[truth.epoch_samples]
-    trace = np.sum(posterior_bound(pass_, true_attitude, true_bias) ** 2, axis=1)
+    trace = np.sum(posterior_bound(pass_, true_attitude, simulated.bias) ** 2, axis=1)
 
     solutions = {"mekf": forward, "rts": backward, "smoother": result}
     online_s = None

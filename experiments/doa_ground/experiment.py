@@ -1,10 +1,13 @@
-"""Experiment ``doa-ground``: attitude from MUSIC DOAs of ground stations (seed 003 sec. 6).
+"""Experiment ``doa-ground``: attitude from MUSIC DOAs of ground stations (Yang et al. 2014
+sec. 6).
 
-Settings are seed 003's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
+Settings are Yang et al. 2014's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
 once).  One trial is one pass of :mod:`attopt.experiments.doa_ground.scenario`
 (geometry and truth are the same in every trial, as in the seed; only the
-noise is drawn), and every estimator sees the same DOAs:
+noise is drawn), and every estimator sees the same DOAs (each row label names a
+registry estimator with its options, :mod:`attopt.experiments.doa_ground.methods`;
+the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
 
 1. MUSIC (:class:`~attopt.solvers.doa.music.MusicEstimator`, eq. 11) on every
    visible ``(epoch, station)`` pair, from a sample covariance drawn from
@@ -16,12 +19,12 @@ noise is drawn), and every estimator sees the same DOAs:
    filters propagate.  Unit vectors ``S_dr`` (eq. 12) against ``S_o`` (eq.
    17, far field) with ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2``
    from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
-2. ``ekf_seed003_q<Q>``: the EKF of seed 003 (:mod:`attopt.solvers.doa.ekf`, rigid-body
-   dynamics, no gyro) over all epochs from the paper's initial condition (50
+2. ``ekf_seed003_q<Q>``: the EKF of Yang et al. 2014 (:mod:`attopt.solvers.doa.ekf`,
+   rigid-body dynamics, no gyro) over all epochs from the paper's initial condition (50
    deg Euler angles, 0.5 deg/s rates; :mod:`attopt.experiments.doa_ground.scenario`
    explains that reading) with prior sigmas ``initial_sigma_deg`` and
    ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
-   the seed's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
+   the paper's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
    our EKF reproduces the seed's attitude RMSEs (docs/doa.md).
 3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
    model, same data; :func:`attopt.solvers.filters.rts.rts_smooth`).  The EKF
@@ -33,29 +36,31 @@ noise is drawn), and every estimator sees the same DOAs:
    errors below ``pbound`` are possible).  Both are the same for every trial
    of a setting and computed once per worker.
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
-   (:data:`attopt.solvers.wahba.SVD`) wherever at least two accepted DOAs
+   (registry ``svd``) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``bls_seed003`` (:data:`~attopt.experiments.doa_ground.methods.BATCH_LS`), in the first
-   ``filter_trials`` trials of each setting
+5. ``bls_seed003`` (:func:`~attopt.experiments.doa_ground.methods.batch_ls_estimator`),
+   in the first ``filter_trials`` trials of each setting
    (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
    least squares over the seed's deterministic dynamics
    (:mod:`attopt.solvers.doa.batch_ls`, ``Q = 0``), started from the lowest-``Q``
    RTS pass at epoch 0; its ``pbound_*`` and ``crb_*`` are both the ``Q = 0``
    smoother bound, its time includes the EKF and RTS passes it starts from.
-6. ``filters`` (default ``mekf`` and ``fg_batch``), in the first
-   ``filter_trials`` trials of each setting only (they cost about 25x the
-   rest): the gyro-aided MEKF
-   and the GTSAM whole-pass smoother on the same unit vectors plus a
-   MEMS-class gyro sampled at the epochs (``GYRO``; seed 003 has none), from
-   the EKF's initial estimate and sigma (the same prior information as the
-   EKF).  The smoother starts its iterations from the lowest-``Q`` RTS pass
-   (its result does not depend on the start once it converges; its time
-   includes that pass).  Their rows carry the posterior bound of the pass
-   with the gyro (:func:`attopt.solvers.bounds.posterior_bound`).
+6. ``filters`` (registry pass estimators that accept unit vectors; default
+   ``mekf`` and ``fg_batch``), in the first ``filter_trials`` trials of each
+   setting only (they cost about 25x the rest): the gyro-aided MEKF and the
+   GTSAM whole-pass smoother on the same unit vectors plus a MEMS-class gyro
+   sampled at the epochs (``GYRO``; Yang et al. 2014 has none), from the
+   EKF's initial estimate and sigma (the same prior information as the EKF).
+   The estimators that can start from an RTS pass (the smoothers) start their
+   iterations from the lowest-``Q`` RTS pass (their result does not depend on
+   the start once they converge; their time includes that pass).  With a
+   factor-graph smoother among them, their rows carry the posterior bound of
+   the pass with the gyro
+   (:func:`attopt.experiments.metrics.posterior_bound_columns`).
 
 Rows.  Attitude rows every ``row_step_s`` (a 5000 s pass has 20 000 epochs)
 per method with :func:`attopt.experiments.metrics.error_columns`, the ``phase``
-(``converging`` before ``settle_s``, then ``settled``: seed 003's RMSEs of
+(``converging`` before ``settle_s``, then ``settled``: Yang et al. 2014's RMSEs of
 about 0.1 deg can only be post-convergence values, its Fig. 6 shows
 convergence within 1500 s), rate errors (``rate_err_{x,y,z}_deg_s``) of the
 EKF and RTS rows, and ``runtime_s`` (wall time of the pass).  One ``music``
@@ -75,7 +80,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from attopt.experiments.doa_ground.methods import BATCH_LS, GYRO_FILTERS, ekf_method, rts_method
+from attopt.experiments.doa_ground.methods import (
+    BATCH_LS,
+    GYRO_FILTERS,
+    WAHBA,
+    batch_ls_estimator,
+    dynamics_estimators,
+    filter_labels,
+    rts_method,
+)
 from attopt.experiments.doa_ground.report import report
 from attopt.experiments.doa_ground.scenario import (
     DURATION_S,
@@ -86,20 +99,21 @@ from attopt.experiments.doa_ground.scenario import (
     DoaGroundGeometry,
     build_geometry,
 )
+from attopt.experiments.estimators import FACTOR_GRAPH, resolve
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.filtering import (
-    GYRO_STREAM,
-    VECTOR_FILTERS,
-    GyroTruth,
-    bound_columns,
-    child_rng,
+from attopt.experiments.metrics import (
+    error_columns,
     in_orbit_frame,
-    run_filters,
+    posterior_bound_columns,
+    status_columns,
+)
+from attopt.experiments.simulation import (
+    GYRO_STREAM,
+    GyroTruth,
+    child_rng,
     simulate_filter_inputs,
 )
-from attopt.experiments.metrics import error_columns
 from attopt.experiments.sweep.seeding import trial_index
-from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.doa_array import (
     doa_unit_vector,
@@ -111,15 +125,15 @@ from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.errors import ConvergenceError, UnobservableError
 from attopt.formulations.gyro import MEMS_GYRO
 from attopt.formulations.passes import Pass, Prior, RigidBody
+from attopt.formulations.rigid_body import INERTIA_SEED003
 from attopt.solvers.bounds import posterior_bound_ekf
-from attopt.solvers.doa import DoaBatchLs, DoaEkf, DoaRts
-from attopt.solvers.doa.batch_ls import BatchLsOptions
-from attopt.solvers.doa.ekf import INERTIA_SEED003, PROCESS_NOISE
+from attopt.solvers.doa.ekf import PROCESS_NOISE
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
+from attopt.solvers.pipeline import Run, run_estimators
+from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import stored_rotations
 from attopt.solvers.smoother import single_frame_initial
-from attopt.solvers.wahba import SVD
 
 TABLE1_SNR_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)
@@ -130,7 +144,8 @@ DOA_ROW_REASON = "DOA statistics row (no attitude)"
 REJECTIONS = {"ambiguous": "ambiguous peak", "horizon": "source at the array horizon"}
 """Counted MUSIC rejections (``doa_rejected_<name>``) by the start of their reason."""
 LOW_PROCESS_NOISE = 1.0e-12
-"""The ``Q`` per step with which our EKF reproduces seed 003's attitude RMSEs (docs/doa.md)."""
+"""The ``Q`` per step with which our EKF reproduces Yang et al. 2014's attitude RMSEs
+(docs/doa.md)."""
 FILTER_TRIALS = 4
 """Trials per setting that also run the batch least squares and the gyro-aided rows (about
 25x the cost of the rest)."""
@@ -154,18 +169,18 @@ MUSIC = MusicEstimator()
 """One estimator per process: its grid is built once."""
 GYRO = MEMS_GYRO
 """The gyro of the gyro-aided rows, sampled at the epochs (``rate_hz = 1 / step_s``)."""
-BATCH_LS_ESTIMATOR = DoaBatchLs(batch=BatchLsOptions(flag_unconverged=False))
-"""``bls_seed003`` with an unconverged pass's estimates kept (its rows are flagged with the
-report's reason)."""
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2."""
+    """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2.
+
+    Raises:
+        ValueError: a filter the registry does not have (the message lists the
+            registered ones), or another bad parameter.
+    """
     pairs = [(float(s), int(parameters["table1_snapshots"])) for s in parameters["table1_snr_db"]]
     pairs += [(float(parameters["table2_snr_db"]), int(n)) for n in parameters["table2_snapshots"]]
-    unknown = sorted(set(parameters["filters"]) - set(VECTOR_FILTERS))
-    if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
+    resolve(parameters["filters"], filter_labels(), "filters")
     if not parameters["process_noise"] or min(parameters["process_noise"]) <= 0.0:
         raise ValueError("process_noise must be a non-empty list of positive numbers")
     if any(n < 1 for _, n in pairs):
@@ -207,15 +222,18 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     }
     passes = {q: _dynamics_passes(setting, doa_pass, q) for q in setting["process_noise"]}
     frames = [
-        _dynamics_rows(method, run, geometry, row_epochs, common)
-        for q, runs in passes.items()
-        for method, run in zip((ekf_method(q), rts_method(q)), runs, strict=True)
+        _dynamics_rows(label, run, geometry, row_epochs, common)
+        for runs in passes.values()
+        for label, run in runs.items()
     ]
-    frames.append(_wahba_rows(geometry, vectors, row_epochs, common, setting))
+    frames += [
+        _wahba_rows(label, name, geometry, vectors, row_epochs, common, setting)
+        for label, name in WAHBA.items()
+    ]
     if trial_index(seed) < setting["filter_trials"]:
-        lowest = passes[min(passes)][1]
+        lowest = passes[min(passes)][rts_method(min(passes))]
         frames.append(_batch_ls_rows(doa_pass, geometry, row_epochs, common, lowest))
-        frames += _gyro_rows(setting, seed, geometry, vectors, row_epochs, common, lowest)
+        frames += _gyro_rows(setting, seed, geometry, doa_pass, row_epochs, common, lowest)
     frames.append(pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]))
     return pd.concat(frames, ignore_index=True)
 
@@ -226,40 +244,34 @@ def _vector_pass(
     prior: Prior,
 ) -> Pass:
     """The pass of the unit vectors (NaN body rows: absent) with the scenario's rigid-body
-    dynamics (inertia of seed 003 eq. 25, wheel momentum, orbit frames) and ``prior``."""
+    dynamics (inertia of Yang et al. 2014 eq. 25, wheel momentum, orbit frames) and ``prior``."""
     dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)
     return replace(Pass.from_vectors(geometry.t, *vectors), dynamics=dynamics, prior=prior)
 
 
 def _dynamics_passes(
     setting: Setting, doa_pass: Pass, process_noise: float
-) -> tuple[DynamicsPass, DynamicsPass]:
-    """The seed's EKF and its RTS pass with ``Q = process_noise E_6``: each result, its
-    wall time (the RTS's includes the EKF's), the model's bound and the ``Q = 0`` bound."""
-    ekf = DoaEkf(process_noise=process_noise)
-    start = time.perf_counter()
-    filtered = ekf.solve(doa_pass)
-    ekf_seconds = time.perf_counter() - start
-    smoothed = DoaRts(forward=ekf).solve(doa_pass, initial=filtered)
-    rts_seconds = time.perf_counter() - start
+) -> dict[str, DynamicsPass]:
+    """The paper's EKF and its RTS pass with ``Q = process_noise E_6``, by row label: each
+    run (the RTS's time includes the EKF's), the model's bound and the ``Q = 0`` bound."""
+    runs = run_estimators(doa_pass, dynamics_estimators(process_noise))
     keys = [setting[k] for k in ("duration_s", "step_s", "snr_db", "snapshots")]
     prior_sigmas = setting["initial_sigma_deg"], setting["initial_rate_sigma_deg_s"]
-    filter_bound, smoother_bound = _model_bound(*keys, process_noise, *prior_sigmas)
-    filter_crb, smoother_crb = _model_bound(*keys, 0.0, *prior_sigmas)
-    return (
-        DynamicsPass(filtered, ekf_seconds, filter_bound, filter_crb),
-        DynamicsPass(smoothed, rts_seconds, smoother_bound, smoother_crb),
+    bounds = zip(
+        *(_model_bound(*keys, q, *prior_sigmas) for q in (process_noise, 0.0)), strict=True
     )
+    return {
+        label: DynamicsPass(run, bound, crb)
+        for (label, run), (bound, crb) in zip(runs.items(), bounds, strict=True)
+    }
 
 
 @dataclass(frozen=True)
 class DynamicsPass:
-    """An EKF, RTS or batch pass: result, wall time (s), the posterior bound of its model
-    and the bound with ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)``
-    each."""
+    """An EKF, RTS or batch run with the posterior bound of its model and the bound with
+    ``Q = 0`` (the truth's dynamics are deterministic), deg ``(N, 3)`` each."""
 
-    result: Track
-    seconds: float
+    run: Run
     bound: np.ndarray
     crb: np.ndarray
 
@@ -306,7 +318,9 @@ def _batch_ls_rows(
     start's.  A pass that raises or does not converge gives invalid rows with the reason."""
     began = time.perf_counter()
     try:
-        result = BATCH_LS_ESTIMATOR.solve(doa_pass, initial=start.result)
+        runs = run_estimators(
+            doa_pass, {BATCH_LS: batch_ls_estimator()}, starts={BATCH_LS: start.run}
+        )
     except (UnobservableError, ConvergenceError) as error:
         return pd.DataFrame(
             {
@@ -314,43 +328,43 @@ def _batch_ls_rows(
                 **common,
                 "valid": False,
                 "reason": f"{type(error).__name__}: {error}",
-                "runtime_s": start.seconds + time.perf_counter() - began,
+                "runtime_s": start.run.seconds + time.perf_counter() - began,
             }
         )
-    run = DynamicsPass(result, start.seconds + time.perf_counter() - began, start.crb, start.crb)
-    return _dynamics_rows(BATCH_LS, run, geometry, rows, common, result.report.reason)
+    run = DynamicsPass(runs[BATCH_LS], start.crb, start.crb)
+    return _dynamics_rows(BATCH_LS, run, geometry, rows, common, run.run.track.report.reason)
 
 
 def _dynamics_rows(
-    method: str,
+    label: str,
     run: DynamicsPass,
     geometry: DoaGroundGeometry,
     rows: np.ndarray,
     common: Mapping[str, Any],
     reason: str = "",
 ) -> pd.DataFrame:
-    """Rows of an EKF, RTS or batch pass: errors, rate errors, both bounds, wall time;
-    invalid with ``reason`` if one is given."""
-    result = run.result
-    solution = _solution(method, result.quaternion[rows], result.covariance[rows])
-    rate_error = np.degrees(result.rate[rows] - geometry.rate[rows])
+    """Rows of an EKF, RTS or batch pass: the estimates at the row epochs (errors even
+    where ``reason`` flags the rows), rate errors, both bounds, wall time."""
+    track = run.run.track
+    estimates = _estimates(label, track.quaternion[rows], track.covariance[rows])
+    rate_error = np.degrees(track.rate[rows] - geometry.rate[rows])
     return pd.DataFrame(
         {
-            "method": method,
+            "method": label,
             **common,
-            **error_columns(solution, geometry.truth[rows]),
+            **error_columns(estimates, geometry.truth[rows]),
             **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
             **{f"pbound_{a}_deg": run.bound[rows, i] for i, a in enumerate("xyz")},
             **{f"crb_{a}_deg": run.crb[rows, i] for i, a in enumerate("xyz")},
             "valid": not reason,
             "reason": reason,
-            "runtime_s": run.seconds,
+            "runtime_s": run.run.seconds,
         }
     )
 
 
 def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float) -> Prior:
-    """The EKF's initial attitude estimate and sigma (seed 003 sec. 6) for the gyro-aided
+    """The EKF's initial attitude estimate and sigma (Yang et al. 2014 sec. 6) for the gyro-aided
     rows, in the inertial frame, with the gyro's initial bias sigma."""
     ekf = _prior(setting)
     return Prior(
@@ -364,13 +378,14 @@ def _gyro_rows(
     setting: Setting,
     seed: np.random.SeedSequence,
     geometry: DoaGroundGeometry,
-    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
+    doa_pass: Pass,
     rows: np.ndarray,
     common: Mapping[str, Any],
     start: DynamicsPass,
 ) -> list[pd.DataFrame]:
-    """Rows of the gyro-aided filters and smoothers (module docstring, 5)."""
-    if not setting["filters"]:
+    """Rows of the gyro-aided filters and smoothers (module docstring, 6)."""
+    filters = resolve(setting["filters"], filter_labels(), "filters")
+    if not filters:
         return []
     model = replace(GYRO, rate_hz=1.0 / setting["step_s"])
     truth = GyroTruth(
@@ -383,34 +398,36 @@ def _gyro_rows(
         simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM)),
         prior=_gyro_prior(setting, geometry, model.initial_bias_sigma),
     )
-    accepted = np.isfinite(vectors[0]).all(axis=-1).any(axis=-1)
-    measurements = [
-        VectorMeasurement(*(v[k] for v in vectors)) if accepted[k] else None
-        for k in range(geometry.t.size)
-    ]
-    smoothed = start.result
+    simulated = inputs.gyro_pass(truth, doa_pass.snapshots)
+    smoothed = start.run.track
     inertial = stored_rotations(smoothed.quaternion) * geometry.eci_to_orbit
-    first = single_frame_initial(
-        _solution("rts", inertial.as_quat(), smoothed.covariance), inputs.prior
+    first = Run(
+        single_frame_initial(
+            _estimates("rts", inertial.as_quat(), smoothed.covariance), inputs.prior
+        ),
+        start.run.seconds,
     )
-    runs = run_filters(
-        setting["filters"], inputs, truth, measurements, initial=(first, start.seconds)
-    )
-    bound = {k: v[rows] for k, v in bound_columns(runs, inputs, truth, measurements).items()}
+    starts = {
+        label: first for label, name in filters.items() if "rts" in estimator(name).starts_from
+    }
+    runs = run_estimators(simulated.pass_, filters, starts=starts)
+    bound = {}
+    if FACTOR_GRAPH & set(filters.values()):
+        bound = {k: v[rows] for k, v in posterior_bound_columns(simulated).items()}
     frames = []
-    for method, (result, seconds) in runs.items():
-        solution = in_orbit_frame(result, truth.epoch_frames)
-        errors = error_columns(solution, geometry.truth)
+    for label, run in runs.items():
+        track = in_orbit_frame(run.track, simulated.frames)
+        errors = error_columns(track, geometry.truth)
+        status = status_columns(track)
         frames.append(
             pd.DataFrame(
                 {
-                    "method": method,
+                    "method": label,
                     **common,
                     **{name: column[rows] for name, column in errors.items()},
                     **bound,
-                    "valid": solution.valid[rows],
-                    "reason": solution.reason[rows].astype(str),
-                    "runtime_s": seconds,
+                    **{name: column[rows] for name, column in status.items()},
+                    "runtime_s": run.seconds,
                 }
             )
         )
@@ -460,7 +477,7 @@ def _prior(setting: Setting) -> Prior:
     )
 
 
-def _solution(method: str, quaternion: np.ndarray, covariance: np.ndarray) -> Track:
+def _estimates(method: str, quaternion: np.ndarray, covariance: np.ndarray) -> Track:
     """A valid track of the estimates ``quaternion`` with their attitude covariances."""
     n = len(quaternion)
     return Track(
@@ -476,27 +493,29 @@ def _solution(method: str, quaternion: np.ndarray, covariance: np.ndarray) -> Tr
 
 
 def _wahba_rows(
+    label: str,
+    name: str,
     geometry: DoaGroundGeometry,
     vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
     rows: np.ndarray,
     common: Mapping[str, Any],
     setting: Setting,
 ) -> pd.DataFrame:
-    """Single-epoch SVD solutions at the row epochs, with the single-epoch CRB."""
+    """Single-epoch solutions of Wahba solver ``name`` (its vectorised path) at the row
+    epochs, with the single-epoch CRB."""
     body, reference, sigma = (v[rows] for v in vectors)
     present = np.isfinite(body).all(axis=-1)
-    solution = SVD.solve_batch(
+    track = estimator(name).solve_batch(
         np.where(present[..., None], body, reference), reference, sigma**-2.0, present
     )
     bound = np.array([_single_epoch_bound(geometry, k, setting) for k in rows])
     return pd.DataFrame(
         {
-            "method": "wahba",
+            "method": label,
             **common,
-            **error_columns(solution, geometry.truth[rows]),
+            **error_columns(track, geometry.truth[rows]),
             **{f"bound_{a}_deg": bound[:, i] for i, a in enumerate("xyz")},
-            "valid": solution.valid,
-            "reason": solution.reason.astype(str),
+            **status_columns(track),
         }
     )
 

@@ -1,4 +1,16 @@
-"""Names of the ``doa-ground`` rows, shared by the experiment and its report."""
+"""The ``doa-ground`` rows: their labels, the registry estimators they run and their order.
+
+One place maps each row label to a registry estimator with its options
+(:mod:`attopt.solvers.registry`), shared by the experiment and its report:
+
+* ``ekf_seed003_q<Q>`` and ``rts_seed003_q<Q>`` (:func:`dynamics_estimators`):
+  Yang et al. 2014's EKF (``ekf_seed003``) with ``Q = q E_6`` and the RTS
+  pass over it (``rts_seed003``);
+* ``bls_seed003`` (:func:`batch_ls_estimator`): the whole-pass batch least
+  squares, an unconverged pass's estimates kept;
+* ``wahba`` (:data:`WAHBA`): the SVD solution of Wahba's problem (``svd``);
+* the gyro-aided ``filters`` by their registry names (:func:`filter_labels`).
+"""
 
 from __future__ import annotations
 
@@ -8,7 +20,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from attopt.experiments.estimators import registered_labels
+from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.solvers.doa.batch_ls import BatchLsOptions
 from attopt.solvers.doa.ekf import PROCESS_NOISE
+from attopt.solvers.estimator import Estimator
+from attopt.solvers.registry import estimator
 
 GYRO_FILTERS = ("mekf", "fg_batch")
 """Default ``filters``: the gyro-aided MEKF and the factor-graph smoother."""
@@ -17,16 +34,36 @@ BATCH_LS = "bls_seed003"
 """Whole-pass batch least squares over Yang et al. 2014's dynamics (``Q = 0``)."""
 SUBSET_METHODS = (BATCH_LS, *GYRO_FILTERS)
 """Methods that run only in the first ``filter_trials`` trials of a setting."""
+WAHBA = {"wahba": "svd"}
+"""The single-epoch row and the registry estimator it runs."""
 
 
 def ekf_method(q: float) -> str:
-    """Method name of Yang et al. 2014's EKF with process noise ``q``."""
+    """Row label of Yang et al. 2014's EKF with process noise ``q``."""
     return f"ekf_seed003_q{q:.0e}"
 
 
 def rts_method(q: float) -> str:
-    """Method name of the RTS smoother over the EKF with process noise ``q``."""
+    """Row label of the RTS smoother over the EKF with process noise ``q``."""
     return f"rts_seed003_q{q:.0e}"
+
+
+def dynamics_estimators(q: float) -> dict[str, Estimator]:
+    """The EKF with ``Q = q E_6`` and the RTS pass over it, by row label."""
+    ekf = estimator("ekf_seed003", process_noise=q)
+    return {ekf_method(q): ekf, rts_method(q): estimator("rts_seed003", forward=ekf)}
+
+
+def batch_ls_estimator() -> Estimator:
+    """``bls_seed003`` with an unconverged pass's estimates kept (its rows are flagged with
+    the report's reason)."""
+    return estimator(BATCH_LS, batch=BatchLsOptions(flag_unconverged=False))
+
+
+def filter_labels() -> dict[str, str]:
+    """Row label -> registry name of the ``filters``: the pass estimators that accept unit
+    vectors, by name."""
+    return registered_labels("pass", VectorMeasurement)
 
 
 def process_noises(parameters: Mapping[str, Any]) -> list[float]:
@@ -42,7 +79,7 @@ def attitude_methods(rows: pd.DataFrame, parameters: Mapping[str, Any]) -> list[
         *map(ekf_method, qs),
         *map(rts_method, qs),
         BATCH_LS,
-        "wahba",
+        *WAHBA,
         *parameters.get("filters", GYRO_FILTERS),
     ]
     present = set(rows["method"])

@@ -67,7 +67,7 @@ from attopt.experiments.environment.orbit import (
 from attopt.experiments.environment.traffic import geodetic_normal
 from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
 from attopt.formulations.doa_array import doa_from_unit_vector
-from attopt.solvers.doa.ekf import INERTIA_SEED003, angular_acceleration
+from attopt.formulations.rigid_body import INERTIA_SEED003, angular_acceleration
 
 Array = NDArray[np.float64]
 

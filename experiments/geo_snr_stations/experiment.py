@@ -1,14 +1,17 @@
-"""Experiment ``geo-snr-stations``: Garuda-1's boresight from ground-station SNRs (seed 004).
+"""Experiment ``geo-snr-stations``: Garuda-1's boresight from ground-station SNRs
+(Pimienta-Penalver and Crassidis).
 
 One trial simulates the hour of :mod:`attopt.experiments.geo_snr_stations.scenario`
-(SNR noise from the trial's seed) and solves it with, per epoch:
+(SNR noise from the trial's seed) and solves it with these rows, each a registry
+estimator (:data:`METHODS`; the pass ones run by
+:func:`attopt.solvers.pipeline.run_estimators`):
 
 * ``cone``: cone intersection of the three filter stations (sec. IV.B, eq. 12;
   the ``geo_cone`` estimator, :mod:`attopt.solvers.geo.boresight`);
 * ``lsq``: least-squares boresight over every station that hears the satellite
   (``geo_lsq``);
 * ``nlp``: the CasADi/IPOPT NLP of :mod:`attopt.solvers.snr.nlp` on every heard
-  station's SNR (the seed's eq. 7 model through
+  station's SNR (the paper's eq. 7 model through
   :func:`attopt.formulations.geo_link.geo_snr_epoch`), started from ``lsq``'s boresight
   (its epoch-level estimate: one antenna, so the one-step solvers' observability
   rule, which needs two, is not applied);
@@ -21,17 +24,17 @@ One trial simulates the hour of :mod:`attopt.experiments.geo_snr_stations.scenar
   ``usque_detect`` (``usque`` would carry the manoeuvre's unmodelled rate into the
   start).
 
-Rate input (seed 004 sec. V.B: "the UKF is provided with ... position and body
-rate information").  A ground observer has no gyro on the broadcaster; the
+Rate input (Pimienta-Penalver and Crassidis sec. V.B: "the UKF is provided with ...
+position and body rate information").  A ground observer has no gyro on the broadcaster; the
 filters get the *assumed* body rate, that of the nominal slew without the
 manoeuvre (:func:`assumed_rates`, noise-free), as a gyro record whose model
-(:func:`rate_model`) turns the seed's "process noise ... 0.1 degree" into an
+(:func:`rate_model`) turns the paper's "process noise ... 0.1 degree" into an
 angle random walk of ``rate_arw_deg_sqrt_h`` (default 0.1 deg/h^(1/2)), a rate
 random walk of ``rate_rrw_deg_h_sqrt_h`` and a 1 deg/h initial rate-error sigma.
 
-Prior.  The seed starts its filter with 5 deg per axis.  An attitude error is
+Prior.  The paper starts its filter with 5 deg per axis.  An attitude error is
 drawn with that sigma from the trial's child stream
-(:func:`attopt.experiments.filtering.child_rng`) and its boresight is replaced by
+(:func:`attopt.experiments.simulation.child_rng`) and its boresight is replaced by
 ``cone``'s at the first epoch (:func:`attopt.solvers.geo.manoeuvre.boresight_prior`,
 yaw kept, yaw sigma 5 deg): from the raw draw (up to 9 deg off) the
 stations fall outside the 9 deg main lobe at the sigma points and USQUE
@@ -39,14 +42,15 @@ never updates (measured: no update in the hour).
 
 Error columns.  ``err_{x,y,z}_deg`` is the pointing error: the rotation vector
 (true body frame) of the smallest rotation carrying the true boresight to the
-estimated one (:func:`pointing_error`), so its ``z`` (yaw) component is zero
-by construction.  Yaw about the boresight is unobservable from SNRs
-(``docs/geo.md``): ``yaw_observable`` is False on every row and the filters'
+estimated one (:func:`attopt.experiments.metrics.pointing_error`); its ``z``
+(yaw) component is NaN: yaw about the boresight is unobservable from SNRs
+(``docs/geo.md``), ``yaw_observable`` is False on every row and the filters'
 own yaw error (the ``z`` component of ``estimate * truth.inv()``, which they
 carry with a large sigma) is in ``yaw_err_deg``.  ``sigma_{x,y,z}_deg``: the
-method's own standard deviations (NaN for ``cone``/``lsq``);
-``bound_{x,y}_deg``: the filters' and smoother's own sigma, and for the
-snapshot methods the Cramer-Rao bound of their stations' SNRs
+method's own standard deviations (NaN for ``cone``/``lsq``, and where the
+method's variance is infinite: ``nlp``'s yaw); ``bound_{x,y}_deg``: the
+filters' and smoother's own sigma, and for the snapshot methods the
+Cramer-Rao bound of their stations' SNRs
 (:func:`attopt.formulations.geo_fisher.snr_fisher_information`, pseudo-inverse: the
 boresight axis is its nullspace).  ``usque_detect`` rows add the windowed
 test's ``p_value`` and ``detected`` at the epochs it restarted.
@@ -54,7 +58,9 @@ test's ``p_value`` and ``detected`` at the epochs it restarted.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -63,7 +69,6 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.filtering import GYRO_STREAM, child_rng
 from attopt.experiments.geo_snr_stations.report import report
 from attopt.experiments.geo_snr_stations.scenario import (
     MANOEUVRE_START_S,
@@ -72,6 +77,8 @@ from attopt.experiments.geo_snr_stations.scenario import (
     build_geo_snr_scenario,
     true_attitude,
 )
+from attopt.experiments.metrics import pointing_error
+from attopt.experiments.simulation import GYRO_STREAM, child_rng
 from attopt.formulations.errors import AttoptError
 from attopt.formulations.geo_fisher import snr_fisher_information
 from attopt.formulations.geo_link import BORESIGHT_BODY, attitude_pointing, geo_snr_epoch
@@ -79,26 +86,35 @@ from attopt.formulations.gyro import GyroModel, GyroSamples, mean_rates
 from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
-from attopt.solvers.filters import FilterOptions, Usque
-from attopt.solvers.geo.boresight import (
-    GEO_CONE,
-    GEO_LSQ,
-    check_elevations,
-    estimated_boresight,
-)
+from attopt.solvers.filters import FilterOptions
+from attopt.solvers.geo.boresight import check_elevations, estimated_boresight
 from attopt.solvers.geo.manoeuvre import DetectionOptions, boresight_prior, detect_and_reinitialise
-from attopt.solvers.results import Track
-from attopt.solvers.smoother import BatchSmoother
-from attopt.solvers.snr import NLP
+from attopt.solvers.pipeline import Run, run_estimators
+from attopt.solvers.registry import estimator
+from attopt.solvers.results import Track, observable_sigma
 
 Array = NDArray[np.float64]
+
 
 FILTER_STATIONS = ("Surabaya", "General Santos", "Labuan")
 """The three stations of the cone intersection and the filters: those that hear
 Garuda-1 during the whole hour (``docs/geo.md``)."""
 FILTER_OPTIONS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.radians(90.0))
-"""No innovation gate (the seed's filter has none; :mod:`attopt.solvers.geo.manoeuvre`),
+"""No innovation gate (the paper's filter has none; :mod:`attopt.solvers.geo.manoeuvre`),
 and a 90 deg validity limit: the yaw sigma is large by nature, not a failure."""
+METHODS = {
+    "cone": "geo_cone",
+    "lsq": "geo_lsq",
+    "nlp": "nlp",
+    "usque": "usque",
+    "fg_batch": "fg_batch",
+}
+"""Row label -> registry name (module docstring); ``usque_detect`` is USQUE with
+manoeuvre detection (:mod:`attopt.solvers.geo.manoeuvre`)."""
+PASS_METHODS = ("usque", "fg_batch")
+"""The rows run on the filter pass with :data:`FILTER_OPTIONS`; ``fg_batch`` starts from
+``usque_detect``."""
+
 
 MIN_WINDOW = 3
 """Fewest epochs in the detection window (a 120 s window is 2 epochs at 60 s steps, where
@@ -148,19 +164,6 @@ def assumed_rates(scenario: GeoSnrScenario) -> GyroSamples:
     return GyroSamples(scenario.t, mean_rates(true_attitude(scenario.t), dt), dt)
 
 
-def pointing_error(truth: Rotation, boresight: Array) -> Array:
-    """``(N, 3)`` rad: smallest rotation true -> estimated boresight, true body frame.
-
-    With ``A_est = exp(delta) A_true`` and no yaw, ``A_true B_est = exp(-delta) z``:
-    ``delta = angle (b_y, -b_x, 0) / |(b_x, b_y)|``, ``b = A_true B_est``.
-    """
-    b = truth.apply(boresight)
-    across = np.hypot(b[:, 0], b[:, 1])
-    angle = np.arctan2(across, b[:, 2])
-    scale = np.divide(angle, across, out=np.zeros_like(angle), where=across > 0)
-    return np.stack([scale * b[:, 1], -scale * b[:, 0], np.zeros_like(angle)], axis=1)
-
-
 def crb_sigma(scenario: GeoSnrScenario, k: int, stations: NDArray[np.intp]) -> Array:
     """Cramer-Rao standard deviations (rad) about body x, y of epoch ``k``'s ``stations``."""
     fisher = snr_fisher_information(
@@ -173,25 +176,35 @@ def crb_sigma(scenario: GeoSnrScenario, k: int, stations: NDArray[np.intp]) -> A
     return np.sqrt(np.diag(np.linalg.pinv(fisher, rcond=1e-9, hermitian=True))[:2])
 
 
-class _Rows:
-    """Accumulates one method's per-epoch columns (module docstring)."""
+@dataclass
+class Pointing:
+    """One method's boresight estimates at the ``N`` epochs and what its rows report
+    (module docstring): ``sigma`` ``(N, 3)`` rad, ``bound`` ``(N, 2)`` rad, the filters'
+    ``yaw`` error (rad), the ``reason`` of each epoch without estimate and extra columns."""
 
-    def __init__(self, method: str, scenario: GeoSnrScenario) -> None:
-        n = scenario.t.size
-        self.method, self.scenario = method, scenario
-        self.boresight = np.full((n, 3), np.nan)
-        self.sigma = np.full((n, 3), np.nan)
-        self.bound = np.full((n, 2), np.nan)
-        self.yaw = np.full(n, np.nan)
-        self.reason = np.full(n, "", dtype=object)
-        self.extra: dict[str, Array] = {}
+    boresight: Array
+    sigma: Array
+    bound: Array
+    yaw: Array
+    reason: NDArray[np.object_]
+    extra: dict[str, Array] = field(default_factory=dict)
 
-    def frame(self) -> pd.DataFrame:
+    @classmethod
+    def empty(cls, n: int) -> Pointing:
+        return cls(
+            np.full((n, 3), np.nan),
+            np.full((n, 3), np.nan),
+            np.full((n, 2), np.nan),
+            np.full(n, np.nan),
+            np.full(n, "", dtype=object),
+        )
+
+    def frame(self, label: str, scenario: GeoSnrScenario) -> pd.DataFrame:
+        """The rows: pointing error, sigmas, bounds, the filters' yaw error, validity."""
         valid = np.isfinite(self.boresight).all(axis=1)
         error = np.full_like(self.boresight, np.nan)
-        truth = self.scenario.truth[valid]
-        error[valid] = pointing_error(truth, self.boresight[valid])
-        columns: dict[str, Any] = {"method": self.method, "t_s": self.scenario.t}
+        error[valid] = pointing_error(scenario.truth[valid], self.boresight[valid])
+        columns: dict[str, Any] = {"method": label, "t_s": scenario.t}
         for i, axis in enumerate("xyz"):
             columns[f"err_{axis}_deg"] = np.degrees(error[:, i])
         for i, axis in enumerate("xyz"):
@@ -208,27 +221,48 @@ class _Rows:
         return pd.DataFrame(columns)
 
 
-def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.intp]) -> list:
-    """``cone``, ``lsq`` and ``nlp`` per epoch (module docstring)."""
-    cone, lsq, nlp = (_Rows(m, scenario) for m in ("cone", "lsq", "nlp"))
+def station_snapshots(
+    scenario: GeoSnrScenario, snr: Array, stations: list[NDArray[np.intp]]
+) -> tuple[list[Snapshot | None], NDArray[np.object_]]:
+    """Each epoch's SNRs of its ``stations`` as a snapshot (:func:`epoch_snapshot`), and
+    the reason of the epochs that have none."""
+    snapshots: list[Snapshot | None] = []
+    reason = np.full(scenario.t.size, "", dtype=object)
+    for k, chosen in enumerate(stations):
+        try:
+            snapshots.append(epoch_snapshot(scenario, snr, k, chosen))
+        except AttoptError as error:
+            snapshots.append(None)
+            reason[k] = str(error)
+    return snapshots, reason
+
+
+def boresight_pointing(
+    name: str, scenario: GeoSnrScenario, snr: Array, stations: list[NDArray[np.intp]]
+) -> Pointing:
+    """Registry boresight estimator ``name`` over the epochs, each on its ``stations``,
+    with the Cramer-Rao bound of those stations' SNRs where it has an estimate."""
+    snapshots, reason = station_snapshots(scenario, snr, stations)
+    track = estimator(name).solve_sequence(snapshots)
+    pointing = Pointing.empty(scenario.t.size)
+    pointing.reason = np.where(reason != "", reason, track.reason)
+    valid = track.valid
+    pointing.boresight[valid] = estimated_boresight(track)[valid]
+    for k in np.flatnonzero(valid):
+        pointing.bound[k] = crb_sigma(scenario, k, stations[k])
+    return pointing
+
+
+def nlp_pointing(scenario: GeoSnrScenario, snr: Array, lsq: Pointing) -> Pointing:
+    """The SNR NLP on every heard station's SNR, each epoch started from ``lsq``'s
+    boresight (its epoch-level estimate, module docstring), with ``lsq``'s bound."""
+    nlp = estimator(METHODS["nlp"])
+    pointing = Pointing.empty(scenario.t.size)
     for k in range(scenario.t.size):
-        heard = np.flatnonzero(np.isfinite(snr[k]))
-        for rows, stations, estimator in (
-            (cone, np.intersect1d(filter_idx, heard), GEO_CONE),
-            (lsq, heard, GEO_LSQ),
-        ):
-            try:
-                track = estimator.solve_sequence([epoch_snapshot(scenario, snr, k, stations)])
-                if not track.valid[0]:
-                    rows.reason[k] = track.reason[0]
-                    continue
-                rows.boresight[k] = estimated_boresight(track)[0]
-                rows.bound[k] = crb_sigma(scenario, k, stations)
-            except AttoptError as error:
-                rows.reason[k] = str(error)
         if not np.isfinite(lsq.boresight[k]).all():
-            nlp.reason[k] = "no least-squares start"
+            pointing.reason[k] = "no least-squares start"
             continue
+        heard = np.flatnonzero(np.isfinite(snr[k]))
         epoch = geo_snr_epoch(
             snr[k, heard],
             scenario.satellite_eci_km[k],
@@ -236,14 +270,14 @@ def _snapshot_rows(scenario: GeoSnrScenario, snr: Array, filter_idx: NDArray[np.
             SNR_SIGMA_DB,
             scenario.link,
         )
-        estimate = NLP.estimate_epoch(epoch, attitude_pointing(lsq.boresight[k]))
+        estimate = nlp.estimate_epoch(epoch, attitude_pointing(lsq.boresight[k]))
         if estimate.failure is not None or estimate.attitude is None:
-            nlp.reason[k] = estimate.failure or "no estimate"
+            pointing.reason[k] = estimate.failure or "no estimate"
             continue
-        nlp.boresight[k] = estimate.attitude.inv().apply(BORESIGHT_BODY)
-        nlp.sigma[k] = np.sqrt(np.diag(estimate.covariance))
-        nlp.bound[k] = lsq.bound[k]
-    return [cone, lsq, nlp]
+        pointing.boresight[k] = estimate.attitude.inv().apply(BORESIGHT_BODY)
+        pointing.sigma[k] = observable_sigma(estimate.covariance)
+        pointing.bound[k] = lsq.bound[k]
+    return pointing
 
 
 def epoch_snapshot(
@@ -267,28 +301,54 @@ def epoch_snapshot(
     return Snapshot.of(SnrMeasurement(epoch), t=float(scenario.t[k]))
 
 
-def _filter_rows(method: str, scenario: GeoSnrScenario, result: Track) -> _Rows:
-    rows = _Rows(method, scenario)
-    valid = result.valid
-    rows.reason[~valid] = result.reason[~valid]
+def track_pointing(scenario: GeoSnrScenario, track: Track) -> Pointing:
+    """A filter's or smoother's track as boresights, its own sigma (also the bound), its
+    yaw error and its normalised innovations (``nis``)."""
+    pointing = Pointing.empty(scenario.t.size)
+    valid = track.valid
+    pointing.reason[~valid] = track.reason[~valid]
     if valid.any():
-        estimate = result.attitude()
-        rows.boresight[valid] = estimate.inv().apply(BORESIGHT_BODY)
-        rows.yaw[valid] = (estimate * scenario.truth[valid].inv()).as_rotvec()[:, 2]
-    rows.sigma = np.sqrt(np.diagonal(result.covariance, axis1=1, axis2=2))
-    rows.bound = rows.sigma[:, :2]
-    rows.extra["nis"] = result.loss
-    return rows
+        estimate = track.attitude()
+        pointing.boresight[valid] = estimate.inv().apply(BORESIGHT_BODY)
+        pointing.yaw[valid] = (estimate * scenario.truth[valid].inv()).as_rotvec()[:, 2]
+    pointing.sigma = observable_sigma(track.covariance)
+    pointing.bound = pointing.sigma[:, :2]
+    pointing.extra["nis"] = track.loss
+    return pointing
 
 
 def _filter_prior(
     setting: Setting, scenario: GeoSnrScenario, rng: np.random.Generator, cone_start: Array
 ) -> Prior:
-    """The seed's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
+    """The paper's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
     sigma0 = np.radians(setting["initial_sigma_deg"])
     draw = Rotation.from_rotvec(sigma0 * rng.standard_normal(3)) * scenario.truth[0]
     start = DetectionOptions(yaw_sigma=sigma0, bias_sigma=rate_model(setting).initial_bias_sigma)
     return boresight_prior(draw, cone_start, np.zeros(3), start)
+
+
+def filter_pass(
+    setting: Setting,
+    seed: np.random.SeedSequence,
+    scenario: GeoSnrScenario,
+    snr: Array,
+    cone: Array,
+) -> Pass:
+    """The filter stations' SNRs with the assumed-rate gyro and the prior (module
+    docstring), ``cone``: the cone intersection's boresight at the first epoch."""
+    names = [station.name for station in scenario.stations]
+    filter_idx = np.array([names.index(name) for name in FILTER_STATIONS])
+    filter_snr = np.full_like(snr, np.nan)
+    filter_snr[:, filter_idx] = snr[:, filter_idx]
+    measurements = [scenario.measurement(k, row) for k, row in enumerate(filter_snr)]
+    samples, model = assumed_rates(scenario), rate_model(setting)
+    prior = _filter_prior(setting, scenario, child_rng(seed, GYRO_STREAM), cone)
+    return Pass(
+        scenario.t,
+        epoch_snapshots(measurements, scenario.t),
+        GyroRecord(samples.t, samples.rates, model),
+        prior,
+    )
 
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
@@ -299,41 +359,40 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     snr = scenario.simulate_snr(np.random.default_rng(seed))
     names = [station.name for station in scenario.stations]
     filter_idx = np.array([names.index(name) for name in FILTER_STATIONS])
-    snapshot = _snapshot_rows(scenario, snr, filter_idx)
-    cone = snapshot[0]
+    heard = [np.flatnonzero(np.isfinite(row)) for row in snr]
+    cone_stations = [np.intersect1d(filter_idx, h) for h in heard]
+    cone = boresight_pointing(METHODS["cone"], scenario, snr, cone_stations)
+    lsq = boresight_pointing(METHODS["lsq"], scenario, snr, heard)
+    nlp = nlp_pointing(scenario, snr, lsq)
     if not np.isfinite(cone.boresight[0]).all():
         raise ValueError(f"no cone intersection at the first epoch: {cone.reason[0]}")
-    filter_snr = np.full_like(snr, np.nan)
-    filter_snr[:, filter_idx] = snr[:, filter_idx]
-    measurements = [scenario.measurement(k, row) for k, row in enumerate(filter_snr)]
-    samples, model = assumed_rates(scenario), rate_model(setting)
-    prior = _filter_prior(setting, scenario, child_rng(seed, GYRO_STREAM), cone.boresight[0])
-    filter_pass = Pass(
-        scenario.t,
-        epoch_snapshots(measurements, scenario.t),
-        GyroRecord(samples.t, samples.rates, model),
-        prior,
-    )
-    plain = Usque(filter=FILTER_OPTIONS).solve(filter_pass)
+    pass_ = filter_pass(setting, seed, scenario, snr, cone.boresight[0])
     detection = DetectionOptions(
         window=detection_window(setting), false_alarm=setting["false_alarm"]
     )
-    boresight: Callable[[int], Array] = _cone_or_lsq(cone, snapshot[1])
-    run = detect_and_reinitialise(filter_pass, boresight, detection, FILTER_OPTIONS)
-    smoothed = BatchSmoother(filter=FILTER_OPTIONS).solve(filter_pass, initial=run.result)
-    detect_rows = _filter_rows("usque_detect", scenario, run.result)
-    detect_rows.extra["p_value"] = run.p_value
-    detect_rows.extra["detected"] = np.isin(np.arange(scenario.t.size), run.detections)
-    frames = [
-        *snapshot,
-        _filter_rows("usque", scenario, plain),
-        detect_rows,
-        _filter_rows("fg_batch", scenario, smoothed),
-    ]
-    return pd.concat([rows.frame() for rows in frames], ignore_index=True)
+    boresight: Callable[[int], Array] = _cone_or_lsq(cone, lsq)
+    began = time.perf_counter()
+    detected = detect_and_reinitialise(pass_, boresight, detection, FILTER_OPTIONS)
+    start = Run(detected.result, time.perf_counter() - began)
+    methods = {label: estimator(METHODS[label], filter=FILTER_OPTIONS) for label in PASS_METHODS}
+    runs = run_estimators(pass_, methods, starts={"fg_batch": start})
+    detect = track_pointing(scenario, detected.result)
+    detect.extra["p_value"] = detected.p_value
+    detect.extra["detected"] = np.isin(np.arange(scenario.t.size), detected.detections)
+    pointings = {
+        "cone": cone,
+        "lsq": lsq,
+        "nlp": nlp,
+        "usque": track_pointing(scenario, runs["usque"].track),
+        "usque_detect": detect,
+        "fg_batch": track_pointing(scenario, runs["fg_batch"].track),
+    }
+    return pd.concat(
+        [p.frame(label, scenario) for label, p in pointings.items()], ignore_index=True
+    )
 
 
-def _cone_or_lsq(cone: _Rows, lsq: _Rows) -> Callable[[int], Array]:
+def _cone_or_lsq(cone: Pointing, lsq: Pointing) -> Callable[[int], Array]:
     """Snapshot boresight of epoch ``k`` for a restart: the cones', else least squares'."""
 
     def boresight(k: int) -> Array:

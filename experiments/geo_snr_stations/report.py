@@ -22,9 +22,10 @@ from attopt.experiments.geo_snr_stations.scenario import (
     build_geo_snr_scenario,
 )
 from attopt.experiments.reporting.figures import error_figure, image_links, save_figure
-from attopt.experiments.reporting.integrity import integrity_section
+from attopt.experiments.reporting.integrity import NOT_AVAILABLE, integrity_section
 from attopt.experiments.reporting.paper_values import paper_label, paper_table, paper_values
 from attopt.experiments.reporting.tables import (
+    cell,
     document,
     made_by,
     markdown_table,
@@ -117,7 +118,7 @@ def bounds_section(summary: pd.DataFrame, command: str) -> str:
             "roll bound": rows["roll_bound_deg"].to_numpy(),
             "pitch RMS": rows["pitch_rms_deg"].to_numpy(),
             "pitch bound": rows["pitch_bound_deg"].to_numpy(),
-            "yaw": "unobservable",
+            "yaw RMS": [cell(v, ".2e", NOT_AVAILABLE) for v in rows["yaw_rms_deg"]],
             "filter yaw RMS": rows["filter_yaw_rms_deg"].to_numpy(),
             "yaw inside 3 sigma": rows["yaw_inside_3sigma"].to_numpy(),
         }
@@ -126,8 +127,8 @@ def bounds_section(summary: pd.DataFrame, command: str) -> str:
         "Pointing (boresight) error about body x (roll) and y (pitch), deg, RMS over the epochs "
         "of all trials. Bound: the filters' and smoother's own sigma; for cone, lsq and nlp the "
         "Cramer-Rao bound of their stations' SNRs. Yaw about the boresight is unobservable from "
-        "SNRs; the filters' yaw RMS and the share of epochs with it inside 3 sigma are for the "
-        "record only." + made_by(command)
+        f"SNRs ({NOT_AVAILABLE}: the rows carry no yaw error); the filters' yaw RMS and the "
+        "share of epochs with it inside 3 sigma are for the record only." + made_by(command)
     )
     formats = {"valid": ".3f", "filter yaw RMS": ".2f", "yaw inside 3 sigma": ".2f"}
     return section(

@@ -3,7 +3,9 @@
 Rows carry the columns of :mod:`attopt.experiments.metrics` (``err_{x,y,z}_deg``,
 ``sigma_{x,y,z}_deg``, ``nees``, ...) and optional bound columns
 ``{bound}_{x,y,z}_deg``.  A row is *valid* when its ``valid`` column (if any) is
-true and its three error components are finite (:func:`valid_mask`).  The
+true and it has a finite error component (:func:`valid_mask`): an invalid
+epoch is NaN on every axis, an axis the estimator cannot see is NaN on a
+valid one (:mod:`attopt.experiments.metrics`).  The
 experiments' summary columns and the reports use these functions, so a table
 and the summary computed from the same rows agree.
 """
@@ -25,9 +27,10 @@ NEES_DOF = 3
 
 
 def valid_mask(rows: pd.DataFrame) -> np.ndarray:
-    """Which rows have a valid attitude with finite error components."""
+    """Which rows have a valid attitude: finite error components, except on the axes it
+    cannot see (NaN there; module docstring)."""
     errors = rows[list(ERROR_COLUMNS)].to_numpy(dtype=float)
-    valid = np.isfinite(errors).all(axis=1)
+    valid = np.isfinite(errors).any(axis=1)
     if "valid" in rows:
         valid &= rows["valid"].fillna(False).to_numpy(dtype=bool)
     return valid

@@ -1,10 +1,12 @@
 """Per-setting, per-method statistics of the attitude errors of a sweep.
 
-A row counts as valid when its ``valid`` column (if any) is true and its three
-error components are finite
-(:func:`attopt.experiments.reporting.statistics.valid_mask`).  RMS, means and
-percentiles are over valid rows;
-the error angle is the norm of the error rotation vector.  When the rows carry
+A row counts as valid when its ``valid`` column (if any) is true and it has a
+finite error component; an axis the estimator cannot see is NaN on a valid
+row (:func:`attopt.experiments.reporting.statistics.valid_mask`).  RMS, means
+and percentiles are over valid rows, per axis over those with a finite error
+on it, so an axis that is NaN in every row of a group is NaN (never 0) in
+each of its summary columns; the error angle is the norm of the error
+rotation vector over the axes it has.  When the rows carry
 ``bound_{x,y,z}_deg`` (predicted standard deviations), the RMS of the bound
 over the valid rows and the ratio RMS / bound are added per axis.
 """
@@ -96,7 +98,7 @@ def _error_statistics(rows: pd.DataFrame, keys: list[str]) -> pd.DataFrame:
             bounded.append(name)
             sigma = rows[bound].to_numpy(dtype=float)
             work[f"{name}_bound_ms"] = np.where(valid, sigma**2, np.nan)
-    angle = np.sqrt((errors**2).sum(axis=1))
+    angle = np.where(valid, np.sqrt(np.nansum(errors**2, axis=1)), np.nan)
     work["angle"] = angle
     work["total_ms"] = angle**2
     groups = work.groupby(keys, dropna=False, sort=True)

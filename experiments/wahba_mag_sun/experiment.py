@@ -1,31 +1,39 @@
-"""Experiment ``wahba-mag-sun``: every Wahba solver on seed 002's scenario.
+"""Experiment ``wahba-mag-sun``: every Wahba solver on Cilden Guler et al. 2017's scenario.
 
 One trial is one pass of :mod:`attopt.experiments.wahba_mag_sun.scenario` (6000 s
-at 1 Hz) with fresh sensor noise; every solver sees the same measurements.
-Rows are per method and epoch: the body-axis attitude error, the Cramer-Rao
-bound of that epoch (``sqrt`` of the diagonal of ``[sum a_i (I - b_i b_i^T)]^-1``
-at the true body vectors) and the method's own covariance (as ``sigma_*`` and
-the normalised estimation error squared ``nees``), and the 3-2-1 Euler-angle
-differences the seed's Table 1 reports.
+at 1 Hz) with fresh sensor noise (:func:`simulate_pass`): each epoch one
+:class:`~attopt.formulations.attitude_measurement.VectorMeasurement` of the Sun
+and field directions with orbit-frame references (the Sun row dropped in
+eclipse).  Every estimator sees the same measurements:
 
-Gyro-aided filters (``filters``: the MEKF, USQUE and the RTS smoother over
-the MEKF, :mod:`attopt.experiments.filtering`) see the same vector measurements
-(each epoch one :class:`~attopt.formulations.attitude_measurement.VectorMeasurement`
-of the Sun and field directions, orbit-frame references; the Sun row is
-dropped in eclipse) plus a simulated gyro (``gyro``, a
-:data:`attopt.formulations.gyro.GYRO_MODELS` name; seed 002 has none, so the default
-is the MEMS unit) and a prior with ``initial_sigma_deg`` attitude error per
-axis.  The gyro and the prior draw from a child stream of the trial's seed
-(:func:`attopt.experiments.filtering.child_rng`), so the single-frame rows do not
-depend on the filters.  Filter rows carry the single-frame columns plus
-:func:`attopt.experiments.filtering.filter_columns` (gyro-bias error and sigma,
-6-state NEES ``nees_full``, update counts), the bias estimates
-``bias_{x,y,z}_deg_h`` and ``runtime_s``, the wall time of the pass (for
-``rts``: the MEKF's plus the backward pass's); single-frame rows have NaN
-there.  ``fg_batch`` is the GTSAM whole-pass smoother (:mod:`attopt.solvers.smoother`)
-started from the RTS estimates (its ``runtime_s`` includes them); with it,
-the gyro-aided rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao
-bound of the pass (:func:`attopt.solvers.bounds.posterior_bound`).
+* ``methods``: snapshot estimators of the registry that accept unit vectors,
+  labelled by their registry names; the Wahba solvers through their vectorised
+  path (:meth:`~attopt.solvers.wahba.WahbaSolver.solve_batch`), any other
+  through ``solve_sequence``;
+* ``filters``: pass estimators of the registry (default the MEKF, USQUE, the
+  RTS smoother over the MEKF and the GTSAM whole-pass smoother ``fg_batch``,
+  started from the RTS estimates) run by
+  :func:`attopt.solvers.pipeline.run_estimators` on the same vectors plus a
+  simulated gyro (``gyro``, a :data:`attopt.formulations.gyro.GYRO_MODELS`
+  name; Cilden Guler et al. 2017 has none, so the default is the MEMS unit)
+  and a prior with ``initial_sigma_deg`` attitude error per axis
+  (:mod:`attopt.experiments.simulation`).  The gyro and the prior draw from a
+  child stream of the trial's seed (:func:`attopt.experiments.simulation.child_rng`),
+  so the single-frame rows do not depend on the filters.
+
+Rows are per method and epoch: the metric columns of
+:func:`attopt.experiments.metrics.error_columns` (body-axis error, the
+method's own sigma and NEES, the 3-2-1 Euler-angle differences the paper's
+Table 1 reports) and the Cramer-Rao bound of that epoch (``bound_*``: ``sqrt``
+of the diagonal of ``[sum a_i (I - b_i b_i^T)]^-1`` at the true body vectors).
+Filter rows add :func:`attopt.experiments.metrics.gyro_columns` (bias
+estimates, gyro-bias error and sigma, 6-state NEES ``nees_full``, update
+counts) and ``runtime_s``, the wall time of the pass (for ``rts``: the MEKF's
+plus the backward pass's; for ``fg_batch`` its start's included); with a
+factor-graph smoother among them, every filter row carries
+``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of the pass
+(:func:`attopt.experiments.metrics.posterior_bound_columns`).  Single-frame
+rows have NaN there.
 """
 
 from __future__ import annotations
@@ -33,26 +41,29 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from attopt.experiments.estimators import FACTOR_GRAPH, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.filtering import (
+from attopt.experiments.metrics import (
+    error_columns,
+    gyro_columns,
+    in_orbit_frame,
+    posterior_bound_columns,
+    status_columns,
+)
+from attopt.experiments.simulation import (
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
-    VECTOR_FILTERS,
     GyroTruth,
-    bound_columns,
     child_rng,
-    filter_columns,
     gyro_truth,
-    in_orbit_frame,
-    run_filters,
     simulate_filter_inputs,
 )
-from attopt.experiments.metrics import error_columns
 from attopt.experiments.wahba_mag_sun.report import report
 from attopt.experiments.wahba_mag_sun.scenario import (
     MAG_SIGMA,
@@ -65,12 +76,27 @@ from attopt.experiments.wahba_mag_sun.scenario import (
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import orbit_frame_attitude
 from attopt.formulations.gyro import GYRO_MODELS
+from attopt.formulations.passes import Pass
 from attopt.formulations.wahba_covariance import quest_covariance
-from attopt.solvers.wahba import ESTIMATORS
+from attopt.solvers import wahba
+from attopt.solvers.estimator import SnapshotEstimator
+from attopt.solvers.pipeline import run_estimators
+from attopt.solvers.registry import estimator
+from attopt.solvers.results import Track
 
 INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
-SOLVERS = {solver.name: solver for solver in ESTIMATORS}
-"""The Wahba solvers by registry name."""
+
+
+def method_labels() -> dict[str, str]:
+    """Row label -> registry name of the ``methods``: the snapshot estimators that accept
+    unit vectors, by name."""
+    return registered_labels("snapshot", VectorMeasurement)
+
+
+def filter_labels() -> dict[str, str]:
+    """Row label -> registry name of the ``filters``: the pass estimators that accept unit
+    vectors, by name."""
+    return registered_labels("pass", VectorMeasurement)
 
 
 PARAMETERS: dict[str, Any] = {
@@ -78,7 +104,7 @@ PARAMETERS: dict[str, Any] = {
     "step_s": 1.0,
     "mag_sigma": MAG_SIGMA,
     "sun_sigma": SUN_SIGMA,
-    "methods": list(SOLVERS),
+    "methods": [solver.name for solver in wahba.ESTIMATORS],
     "filters": ["mekf", "usque", "rts", "fg_batch"],
     "gyro": "mems",
     "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
@@ -86,20 +112,16 @@ PARAMETERS: dict[str, Any] = {
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting: the seed's sensor noise; methods are compared inside each trial.
+    """One setting: the paper's sensor noise; methods are compared inside each trial.
 
     Raises:
-        ValueError: for an unknown method, filter or gyro model, a name used
-            twice across ``methods`` and ``filters``, or a non-positive
-            ``initial_sigma_deg``.
+        ValueError: for a method or filter the registry does not have (the message
+            lists the registered ones), an unknown gyro model, a name used twice
+            across ``methods`` and ``filters``, or a non-positive ``initial_sigma_deg``.
     """
-    unknown = sorted(set(parameters["methods"]) - set(SOLVERS))
-    if unknown:
-        raise ValueError(f"unknown methods {unknown}; registered: {sorted(SOLVERS)}")
+    resolve(parameters["methods"], method_labels(), "methods")
     filters = list(parameters.get("filters", []))
-    unknown = sorted(set(filters) - set(VECTOR_FILTERS))
-    if unknown:
-        raise ValueError(f"unknown filters {unknown}; known: {list(VECTOR_FILTERS)}")
+    resolve(filters, filter_labels(), "filters")
     names = [*parameters["methods"], *filters]
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -124,9 +146,36 @@ def interval_labels(geometry: VectorGeometry) -> np.ndarray:
     return labels
 
 
-def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
-    """One noisy pass solved by every method in ``setting["methods"]``."""
-    geometry = build_geometry(setting["duration_s"], setting["step_s"])
+@dataclass(frozen=True)
+class VectorPass:
+    """One trial's measured Sun and field directions (orbit-frame references).
+
+    Attributes:
+        body: ``(N, 2, 3)`` measured body vectors, Sun then field (Sun NaN in eclipse).
+        reference: ``(N, 2, 3)`` their orbit-frame references.
+        sigma: direction noise (Sun, field).
+        present: ``(N, 2)`` which vectors were measured.
+        pass_: the same as one snapshot per epoch.
+    """
+
+    body: np.ndarray
+    reference: np.ndarray
+    sigma: tuple[float, float]
+    present: np.ndarray
+    pass_: Pass
+
+    @property
+    def weights(self) -> np.ndarray:
+        """``(N, 2)`` Wahba weights ``1 / sigma^2`` (Cilden Guler et al. 2017 eq. 14)."""
+        return np.tile([s**-2 for s in self.sigma], (self.body.shape[0], 1))
+
+
+def simulate_pass(
+    geometry: VectorGeometry, seed: np.random.SeedSequence, setting: Setting
+) -> VectorPass:
+    """The trial's noisy vectors
+    (:func:`~attopt.experiments.wahba_mag_sun.scenario.simulate_measurements`, the
+    trial's seed)."""
     sun_body, mag_body = simulate_measurements(
         geometry,
         np.random.default_rng(seed),
@@ -136,28 +185,52 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     n = geometry.t.size
     body = np.stack([sun_body, mag_body], axis=1)
     reference = np.stack([geometry.sun_orbit, geometry.mag_orbit], axis=1)
-    weights = np.tile([setting["sun_sigma"] ** -2, setting["mag_sigma"] ** -2], (n, 1))
+    sigma = (setting["sun_sigma"], setting["mag_sigma"])
     present = np.stack([~geometry.in_eclipse, np.ones(n, dtype=bool)], axis=1)
+    return VectorPass(
+        body, reference, sigma, present, Pass.from_vectors(geometry.t, body, reference, sigma)
+    )
 
+
+def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
+    """One noisy pass solved by every method in ``setting["methods"]`` and every filter
+    in ``setting["filters"]``."""
+    geometry = build_geometry(setting["duration_s"], setting["step_s"])
+    vectors = simulate_pass(geometry, seed, setting)
+    common = epoch_columns(geometry, vectors)
+    methods = resolve(setting["methods"], method_labels(), "methods")
+    frames = [
+        _method_rows(label, snapshot_track(estimator(name), vectors), geometry, common)
+        for label, name in methods.items()
+    ]
+    if setting.get("filters"):
+        frames += _filter_rows(setting, seed, vectors, geometry, common)
+    return pd.concat(frames, ignore_index=True)
+
+
+def epoch_columns(geometry: VectorGeometry, vectors: VectorPass) -> dict[str, np.ndarray]:
+    """``t``, the eclipse ``interval`` and the Cramer-Rao bound ``bound_{x,y,z}_deg`` of
+    each epoch (NaN where the information is singular)."""
     true_body = np.stack(
         [geometry.truth.apply(geometry.sun_orbit), geometry.truth.apply(geometry.mag_orbit)], axis=1
     )
     with np.errstate(divide="ignore", invalid="ignore"):
-        crb = _safe_inverse_diag(true_body, np.where(present, weights, 0.0))
-    common = {
+        crb = _safe_inverse_diag(true_body, np.where(vectors.present, vectors.weights, 0.0))
+    return {
         "t": geometry.t,
         "interval": interval_labels(geometry),
         "bound_x_deg": np.degrees(np.sqrt(crb[:, 0])),
         "bound_y_deg": np.degrees(np.sqrt(crb[:, 1])),
         "bound_z_deg": np.degrees(np.sqrt(crb[:, 2])),
     }
-    frames = [
-        _method_rows(name, body, reference, weights, present, geometry, common)
-        for name in setting["methods"]
-    ]
-    if setting.get("filters"):
-        frames += _filter_rows(setting, seed, geometry, sun_body, mag_body, common)
-    return pd.concat(frames, ignore_index=True)
+
+
+def snapshot_track(method: SnapshotEstimator, vectors: VectorPass) -> Track:
+    """The method's track over the pass: a Wahba solver's vectorised path, else
+    ``solve_sequence`` over the snapshots."""
+    if isinstance(method, wahba.WahbaSolver):
+        return method.solve_batch(vectors.body, vectors.reference, vectors.weights, vectors.present)
+    return method.solve_sequence(vectors.pass_.snapshots)
 
 
 def filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth:
@@ -176,9 +249,8 @@ def _filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth
 def _filter_rows(
     setting: Setting,
     seed: np.random.SeedSequence,
+    vectors: VectorPass,
     geometry: VectorGeometry,
-    sun_body: np.ndarray,
-    mag_body: np.ndarray,
     common: Mapping[str, np.ndarray],
 ) -> list[pd.DataFrame]:
     model = GYRO_MODELS[setting.get("gyro", "mems")]
@@ -189,31 +261,23 @@ def _filter_rows(
         child_rng(seed, GYRO_STREAM),
         setting.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG),
     )
-    sigma = [setting["sun_sigma"], setting["mag_sigma"]]
-    measurements = [
-        VectorMeasurement(
-            np.stack([sun_body[k], mag_body[k]]),
-            np.stack([geometry.sun_orbit[k], geometry.mag_orbit[k]]),
-            sigma,
-        )
-        for k in range(geometry.t.size)
-    ]
+    simulated = inputs.gyro_pass(truth, vectors.pass_.snapshots)
+    filters = resolve(setting["filters"], filter_labels(), "filters")
+    runs = run_estimators(simulated.pass_, filters)
+    bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & set(filters.values()) else {}
     frames = []
-    runs = run_filters(setting["filters"], inputs, truth, measurements)
-    bound = bound_columns(runs, inputs, truth, measurements)
-    for name, (result, seconds) in runs.items():
-        solution = in_orbit_frame(result, truth.epoch_frames)
+    for label, run in runs.items():
+        track = in_orbit_frame(run.track, simulated.frames)
         frames.append(
             pd.DataFrame(
                 {
-                    "method": name,
+                    "method": label,
                     **common,
-                    **error_columns(solution, geometry.truth),
-                    "valid": solution.valid,
-                    "reason": solution.reason.astype(str),
-                    **filter_columns(result, inputs, truth),
+                    **error_columns(track, geometry.truth),
+                    **status_columns(track),
+                    **gyro_columns(run.track, simulated),
                     **bound,
-                    "runtime_s": seconds,
+                    "runtime_s": run.seconds,
                 }
             )
         )
@@ -231,23 +295,10 @@ def _safe_inverse_diag(true_body: np.ndarray, weights: np.ndarray) -> np.ndarray
 
 
 def _method_rows(
-    name: str,
-    body: np.ndarray,
-    reference: np.ndarray,
-    weights: np.ndarray,
-    present: np.ndarray,
-    geometry: VectorGeometry,
-    common: Mapping[str, np.ndarray],
+    label: str, track: Track, geometry: VectorGeometry, common: Mapping[str, np.ndarray]
 ) -> pd.DataFrame:
-    solution = SOLVERS[name].solve_batch(body, reference, weights, present)
     return pd.DataFrame(
-        {
-            "method": name,
-            **common,
-            **error_columns(solution, geometry.truth),
-            "valid": solution.valid,
-            "reason": solution.reason.astype(str),
-        }
+        {"method": label, **common, **error_columns(track, geometry.truth), **status_columns(track)}
     )
 
 

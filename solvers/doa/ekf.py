@@ -100,7 +100,7 @@ from attopt.formulations.attitude_measurement import AttitudeMeasurement, body_v
 from attopt.formulations.attitude_model import attitude_model_function, increment_matrix
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
 from attopt.formulations.passes import Pass, Prior
-from attopt.formulations.symbolic import CASADI, namespace_of
+from attopt.formulations.rigid_body import angular_acceleration
 from attopt.solvers.doa.vector_slots import vector_arrays, vector_slots
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
 from attopt.solvers.filters.common import FilterOptions, gate, noise_subset, solve_noise
@@ -116,28 +116,10 @@ from attopt.solvers.sequential import (
 
 Array = NDArray[np.float64]
 
-INERTIA_SEED003 = np.array(
-    [[6.6199, 0.01636, 0.2363], [0.01636, 8.95, 0.2247], [0.2363, 0.2247, 9.4968]]
-)
-"""Inertia matrix of seed 003 eq. 25 (kg m^2)."""
 PROCESS_NOISE = 1.0e-9
 """Diagonal of ``Q`` per step (seed 003 sec. 5.2)."""
 MAX_STEP_ANGLE = 0.1
 """Largest rotation per step (rad) for which the series ``Exp`` is exact to rounding."""
-
-
-def angular_acceleration(omega: Any, wheel_momentum: Any, inertia: ArrayLike) -> Any:
-    """``omega_dot = I^-1 (-omega x (I omega + h))`` (seed 003 eq. 23, torque free, ``h_dot = 0``).
-
-    numpy: ``(..., 3)`` rates and momenta; CasADi: ``3 x 1`` columns.
-    """
-    inertia = np.asarray(inertia, dtype=float)
-    if namespace_of(omega, wheel_momentum) is CASADI:
-        momentum = ca.DM(inertia) @ omega + wheel_momentum
-        return ca.solve(ca.DM(inertia), -ca.cross(omega, momentum))
-    omega = np.asarray(omega, dtype=float)
-    momentum = omega @ inertia.T + wheel_momentum
-    return np.linalg.solve(inertia, -np.cross(omega, momentum)[..., None])[..., 0]
 
 
 def _skew(v: Any) -> Any:

@@ -3,8 +3,8 @@
 With the RF parameters and the attitude (or just the boresight,
 :func:`attopt.formulations.geo_link.attitude_pointing`) known, the satellite is
 placed on the geostationary belt (seed 004 assumption 1: equatorial, radius
-:data:`GEO_RADIUS_KM`, ECEF) at the longitude ``lambda`` whose predicted SNRs
-(eq. 7) fit the measured ones:
+:data:`~attopt.formulations.geo_geometry.GEO_RADIUS_KM`, ECEF) at the longitude
+``lambda`` whose predicted SNRs (eq. 7) fit the measured ones:
 
 1. exhaustive search over the visible belt (every station above its horizon,
    every station inside the main lobe) on a grid of ``step_deg``;
@@ -28,13 +28,11 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError, UnobservableError
+from attopt.formulations.geo_geometry import GEO_RADIUS_KM, belt_position
 from attopt.formulations.geo_link import BORESIGHT_BODY, GARUDA1, GeoLink, elevation_rad, geo_snr_db
 from attopt.formulations.snr_model import observation_mask
 
 Array = NDArray[np.float64]
-
-GEO_RADIUS_KM = 42_164.17
-"""Radius of the geostationary orbit (km)."""
 
 
 @dataclass(frozen=True)
@@ -50,12 +48,6 @@ class BeltSolution:
     """``(m, 3)`` unit lines of sight station -> satellite."""
     residual_rms: float
     """RMS of the normalised SNR residuals at the solution."""
-
-
-def belt_position(longitude_rad: ArrayLike, radius_km: float = GEO_RADIUS_KM) -> Array:
-    """ECEF positions ``(..., 3)`` on the equatorial belt at ``longitude_rad``."""
-    lon = np.asarray(longitude_rad, dtype=float)
-    return radius_km * np.stack([np.cos(lon), np.sin(lon), np.zeros_like(lon)], axis=-1)
 
 
 @lru_cache(maxsize=16)
@@ -140,13 +132,3 @@ def locate_on_geo_belt(
         los=los / np.linalg.norm(los, axis=1, keepdims=True),
         residual_rms=float(np.sqrt(np.mean(fit.fun**2))),
     )
-
-
-def line_of_sight_errors(
-    estimate_km: ArrayLike, truth_km: ArrayLike, stations_km: ArrayLike
-) -> Array:
-    """Angle (rad) between estimated and true lines of sight station -> satellite, ``(m,)``."""
-    stations = np.asarray(stations_km, dtype=float)
-    a = np.asarray(estimate_km, dtype=float) - stations
-    b = np.asarray(truth_km, dtype=float) - stations
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
