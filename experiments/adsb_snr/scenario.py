@@ -1,4 +1,4 @@
-"""Geometry of the ``adsb-snr`` scenario (seed 000 sec. 5.1).
+"""Geometry of the ``adsb-snr`` scenario (Liu et al. 2023 sec. 5.1).
 
 A satellite in a 600 km, 97.8 deg Sun-synchronous orbit carries two helical
 ADS-B antennas on its nadir face and sees a global population of airborne
@@ -21,21 +21,21 @@ astropy ``get_sun``) plus 157.5 deg, i.e. a local time of the ascending node of
 TLE epoch, chosen by scanning starts at 1 min steps over two days (10 s
 sampling, seed-0 traffic) for the hour whose sparsest epoch holds the most
 aircraft in an antenna's main lobe (``G >= 4 dBi``: ``14.4598 cos^6(alpha) >=
-10^0.4``, ``alpha <= 41.67 deg``, seed 000 eq. 63).  The ascending pass starts
+10^0.4``, ``alpha <= 41.67 deg``, Liu et al. 2023 eq. 63).  The ascending pass starts
 over Brazil, runs north off the east coast of North America, over Greenland
 and the Arctic, and descends over eastern Siberia and East Asia to Borneo.
 
 Attitude.  Nominally Earth pointing (body = orbit frame), the true orbit ->
-body attitude wanders by a few degrees; 3-2-1 Euler angles of seed 000 eq. 8,
+body attitude wanders by a few degrees; 3-2-1 Euler angles of Liu et al. 2023 eq. 8,
 ``t`` in seconds from the start::
 
     yaw(t)   = 4 deg * cos(2 pi t / 1700)
     pitch(t) = 3 deg * sin(2 pi t / 2300)
     roll(t)  = 5 deg * sin(2 pi t / 1100 + pi / 3)
 
-Antennas.  Both boresights are tilted by ``beta_opt = 50.77 deg`` (seed 000
+Antennas.  Both boresights are tilted by ``beta_opt = 50.77 deg`` (Liu et al. 2023
 eq. 64) from nadir (+z body), antenna 1 towards +y and antenna 2 towards -y
-body, i.e. cross-track and symmetric about the orbit plane as in seed 000
+body, i.e. cross-track and symmetric about the orbit plane as in Liu et al. 2023
 Fig. 7.  Cross-track tilting makes the two main lobes cover the two sides of
 the ground track: the widest surveillance swath, and two boresights 101.5 deg
 apart for a well-conditioned three-axis solution.
@@ -44,8 +44,8 @@ Visibility.  An aircraft is visible at an epoch when the straight segment from
 the satellite to it does not cross the WGS84 ellipsoid (no refraction, terrain
 or atmosphere) and, for an antenna, when its off-boresight angle is at most the
 caller's ``max_off_boresight_deg``.  Lines of sight point from the satellite to
-the aircraft, so ``cos(alpha) = l . b`` (seed 000 eqs. 5-7) is positive in the
-main lobe; seed 000 eq. 9 prints the opposite difference.
+the aircraft, so ``cos(alpha) = l . b`` (Liu et al. 2023 eqs. 5-7) is positive in the
+main lobe; Liu et al. 2023 eq. 9 prints the opposite difference.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ ROLL_PERIOD_S = 1100.0
 ROLL_PHASE_RAD = np.pi / 3.0
 
 BETA_OPT_DEG = 50.77
-"""Optimal antenna tilt from nadir (seed 000 eq. 64)."""
+"""Optimal antenna tilt from nadir (Liu et al. 2023 eq. 64)."""
 BORESIGHTS_BODY = np.array(
     [
         [0.0, np.sin(np.radians(BETA_OPT_DEG)), np.cos(np.radians(BETA_OPT_DEG))],
@@ -158,7 +158,7 @@ class ObservationTable:
     range_m: NDArray[np.float64]
     """Slant ranges, ``(M,)``."""
     cos_off_boresight: NDArray[np.float64]
-    """Cosine of the true off-boresight angle (seed 000 eq. 7), ``(M,)``."""
+    """Cosine of the true off-boresight angle (Liu et al. 2023 eq. 7), ``(M,)``."""
     aircraft_ecef_km: NDArray[np.float64]
     """Aircraft positions in ECEF (as decoded from ADS-B), ``(M, 3)``."""
 
@@ -296,7 +296,7 @@ def visible_observations(
 
 
 def visible_counts(geometry: AdsbGeometry, max_off_boresight_deg: float) -> NDArray[np.intp]:
-    """Number of aircraft visible in each antenna's cone, ``(N, 2)`` (seed 000 Fig. 8)."""
+    """Number of aircraft visible in each antenna's cone, ``(N, 2)`` (Liu et al. 2023 Fig. 8)."""
     n_antennas = len(BORESIGHTS_BODY)
     counts = np.zeros(geometry.t.size * n_antennas, dtype=np.intp)
     for table in observation_chunks(geometry, max_off_boresight_deg):

@@ -5,8 +5,8 @@ run:
 
 * DOA RMSE of theta and phi against the stochastic CRB
   (:func:`attopt.formulations.doa_crb.stochastic_crb`) at input SNR -14..14 dB with
-  L = 100 (seed 003 Table 1) and at L = 1..1000 with SNR 0 dB (Table 2),
-  with the seed's DOA RMSEs beside them.  Every trial has its own generator
+  L = 100 (Yang et al. 2014 Table 1) and at L = 1..1000 with SNR 0 dB (Table 2),
+  with the paper's DOA RMSEs beside them.  Every trial has its own generator
   ``SeedSequence(seed, spawn_key=(condition, trial))``; the source is at
   ``theta = 45 deg``, ``phi = 60 deg`` (one CRB per condition).  RMSEs are
   over the accepted estimates; the rejected fraction (ambiguous peak) is
@@ -17,8 +17,8 @@ run:
   pyroomacoustics MUSIC call (1-degree grid over the same 70-degree cone).
 * Cost of one ``doa-ground`` pass (``--pass-sets``, default 20000 sets, about
   one 5000-s pass) at SNR 0 dB (given), L = 100 and 1000, random directions
-  in the seed's 62-degree cone: drawing the sample covariances directly
-  (:func:`attopt.formulations.doa_array.simulate_sample_covariance`, seed 003 eqs.
+  in the paper's 62-degree cone: drawing the sample covariances directly
+  (:func:`attopt.formulations.doa_array.simulate_sample_covariance`, Yang et al. 2014 eqs.
   8-10) and :meth:`MusicEstimator.estimate_covariance`, against simulating the
   snapshots and :meth:`MusicEstimator.estimate` in chunks of
   ``CHUNK_ELEMENTS`` samples (``experiments/doa_ground/experiment.py`` uses the direct
@@ -198,7 +198,7 @@ def pass_costs(estimator: MusicEstimator, sets: int, seed: int) -> list[str]:
 def format_rows(rows: list[AccuracyRow]) -> list[str]:
     lines = [
         "| SNR dB | L | accepted | RMSE theta / CRB (deg) | ratio | RMSE phi / CRB (deg) | ratio "
-        "| seed 003 theta, phi (deg) | batched ms/estimate |",
+        "| Yang et al. 2014 theta, phi (deg) | batched ms/estimate |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:

@@ -1,4 +1,4 @@
-"""Benchmark of the SNR attitude solvers (seed 000 secs. 3.2-3.3) at 20 observations.
+"""Benchmark of the SNR attitude solvers (Liu et al. 2023 secs. 3.2-3.3) at 20 observations.
 
 Epochs come from the ``adsb-snr`` scenario (:mod:`attopt.experiments.adsb_snr.scenario`):
 real satellite-to-aircraft geometry, true attitude wandering by a few degrees,

@@ -1,7 +1,7 @@
 """Benchmark of the Wahba solvers against ``scipy`` ``Rotation.align_vectors``.
 
 Measured in one run on the same problems (two vectors, Sun + magnetometer
-weights of seed 002): per-call microseconds of every solver's single-epoch
+weights of Cilden Guler et al. 2017): per-call microseconds of every solver's single-epoch
 ``solve_vectors``, and batched solutions per second over ``n_batch`` epochs for the
 vectorised solvers, each printed as a ratio to ``align_vectors`` called once
 per epoch.  Batched answers are checked against ``align_vectors`` (they must

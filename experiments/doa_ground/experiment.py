@@ -4,7 +4,7 @@ sec. 6).
 Settings are Yang et al. 2014's Tables 1 and 2: input SNR -14..14 dB at ``L = 100``
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
 once).  One trial is one pass of :mod:`attopt.experiments.doa_ground.scenario`
-(geometry and truth are the same in every trial, as in the seed; only the
+(geometry and truth are the same in every trial, as in the paper; only the
 noise is drawn), and every estimator sees the same DOAs (each row label names a
 registry estimator with its options, :mod:`attopt.experiments.doa_ground.methods`;
 the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
@@ -25,13 +25,13 @@ the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
    explains that reading) with prior sigmas ``initial_sigma_deg`` and
    ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
    the paper's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
-   our EKF reproduces the seed's attitude RMSEs (docs/doa.md).
+   our EKF reproduces the paper's attitude RMSEs (docs/doa.md).
 3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
    model, same data; :func:`attopt.solvers.filters.rts.rts_smooth`).  The EKF
    and RTS rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
    (filter and smoother) linearised along the truth, with the DOA CRB at the
    true DOAs of every visible station, and ``crb_{x,y,z}_deg``, the same with
-   ``Q = 0``: the bound of the seed's problem itself, whose torque-free
+   ``Q = 0``: the bound of the paper's problem itself, whose torque-free
    dynamics the filter knows exactly (the truth has no process noise, so
    errors below ``pbound`` are possible).  Both are the same for every trial
    of a setting and computed once per worker.
@@ -41,7 +41,7 @@ the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
 5. ``bls_seed003`` (:func:`~attopt.experiments.doa_ground.methods.batch_ls_estimator`),
    in the first ``filter_trials`` trials of each setting
    (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
-   least squares over the seed's deterministic dynamics
+   least squares over the paper's deterministic dynamics
    (:mod:`attopt.solvers.doa.batch_ls`, ``Q = 0``), started from the lowest-``Q``
    RTS pass at epoch 0; its ``pbound_*`` and ``crb_*`` are both the ``Q = 0``
    smoother bound, its time includes the EKF and RTS passes it starts from.
@@ -465,7 +465,7 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
 
 
 def _prior(setting: Setting) -> Prior:
-    """Seed 003 sec. 6's initial estimate with the experiment's prior sigmas (covariance of
+    """Yang et al. 2014 sec. 6's initial estimate with the experiment's prior sigmas (covariance of
     ``[attitude, rate]``)."""
     sigma = np.radians(
         [setting["initial_sigma_deg"]] * 3 + [setting["initial_rate_sigma_deg_s"]] * 3

@@ -1,4 +1,6 @@
-"""Scenario ``doa-ground``: a LEO satellite sees eight ground transmitters (seed 003 secs. 4.2, 6).
+"""Scenario ``doa-ground``: a LEO satellite sees eight ground transmitters.
+
+Yang et al. 2014 secs. 4.2 and 6.
 
 Orbit.  Sun-synchronous, 800 km, local time of the descending node 8:00
 (sec. 4.1).  The TLE of :func:`satellite_tle` is generated with ``sgp4``
@@ -20,7 +22,7 @@ offset 1 deg of longitude, alternately east and west, from the sub-satellite
 point at that time (so no pass is exactly overhead).  A station is visible
 when the satellite is at least :data:`MIN_ELEVATION_DEG` (10 deg) above its
 horizon (ellipsoid normal); then its polar angle at the nadir-pointing array
-is at most 62 deg, as in sec. 4.2.  Each pass lasts 610-650 s (the seed's
+is at most 62 deg, as in sec. 4.2.  Each pass lasts 610-650 s (the paper's
 "about 10 min") and consecutive passes overlap, so at least one station is
 visible from the start to t = 4826 s (two for 243 s in all; none in the last
 174 s of a 5000 s pass), :func:`coverage`.

@@ -1,4 +1,4 @@
-"""Environment models for simulated attitude sensors (seed 002 sec. 2.1).
+"""Environment models for simulated attitude sensors (Cilden Guler et al. 2017 sec. 2.1).
 
 * :mod:`.orbit`: TLE -> SGP4 (TEME) -> ECI (astropy GCRS) and ECEF (ITRS);
 * :mod:`.sun`: apparent Sun direction from the satellite;

@@ -1,4 +1,4 @@
-"""Geomagnetic field at the satellite: IGRF (seed 002 eq. 1) via ppigrf.
+"""Geomagnetic field at the satellite: IGRF (Cilden Guler et al. 2017 eq. 1) via ppigrf.
 
 ``ppigrf.igrf(lon, lat, h, dates)`` evaluates every date at every position
 (output shape ``(n_dates, n_positions)``), so calling it once with ``N`` epochs
@@ -66,7 +66,7 @@ def enu_to_ecef_matrices(longitude_deg: ArrayLike, latitude_deg: ArrayLike) -> N
 def geomagnetic_field_eci(
     times: Time, longitude_deg: ArrayLike, latitude_deg: ArrayLike, height_km: ArrayLike
 ) -> NDArray[np.float64]:
-    """IGRF field vectors in ECI (GCRS) in nT, shape ``(N, 3)`` (seed 002 eq. 1).
+    """IGRF field vectors in ECI (GCRS) in nT, shape ``(N, 3)`` (Cilden Guler et al. 2017 eq. 1).
 
     The ENU field of :func:`igrf_enu` is rotated to ECEF with
     :func:`enu_to_ecef_matrices` and to ECI with

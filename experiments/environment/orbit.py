@@ -1,4 +1,4 @@
-"""Orbit propagation from a TLE (seed 002 sec. 2: TIMED orbit from its TLE).
+"""Orbit propagation from a TLE (Cilden Guler et al. 2017 sec. 2: TIMED orbit from its TLE).
 
 SGP4 (:mod:`sgp4`) gives TEME states; astropy moves them to the frame attopt
 calls ECI (GCRS: geocentric, axes of the ICRS) and to ECEF (ITRS), and gives

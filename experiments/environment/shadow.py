@@ -1,4 +1,4 @@
-"""Cylindrical Earth shadow (the eclipse of seed 002 sec. 3)."""
+"""Cylindrical Earth shadow (the eclipse of Cilden Guler et al. 2017 sec. 3)."""
 
 from __future__ import annotations
 

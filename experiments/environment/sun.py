@@ -1,10 +1,10 @@
-"""Sun direction from the satellite (seed 002 eq. 3, via astropy).
+"""Sun direction from the satellite (Cilden Guler et al. 2017 eq. 3, via astropy).
 
 The direction is *apparent*: :func:`astropy.coordinates.get_sun` returns the
 geocentric Sun in GCRS corrected for the annual aberration of an observer at
 the Earth's centre (about 20 arcsec from the geometric direction).  The
 satellite's own orbital velocity would add up to about 5 arcsec more and is
-neglected; both are far below the 0.002 Sun-sensor noise of seed 002 sec. 3.
+neglected; both are far below the 0.002 Sun-sensor noise of Cilden Guler et al. 2017 sec. 3.
 The analytic VSOP2000-based ephemeris needs no data file.
 """
 

@@ -1,6 +1,6 @@
-"""Global airborne traffic on great-circle routes between real airports (seed 000 sec. 5.1).
+"""Global airborne traffic on great-circle routes between real airports (Liu et al. 2023 sec. 5.1).
 
-Seed 000 sec. 5.1 feeds its simulation with one hour of real global flight data
+Liu et al. 2023 sec. 5.1 feeds its simulation with one hour of real global flight data
 (VariFlight).  No package ships such a snapshot, so this module synthesises a
 population with the same geography from the airports of :mod:`airportsdata`.
 
@@ -145,7 +145,7 @@ def geodetic_normal(latitude_deg: ArrayLike, longitude_deg: ArrayLike) -> NDArra
 
 
 def sample_traffic(n_aircraft: int, rng: np.random.Generator) -> Traffic:
-    """Draw ``n_aircraft`` aircraft as in the module docstring (seed 000 sec. 5.1)."""
+    """Draw ``n_aircraft`` aircraft as in the module docstring (Liu et al. 2023 sec. 5.1)."""
     airports = load_airports()
     origin, destination = _sample_routes(airports, n_aircraft, rng)
     n_origin = airports.normal[origin]

@@ -1,6 +1,8 @@
-"""Scenario ``geo-snr-stations``: Garuda-1 seen by eight ground stations (seed 004 secs. II.A, V.B).
+"""Scenario ``geo-snr-stations``: Garuda-1 seen by eight ground stations.
 
-Orbit.  The TLE printed in seed 004 sec. II.A (re-spaced to the fixed TLE
+Pimienta-Penalver and Crassidis secs. II.A and V.B.
+
+Orbit.  The TLE printed in Pimienta-Penalver and Crassidis sec. II.A (re-spaced to the fixed TLE
 columns; both checksums hold) propagated with SGP4 and moved to ECI (GCRS) and
 ECEF (ITRS) by :mod:`attopt.experiments.environment.orbit` (offline: the package
 forbids IERS downloads).  Its epoch is the simulation start,
@@ -10,10 +12,10 @@ Stations.  The eight of Table 2, geodetic on the WGS84 ellipsoid converted
 to ECEF by astropy ``EarthLocation``; their up vectors are the ellipsoid
 normals.  ECI positions follow with astropy's ECEF -> ECI matrices.
 
-Attitude (ECI -> body, ``docs/conventions.md``).  Seed 004 eq. 27 gives
+Attitude (ECI -> body, ``docs/conventions.md``).  Pimienta-Penalver and Crassidis eq. 27 gives
 ``q = [-0.0176892, -0.706875, 0.706868, 0.0187807]``, scalar last, in the
 convention of its ref. 8 (Markley and Crassidis), i.e. the Shuster quaternion
-of seed 002 eq. 21, the conjugate of scipy's: ``A_0 =
+of Cilden Guler et al. 2017 eq. 21, the conjugate of scipy's: ``A_0 =
 Rotation.from_quat(q).inv()`` (``attopt.formulations.conventions.
 attitude_from_shuster_quaternion``).  With it the boresight (body ``+z``)
 points 0.003 deg from nadir, at the sub-satellite point; read as a scipy
@@ -22,9 +24,10 @@ The body then turns about the ECI ``z`` axis (north) at ``Omega = omega_E + s``:
 ``A(t) = A_0 R_z(Omega t)^T``, a constant body rate ``Omega A_0 z``.  The
 Earth rate keeps the beam on the ground; the extra ``s`` =
 :data:`SLEW_RATE_DEG_PER_H` (1 deg/h) turns it west of nadir, a slow westward
-slew of the footprint (about 5.6 deg of longitude per hour), seed 004 sec. V.B.
+slew of the footprint (about 5.6 deg of longitude per hour),
+Pimienta-Penalver and Crassidis sec. V.B.
 
-Manoeuvre (option, seed 004 Fig. 10).  From :data:`MANOEUVRE_START_S` (30
+Manoeuvre (option, Pimienta-Penalver and Crassidis Fig. 10).  From :data:`MANOEUVRE_START_S` (30
 min) the body turns by :data:`MANOEUVRE_ANGLE_DEG` (25 deg) at a constant
 rate over :data:`MANOEUVRE_DURATION_S` about the nadir direction at the
 start of the manoeuvre (a yaw about the local vertical, the usual GEO attitude
@@ -36,12 +39,13 @@ the boresight (nearly unobservable).  A 25 deg turn about an axis
 perpendicular to the boresight would point the beam off the Earth (whose
 radius seen from GEO is 8.7 deg).
 
-SNRs.  Noise-free SNRs are seed 004 eq. 7 (:func:`attopt.formulations.geo_link.geo_snr_db`).
+SNRs.  Noise-free SNRs are Pimienta-Penalver and Crassidis eq. 7
+(:func:`attopt.formulations.geo_link.geo_snr_db`).
 A station hears the satellite when it is above its horizon and the
 noise-free SNR is at least :data:`DETECTION_THRESHOLD_DB` (0 dB, the lowest
 SNR of Table 3).  Measured SNRs add Gaussian noise of :data:`SNR_SIGMA_DB`
-(0.0148 dB, the M2M4 error seed 004 uses for its filter's ``R``) drawn from the
-caller's generator.
+(0.0148 dB, the M2M4 error Pimienta-Penalver and Crassidis use for their filter's
+``R``) drawn from the caller's generator.
 """
 
 from __future__ import annotations
@@ -76,10 +80,10 @@ TLE = (
     "1 26089U 00011A   15334.70833333 -.00000218  00000-0  71783+4 0 00007",
     "2 26089 000.0128 195.9086 0000123 075.1421 176.2140 01.00270682000010",
 )
-"""Garuda-1 (seed 004 sec. II.A)."""
+"""Garuda-1 (Pimienta-Penalver and Crassidis sec. II.A)."""
 START_UTC = "2015-11-30T17:00:00"
 INITIAL_QUATERNION = (-0.0176892, -0.706875, 0.706868, 0.0187807)
-"""Seed 004 eq. 27, Shuster convention (scalar last)."""
+"""Pimienta-Penalver and Crassidis eq. 27, Shuster convention (scalar last)."""
 EARTH_RATE_RAD_S = 7.292115e-5
 """Earth's sidereal rotation rate (IERS conventions)."""
 SLEW_RATE_DEG_PER_H = 1.0
@@ -92,7 +96,7 @@ DETECTION_THRESHOLD_DB = 0.0
 
 @dataclass(frozen=True)
 class GroundStation:
-    """A receiving station (seed 004 Table 2), geodetic WGS84."""
+    """A receiving station (Pimienta-Penalver and Crassidis Table 2), geodetic WGS84."""
 
     name: str
     latitude_deg: float
@@ -110,7 +114,7 @@ STATIONS = (
     GroundStation("General Santos", 6.086357, 125.1304, 15.0),
     GroundStation("Labuan", 5.298122, 115.207, 76.0),
 )
-"""Seed 004 Table 2, in its order."""
+"""Pimienta-Penalver and Crassidis Table 2, in its order."""
 
 
 def stations_ecef_km(stations: tuple[GroundStation, ...] = STATIONS) -> tuple[Array, Array]:
@@ -128,7 +132,7 @@ def stations_ecef_km(stations: tuple[GroundStation, ...] = STATIONS) -> tuple[Ar
 
 
 def initial_attitude() -> Rotation:
-    """``A_0`` (ECI -> body) of seed 004 eq. 27 (module docstring)."""
+    """``A_0`` (ECI -> body) of Pimienta-Penalver and Crassidis eq. 27 (module docstring)."""
     return attitude_from_shuster_quaternion(INITIAL_QUATERNION)
 
 

@@ -1,6 +1,6 @@
 """The ``wahba-mag-sun`` scenario: TIMED with a magnetometer and a Sun sensor.
 
-Seed 002 sec. 3: a satellite on the TIMED orbit (propagated from its TLE)
+Cilden Guler et al. 2017 sec. 3: a satellite on the TIMED orbit (propagated from its TLE)
 measures the geomagnetic field (IGRF) and the Sun direction at 1 Hz for about
 one orbit (6000 s); direction-cosine noise standard deviations are 0.008
 (magnetometer) and 0.002 (Sun sensor); there is no Sun measurement in eclipse.
@@ -14,10 +14,10 @@ entering 1001 s after the start and lasting about 1450 s (the eclipse of seed
 with the cylindrical shadow of :mod:`attopt.experiments.environment.shadow`).
 
 Reference vectors are expressed in the orbit frame of
-:func:`attopt.formulations.conventions.orbit_frame_attitude` (seed 002 eqs. 1-4).
+:func:`attopt.formulations.conventions.orbit_frame_attitude` (Cilden Guler et al. 2017 eqs. 1-4).
 
-True attitude (orbit -> body), 3-2-1 Euler angles of seed 000 eq. 8 with ``t``
-in seconds from the start, imitating the pitch profile of seed 002 Fig. 2
+True attitude (orbit -> body), 3-2-1 Euler angles of Liu et al. 2023 eq. 8 with ``t``
+in seconds from the start, imitating the pitch profile of Cilden Guler et al. 2017 Fig. 2
 (pitch close to +/-90 deg near 1000 s and 3800 s)::
 
     pitch(t) = 87 deg * cos(2 pi (t - 1000) / 5600)
@@ -50,9 +50,9 @@ START_UTC = "2026-05-10T23:23:00"
 """Start of the window (UTC); the eclipse begins 1001 s later."""
 
 MAG_SIGMA = 0.008
-"""Magnetometer direction-cosine noise standard deviation (seed 002 sec. 3)."""
+"""Magnetometer direction-cosine noise standard deviation (Cilden Guler et al. 2017 sec. 3)."""
 SUN_SIGMA = 0.002
-"""Sun-sensor direction-cosine noise standard deviation (seed 002 sec. 3)."""
+"""Sun-sensor direction-cosine noise standard deviation (Cilden Guler et al. 2017 sec. 3)."""
 
 PITCH_AMPLITUDE_DEG = 87.0
 PITCH_PEAK_S = 1000.0
@@ -157,7 +157,7 @@ def simulate_measurements(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Measured body-frame unit vectors ``(sun_body, mag_body)``, each ``(N, 3)``.
 
-    ``b = normalise(A r + sigma eps)`` with ``eps ~ N(0, I3)`` (seed 002 eqs. 2
+    ``b = normalise(A r + sigma eps)`` with ``eps ~ N(0, I3)`` (Cilden Guler et al. 2017 eqs. 2
     and 4).  All magnetometer noise is drawn first, then all Sun noise (for
     every epoch, eclipsed or not), so a seed fixes both.  Sun rows are NaN in
     eclipse, where the Sun sensor gives no measurement.

@@ -1,4 +1,4 @@
-"""The extended Kalman filter of seed 003 (sec. 5, eqs. 23-33) on DOA measurements.
+"""The extended Kalman filter of Yang et al. 2014 (sec. 5, eqs. 23-33) on DOA measurements.
 
 State (eq. 26): the inertial body rate ``omega_bi`` (body axes, rad/s) and the
 attitude ``A = C_bo`` (orbit -> body, ``docs/conventions.md``).
@@ -6,7 +6,7 @@ attitude ``A = C_bo`` (orbit -> body, ``docs/conventions.md``).
 Dynamics (eqs. 23, 24, 27).  Euler's equation with the wheels' angular
 momentum ``h`` (body axes, N m s), ``I omega_dot = -omega x (I omega + h)``,
 with ``h_dot``, the magnetorquer and the disturbance torques set to zero (the
-filter does not know them; ``Q`` absorbs them, as in the seed), and the
+filter does not know them; ``Q`` absorbs them, as in the paper), and the
 kinematics ``A_dot = -[omega_bo x] A``, ``omega_bo = omega_bi - A omega_o``
 (eq. 24).  One step of ``dt`` is written once, in CasADi
 (:func:`step_function`):
@@ -24,9 +24,9 @@ kinematics ``A_dot = -[omega_bo x] A``, ``omega_bo = omega_bi - A omega_o``
 Error state and transition matrix (eqs. 28-29).  The attitude error is
 multiplicative and in the body frame, ``A_true = C(delta) A_est``
 (``attopt.formulations.attitude_model.increment_matrix``, the convention of every
-filter here), so ``[delta_omega, delta]`` replaces the seed's additive
+filter here), so ``[delta_omega, delta]`` replaces the paper's additive
 ``[delta_omega, delta q_bo]``; to first order ``delta = 2 delta q_bo``, the
-seed's eq. 29 lower-left block ``0.5 E`` becomes ``E`` and the lower-right
+the paper's eq. 29 lower-left block ``0.5 E`` becomes ``E`` and the lower-right
 ``-[omega x]`` stays, but the quaternion never leaves the unit sphere.  The
 transition matrix is the AD Jacobian of the step map above (not the Euler
 approximation ``E + A dt`` of eq. 28).
@@ -35,20 +35,20 @@ Measurement (eqs. 30-33).  Any
 :class:`~attopt.formulations.attitude_measurement.AttitudeMeasurement` of
 ``C_bo``; its AD Jacobian ``J`` with respect to the body-frame error
 ``delta`` is the attitude block of ``H`` and the rate block is zero (eq. 32).
-Rows without a finite innovation or Jacobian are left out.  The seed's form
+Rows without a finite innovation or Jacobian are left out.  The paper's form
 is a :class:`~attopt.formulations.attitude_measurement.VectorMeasurement` per epoch:
 the measured unit vectors ``S_dr`` of eq. 12 against ``S_o`` of eq. 17, for
 which ``J = [(C_bo S_o) x]`` up to the sign of ``delta`` (eq. 33 with ``delta
 = 2 delta q``).  The angle form :class:`~attopt.formulations.doa_measurement.DoaMeasurement`
 has no prediction for a station the estimate puts behind the array plane, so
-from the seed's 98 deg initial error the filter can get stuck with the array
+from the paper's 98 deg initial error the filter can get stuck with the array
 facing away (measured: noise-free, 160-180 deg after 2500 s); the unit
 vector has a prediction and a restoring innovation everywhere.
 
 Update.  Since ``H = [0, J]``, the measurement enters only through the
 information ``M = J^T R^-1 J`` (``3 x 3``) and ``z = J^T R^-1 nu`` (``nu`` the
 innovation); with ``G = P E (I + M P_aa)^-1`` (``E`` selecting the attitude
-block, ``P_aa = E^T P E``) the Kalman gain of the seed's EKF satisfies
+block, ``P_aa = E^T P E``) the Kalman gain of the paper's EKF satisfies
 ``K nu = G z``, ``K H = G M E^T`` and ``K R K^T = G M G^T``, so the Joseph form
 ``(I - K H) P (I - K H)^T + K R K^T`` needs a ``3 x 3`` solve whatever the
 number of rows (:func:`update_function`).  An epoch without rows (``M = 0``,
@@ -82,7 +82,7 @@ with the measurement; for MUSIC DOAs the experiment uses ``R_W = sigma^2 E``
 per station with ``sigma^2 = tr(J Sigma J^T) / 2``, ``Sigma`` MUSIC's
 ``(theta, phi)`` covariance (the CRB at the estimate) and ``J`` eq. 12's
 Jacobian (:func:`attopt.formulations.doa_array.unit_vector_covariance`): the
-isotropic form of eq. 22, whose diagonal the seed fits to simulations.
+isotropic form of eq. 22, whose diagonal the paper fits to simulations.
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ from attopt.solvers.sequential import (
 Array = NDArray[np.float64]
 
 PROCESS_NOISE = 1.0e-9
-"""Diagonal of ``Q`` per step (seed 003 sec. 5.2)."""
+"""Diagonal of ``Q`` per step (Yang et al. 2014 sec. 5.2)."""
 MAX_STEP_ANGLE = 0.1
 """Largest rotation per step (rad) for which the series ``Exp`` is exact to rounding."""
 
@@ -161,7 +161,7 @@ def step_function(dt: float, inertia: tuple[float, ...]) -> ca.Function:
     ``(omega, A, h, orbit_turn) -> (omega_next, A_next, Phi)`` with ``A`` and
     ``orbit_turn = O_{k+1} O_k^T`` ``3 x 3``, ``h`` ``3 x 1``; ``Phi`` is the
     ``6 x 6`` Jacobian of ``[omega_next, delta_next]`` with respect to
-    ``[omega, delta]`` at ``delta = 0`` (seed 003 eqs. 28-29).  With ``E =
+    ``[omega, delta]`` at ``delta = 0`` (Yang et al. 2014 eqs. 28-29).  With ``E =
     Exp(phi)``, ``phi = -omega_bar dt``, the perturbed attitude times the
     nominal one's transpose is ``Exp(phi + d_phi) C(delta) E^T`` (``A`` and the
     orbit turn cancel), so ``Phi``'s rows are ``[d omega_next / d omega, 0]``
@@ -199,7 +199,7 @@ def step_function(dt: float, inertia: tuple[float, ...]) -> ca.Function:
 
 
 def propagated_covariance(covariance: Any, transition: Any, process_noise: Any) -> Any:
-    """``Phi P Phi^T + q E_6`` (seed 003 eq. 28 and sec. 5.2; CasADi, ``6 x 6``)."""
+    """``Phi P Phi^T + q E_6`` (Yang et al. 2014 eq. 28 and sec. 5.2; CasADi, ``6 x 6``)."""
     return lower_symmetric(transition @ covariance @ transition.T + process_noise * ca.DM.eye(6))
 
 
@@ -208,7 +208,7 @@ def propagate_function(dt: float, inertia: tuple[float, ...]) -> ca.Function:
     """``(omega, A, P, h, orbit_turn, q) -> (omega_next, A_next, P_next, Phi)``.
 
     :func:`step_function` and the covariance prediction ``Phi P Phi^T + q E_6``
-    (seed 003 eqs. 27-29, ``Q`` of sec. 5.2).
+    (Yang et al. 2014 eqs. 27-29, ``Q`` of sec. 5.2).
     """
     rate = ca.SX.sym("omega", 3)
     attitude = ca.SX.sym("attitude", 3, 3)
@@ -236,7 +236,7 @@ def update_function() -> ca.Function:
     """``(omega, A, P, M, z) -> (omega+, A+, P+)``: the Kalman update in information form.
 
     ``M = J^T R^-1 J`` and ``z = J^T R^-1 nu`` of the epoch's rows (module
-    docstring); ``H = [0, J]`` (seed 003 eqs. 31-33).  Joseph form of ``P+``
+    docstring); ``H = [0, J]`` (Yang et al. 2014 eqs. 31-33).  Joseph form of ``P+``
     with ``G = P E (I + M P_aa)^-1``; the attitude is corrected by
     ``C(delta)`` (:func:`~attopt.formulations.attitude_model.increment_matrix`, i.e.
     ``Rotation.from_mrp(delta / 4)``) and ``P+`` taken symmetric from its
@@ -280,7 +280,7 @@ def geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
 def vector_information_function(slots: int) -> ca.Function:
     """``(A, body, reference, weight) -> (M, z, rows, cost)`` of up to ``slots`` unit vectors.
 
-    ``body`` and ``reference`` are ``slots x 3`` (seed 003 eqs. 12, 17),
+    ``body`` and ``reference`` are ``slots x 3`` (Yang et al. 2014 eqs. 12, 17),
     ``weight`` the ``slots`` inverse variances ``1 / sigma^2`` of ``R_W =
     sigma^2 E`` (eq. 22), zero for an absent vector.  The model and its
     Jacobian are :class:`~attopt.formulations.attitude_measurement.VectorMeasurement`'s
@@ -346,7 +346,7 @@ def epoch_symbols(slots: int) -> EpochSymbols:
 
 @lru_cache(maxsize=8)
 def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
-    """One whole filter epoch on unit vectors: update, then predict (seed 003 eqs. 27-33).
+    """One whole filter epoch on unit vectors: update, then predict (Yang et al. 2014 eqs. 27-33).
 
     ``(omega^-, A^-, P^-, body, reference, weight, h, orbit_turn, q) ->
     (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle)``,

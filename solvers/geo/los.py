@@ -1,8 +1,10 @@
-"""Line of sight to a GEO broadcaster from SNRs at ground stations (seed 004 sec. IV.A).
+"""Line of sight to a GEO broadcaster from SNRs at ground stations.
+
+Pimienta-Penalver and Crassidis sec. IV.A.
 
 With the RF parameters and the attitude (or just the boresight,
 :func:`attopt.formulations.geo_link.attitude_pointing`) known, the satellite is
-placed on the geostationary belt (seed 004 assumption 1: equatorial, radius
+placed on the geostationary belt (Pimienta-Penalver and Crassidis assumption 1: equatorial, radius
 :data:`~attopt.formulations.geo_geometry.GEO_RADIUS_KM`, ECEF) at the longitude
 ``lambda`` whose predicted SNRs (eq. 7) fit the measured ones:
 
