@@ -35,15 +35,12 @@ class Run:
     Example::
 
         >>> import numpy as np
-        >>> from scipy.spatial.transform import Rotation
-        >>> from attopt import MEMS_GYRO, GyroRecord, Pass, Prior, run_estimators
-        >>> gyro = GyroRecord(np.arange(51) / 10.0, np.zeros((50, 3)), MEMS_GYRO)
-        >>> v = np.eye(3)[:2]
-        >>> prior = Prior(Rotation.identity(), 1e-4 * np.eye(3))
-        >>> pass_ = Pass.from_vectors(np.arange(5.0), np.tile(v, (5, 1, 1)), v, 1e-3, gyro, prior)
-        >>> run = run_estimators(pass_, ["rts"])["rts"]  # its MEKF start runs, unreported
-        >>> len(run.track), run.seconds > 0
-        (5, True)
+        >>> from attopt import Pass, Snapshot, run_estimators
+        >>> vectors = np.eye(3)[:2]
+        >>> one_epoch = Pass([0.0], [Snapshot.from_vectors(vectors, vectors, 1e-3)])
+        >>> run = run_estimators(one_epoch, ["svd"])["svd"]
+        >>> run.track.method, run.seconds > 0
+        ('svd', True)
     """
 
     track: Track
