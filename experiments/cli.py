@@ -1,4 +1,4 @@
-"""The ``attopt`` command line: run and list experiments, run benchmarks.
+"""The ``attopt`` command line: run and list experiments, list estimators, run benchmarks.
 
 Heavy modules (pandas, the sweep runner, Dask) are imported inside the
 commands so that ``attopt --help`` and ``attopt list`` start quickly.
@@ -146,6 +146,34 @@ def list_command() -> None:
     width = max((len(name) for name, _ in listing), default=0)
     for name, summary in listing:
         typer.echo(f"{name:<{width}}  {summary}")
+
+
+class EstimatorKind(StrEnum):
+    """Which estimators to list."""
+
+    snapshot = "snapshot"
+    pass_ = "pass"
+
+
+@app.command("estimators")
+def estimators_command(
+    kind: Annotated[
+        EstimatorKind | None, typer.Option(help="Only snapshot or only pass estimators.")
+    ] = None,
+) -> None:
+    """List the registered estimators: name, kind, accepted measurements, method."""
+    from attopt.solvers.registry import ESTIMATORS
+
+    rows = [
+        (name, e.kind, ", ".join(a.__name__ for a in e.accepts), e.description)
+        for name, e in ESTIMATORS.items()
+        if kind is None or e.kind == kind.value
+    ]
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    for row in rows:
+        typer.echo(
+            "  ".join(f"{cell:<{w}}" for cell, w in zip(row, widths, strict=False)) + "  " + row[3]
+        )
 
 
 @bench_app.command("runner")

@@ -7,6 +7,7 @@ import dataclasses
 import pytest
 from typer.testing import CliRunner
 
+from attopt import ESTIMATORS, estimators
 from attopt.experiments import registry
 from attopt.experiments.cli import app
 from attopt.experiments.registry import UnknownExperimentError, get_experiment, reference_of
@@ -89,3 +90,12 @@ def test_registry_lookup_and_reference():
         get_experiment("tests.sweep_toys:toy_grid")
     with pytest.raises(ValueError, match="module-level"):
         reference_of(dataclasses.replace(TOY, name="copy"))
+
+
+def test_estimators_lists_the_registry_by_kind():
+    listed = CliRunner().invoke(app, ["estimators"])
+    assert listed.exit_code == 0
+    assert [line.split()[0] for line in listed.output.splitlines()] == list(ESTIMATORS)
+    passes = CliRunner().invoke(app, ["estimators", "--kind", "pass"])
+    assert [line.split()[0] for line in passes.output.splitlines()] == estimators("pass")
+    assert "fg_batch_offsets  pass  SnrMeasurement" in passes.output
