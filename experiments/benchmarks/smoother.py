@@ -53,8 +53,8 @@ from attopt.experiments.simulation import child_rng, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
 from attopt.solvers.bounds import posterior_bound
-from attopt.solvers.filters import Mekf, Rts
-from attopt.solvers.smoother import BatchSmoother, OnlineReport, OnlineSmoother
+from attopt.solvers.registry import estimator
+from attopt.solvers.smoother import OnlineReport
 
 BURN_IN_S = 300.0
 
@@ -123,13 +123,13 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     predict = time.perf_counter() - start
 
     start = time.perf_counter()
-    forward = Mekf().solve(pass_)
+    forward = estimator("mekf").solve(pass_)
     mekf_s = time.perf_counter() - start
     start = time.perf_counter()
-    backward = Rts().solve(pass_, initial=forward)
+    backward = estimator("rts").solve(pass_, initial=forward)
     rts_s = time.perf_counter() - start
     start = time.perf_counter()
-    result = BatchSmoother().solve(pass_, initial=backward)
+    result = estimator("fg_batch").solve(pass_, initial=backward)
     smoother_s = time.perf_counter() - start
     report = result.report
 
@@ -139,7 +139,7 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     online_s = None
     if online:
         start = time.perf_counter()
-        solutions["online"] = OnlineSmoother().solve(pass_)
+        solutions["online"] = estimator("fg_online").solve(pass_)
         online_s = time.perf_counter() - start
     rms, rms_late = {}, {}
     for name, estimate in solutions.items():

@@ -36,8 +36,8 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import SNR_SIGMA_DB, predict_snr
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
 from attopt.solvers.ipopt import IpoptOptions
+from attopt.solvers.registry import estimator
 from attopt.solvers.results import Solution
-from attopt.solvers.snr import DETERMINISTIC, NLP, NLSE, NlpSolver
 from attopt.solvers.snr.driver import SnrSolver
 
 OBSERVATIONS = 20
@@ -128,14 +128,15 @@ def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
     """Measure every variant on the same epochs; print and return the table rows."""
     epochs, truths = _epochs(n_epochs, seed)
     snapshots = [Snapshot.of(SnrMeasurement(epoch)) for epoch in epochs]
-    lbfgs = NlpSolver(options=IpoptOptions(hessian_approximation="limited-memory"))
+    nlse, nlp, deterministic = (estimator(n) for n in ("nlse", "nlp", "deterministic"))
+    lbfgs = estimator("nlp", options=IpoptOptions(hessian_approximation="limited-memory"))
     variants: list[tuple[str, SnrSolver, bool]] = [
-        ("nlse (warm start)", NLSE, True),
-        ("nlse (two-step start)", NLSE, False),
-        ("nlp, exact Hessian (warm start)", NLP, True),
-        ("nlp, exact Hessian (two-step start)", NLP, False),
+        ("nlse (warm start)", nlse, True),
+        ("nlse (two-step start)", nlse, False),
+        ("nlp, exact Hessian (warm start)", nlp, True),
+        ("nlp, exact Hessian (two-step start)", nlp, False),
         ("nlp, L-BFGS (warm start)", lbfgs, True),
-        ("deterministic (two-step, QUEST)", DETERMINISTIC, False),
+        ("deterministic (two-step, QUEST)", deterministic, False),
     ]
     for _, solver, warm in variants:  # build every cached CasADi function before timing
         _measure(solver, snapshots[:2], warm)
