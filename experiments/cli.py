@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 if TYPE_CHECKING:
+    from attopt.experiments.experiment import Experiment
     from attopt.experiments.sweep import SweepResult
 
 app = typer.Typer(
@@ -75,7 +76,10 @@ def run(
     seed: Annotated[int, typer.Option(min=0, help="Root seed of the sweep.")] = 0,
     out: Annotated[
         Path | None,
-        typer.Option(help="Output directory (default: results/NAME, or results/NAME-quick)."),
+        typer.Option(
+            help="Output directory (default: results/NAME[-CONFIG][-quick], CONFIG the "
+            "config file's name without .toml)."
+        ),
     ] = None,
     quick: Annotated[bool, typer.Option(help="Small version: quick parameters and trials.")] = (
         False
@@ -92,7 +96,6 @@ def run(
     progress: Annotated[bool, typer.Option(help="Show a progress bar with ETA.")] = True,
 ) -> None:
     """Run a Monte Carlo sweep of EXPERIMENT, resuming what is already in --out."""
-    from attopt.experiments.registry import UnknownExperimentError, get_experiment
     from attopt.experiments.sweep import (
         ConfigError,
         EngineSetupError,
@@ -100,15 +103,9 @@ def run(
         run_sweep,
     )
 
-    if ":" in experiment and os.getcwd() not in sys.path:
-        sys.path.insert(0, os.getcwd())  # like `python -m`; spawned workers inherit sys.path
+    declared = _load_experiment(experiment)
+    out = out or default_out(declared.name, config, quick)
     try:
-        declared = get_experiment(experiment)
-    except (UnknownExperimentError, ImportError) as error:
-        typer.echo(f"error: cannot load experiment {experiment!r}: {error}", err=True)
-        raise typer.Exit(EXIT_USAGE) from None
-    try:
-        out = out or Path("results") / (declared.name + ("-quick" if quick else ""))
         result = run_sweep(
             declared,
             trials=trials,
@@ -123,7 +120,11 @@ def run(
             fresh=fresh,
             chunk_size=chunk_size,
         )
-    except (ConfigError, EngineSetupError, ManifestMismatchError) as error:
+    except ConfigError as error:
+        for problem in error.problems:
+            typer.echo(f"error: {error.source}: {problem}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    except (EngineSetupError, ManifestMismatchError) as error:
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(EXIT_USAGE) from None
     except KeyboardInterrupt:
@@ -135,6 +136,59 @@ def run(
     _print_result(result)
     if not result.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
+
+
+def default_out(name: str, config: Path | None, quick: bool) -> Path:
+    """``results/NAME[-CONFIG][-quick]``: variants of one experiment do not collide."""
+    parts = [name, *([config.stem] if config is not None else []), *(["quick"] if quick else [])]
+    return Path("results") / "-".join(parts)
+
+
+@app.command()
+def show(
+    experiment: Annotated[
+        str, typer.Argument(help="Registered name (see `attopt list`) or 'module:OBJECT'.")
+    ],
+    toml: Annotated[
+        bool, typer.Option("--toml", help="Print a complete starter config instead.")
+    ] = False,
+    quick: Annotated[bool, typer.Option(help="With the quick variant's values.")] = False,
+) -> None:
+    """Print every parameter of EXPERIMENT with its default, unit and meaning."""
+    from attopt.experiments.config import describe, resolve_parameters, starter_toml
+
+    declared = _load_experiment(experiment)
+    parameters = resolve_parameters(declared, quick=quick)
+    if toml:
+        header = (
+            f"attopt run {declared.name} --config THIS_FILE\n{declared.summary.splitlines()[0]}"
+        )
+        typer.echo(starter_toml(parameters, header), nl=False)
+        return
+    leaves = describe(declared.schema, parameters)
+    rows = [(leaf.path, _shown(leaf.default), leaf.unit) for leaf in leaves]
+    widths = [max(len(row[i]) for row in rows) for i in range(3)]
+    for row, leaf in zip(rows, leaves, strict=True):
+        cells = "  ".join(f"{cell:<{w}}" for cell, w in zip(row, widths, strict=True))
+        typer.echo(f"{cells}  {leaf.description}")
+
+
+def _shown(value: object) -> str:
+    text = "-" if value is None else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _load_experiment(name: str) -> Experiment:
+    """The experiment called ``name``; exit 2 with a one-line message if there is none."""
+    from attopt.experiments.registry import UnknownExperimentError, get_experiment
+
+    if ":" in name and os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())  # like `python -m`; spawned workers inherit sys.path
+    try:
+        return get_experiment(name)
+    except (UnknownExperimentError, ImportError) as error:
+        typer.echo(f"error: cannot load experiment {name!r}: {error}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
 
 
 @app.command("list")

@@ -11,6 +11,9 @@ ValueError that lists the ones it has.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
+from typing import Annotated, Any
+
+from pydantic import AfterValidator
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.solvers import smoother
@@ -45,3 +48,24 @@ def resolve(requested: Iterable[str], labels: Mapping[str, str], what: str) -> d
         known = ", ".join(k if k == v else f"{k} ({v})" for k, v in labels.items())
         raise ValueError(f"unknown {what} {unknown}; registered: {known}")
     return {name: labels[name] for name in requested}
+
+
+def label_field(labels: Callable[[], Mapping[str, str]], what: str) -> Any:
+    """The pydantic type of one row label among ``labels()``, for an experiment's
+    ``methods`` or ``filters`` parameter: a config naming another is an error that lists
+    the registered ones (:func:`resolve`).
+
+    Example::
+
+        >>> from pydantic import TypeAdapter
+        >>> from attopt import VectorMeasurement
+        >>> labels = lambda: registered_labels("snapshot", VectorMeasurement)
+        >>> TypeAdapter(list[label_field(labels, "method")]).validate_python(["quest"])
+        ['quest']
+    """
+
+    def check(label: str) -> str:
+        resolve([label], labels(), what)
+        return label
+
+    return Annotated[str, AfterValidator(check)]

@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from attopt.experiments.config.schema import Parameters
+
 Setting = dict[str, Any]
 Row = dict[str, Any]
 
@@ -55,11 +57,17 @@ class ReportContext:
 
 @dataclass(frozen=True)
 class Experiment:
-    """A named Monte Carlo experiment the runner can execute."""
+    """A named Monte Carlo experiment the runner can execute.
+
+    ``schema`` is the pydantic model of its parameters (defaults, units, meanings);
+    ``quick_parameters`` a (nested) document of overrides for ``--quick``.  ``grid``
+    receives the validated parameters as a plain document
+    (``model_dump(mode="json")``: nested tables are dicts, arrays lists).
+    """
 
     name: str
     summary: str
-    parameters: Mapping[str, Any]
+    schema: type[Parameters]
     grid: Callable[[Mapping[str, Any]], list[Setting]]
     trial: Callable[[Setting, np.random.SeedSequence], list[Row]]
     default_trials: int
@@ -68,3 +76,8 @@ class Experiment:
     group_by: tuple[str, ...] = ("method",)
     report: Callable[[ReportContext], str] | None = None
     summary_columns: Callable[[pd.DataFrame, list[str]], pd.DataFrame] | None = None
+
+    @property
+    def parameters(self) -> dict[str, Any]:
+        """The default parameters as a plain document (what ``grid`` receives unchanged)."""
+        return self.schema().model_dump(mode="json")

@@ -44,6 +44,8 @@ from attopt.solvers.results import (
 
 Array = NDArray[np.float64]
 
+QUATERNION_COMPONENTS = ("x", "y", "z", "w")
+"""Scalar-last components of the ``q_est_*`` and ``q_true_*`` columns."""
 UPDATE_COUNTS = ("n_used", "n_gated", "n_unpredictable", "update_iterations")
 """Diagnostics of the sequential filters' updates that their rows carry."""
 
@@ -72,6 +74,27 @@ def error_columns(track: Track, truth: Rotation) -> dict[str, Array]:
     columns["nees"] = nees
     for i, name in enumerate(("yaw", "pitch", "roll")):
         columns[f"euler_{name}_err_deg"] = euler[:, i]
+    return columns
+
+
+def attitude_columns(quaternion: Array, truth: Rotation | None = None) -> dict[str, Array]:
+    """``q_est_{x,y,z,w}`` (NaN where invalid) and, with ``truth``, ``q_true_{x,y,z,w}``:
+    the estimated and true attitudes per epoch, scipy's scalar-last quaternions
+    (``docs/conventions.md``), so the attitudes of a sweep can be read back from its rows.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> columns = attitude_columns(np.array([[0.0, 0.0, 0.0, 1.0]]), Rotation.identity(1))
+        >>> list(columns)[:4], float(columns["q_true_w"][0])
+        (['q_est_x', 'q_est_y', 'q_est_z', 'q_est_w'], 1.0)
+    """
+    quaternion = np.asarray(quaternion, dtype=float)
+    columns = {f"q_est_{c}": quaternion[:, i] for i, c in enumerate(QUATERNION_COMPONENTS)}
+    if truth is not None:
+        true = truth.as_quat()
+        columns |= {f"q_true_{c}": true[:, i] for i, c in enumerate(QUATERNION_COMPONENTS)}
     return columns
 
 

@@ -23,8 +23,17 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from pydantic import Field
 
+from attopt.experiments.config import Parameters
 from attopt.experiments.experiment import Experiment, ReportContext, Row, Setting
+
+
+class Nested(Parameters):
+    """A nested table of the toy experiment (config tests)."""
+
+    altitude_km: float = Field(600.0, gt=0, description="A number with a unit.")
+    name: str = Field("x", description="A name.")
 
 
 def toy_grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -88,17 +97,22 @@ def _instrument(setting_index: int, trial_index: int) -> None:
             raise KeyboardInterrupt
 
 
+class ToyParameters(Parameters):
+    """Parameters of the toy experiment."""
+
+    scales: list[float] = Field([1.0, 2.0, 3.0], description="One setting per scale.")
+    methods: list[str] = Field(["a", "b"], description="Row labels.")
+    rows_per_trial: int = Field(3, ge=1, description="Rows per method and trial.")
+    fail_every: int = Field(0, ge=0, description="Every k-th trial raises (0: none).")
+    doomed_setting: int = Field(-1, description="Index of a setting that always fails.")
+    as_frame: bool = Field(False, description="Return a DataFrame instead of rows.")
+    nested: Nested = Field(Nested(), description="A nested table.")
+
+
 TOY = Experiment(
     name="toy",
     summary="Random errors with shared data per trial, for the sweep tests.",
-    parameters={
-        "scales": [1.0, 2.0, 3.0],
-        "methods": ["a", "b"],
-        "rows_per_trial": 3,
-        "fail_every": 0,
-        "doomed_setting": -1,
-        "as_frame": False,
-    },
+    schema=ToyParameters,
     grid=toy_grid,
     trial=toy_trial,
     default_trials=6,
@@ -138,7 +152,7 @@ def probe_trial(setting: Setting, seed: np.random.SeedSequence) -> list[Row]:
 PROBE = Experiment(
     name="probe",
     summary="Reports the environment of the worker processes.",
-    parameters={},
+    schema=Parameters,
     grid=lambda parameters: [{}],
     trial=probe_trial,
     default_trials=4,

@@ -11,7 +11,6 @@ import pytest
 from attopt.experiments.adsb_snr.experiment import (
     EXPERIMENT,
     NO_GYRO,
-    PARAMETERS,
     epoch_statistics,
     noise_free_pass,
     simulate_pass,
@@ -35,6 +34,8 @@ ISSUE_COLUMNS = (
     "valid_fraction",
     "crlb_ratio",
 )
+
+PARAMETERS = EXPERIMENT.parameters
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,6 @@ import pytest
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.geo_snr_stations.experiment import (
     EXPERIMENT,
-    PARAMETERS,
     summary_columns,
     trial,
 )
@@ -26,6 +25,7 @@ from attopt.experiments.sweep import summarise
 from attopt.solvers.geo.m2m4 import snr_table
 from tests.report_tables import row, table
 
+PARAMETERS = EXPERIMENT.parameters
 SETTING = {**PARAMETERS, **EXPERIMENT.quick_parameters, "manoeuvre": True}
 METHODS = {"cone", "lsq", "nlp", "usque", "usque_detect", "fg_batch"}
 

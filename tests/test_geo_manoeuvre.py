@@ -14,9 +14,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.geo_snr_stations.experiment import (
+    EXPERIMENT,
     FILTER_OPTIONS,
     FILTER_STATIONS,
-    PARAMETERS,
     assumed_rates,
     detection_window,
     epoch_snapshot,
@@ -41,6 +41,8 @@ from attopt.solvers.geo.manoeuvre import (
 
 MAX_DELAY_S = 120.0
 """Stated delay after the manoeuvre's start (it lasts 120 s)."""
+
+PARAMETERS = EXPERIMENT.parameters
 
 
 def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSnrScenario]:

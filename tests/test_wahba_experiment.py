@@ -9,7 +9,7 @@ import pytest
 from attopt.experiments.benchmarks.wahba import run as run_bench
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import run_sweep
-from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT, PARAMETERS, interval_labels
+from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT, interval_labels
 from attopt.experiments.wahba_mag_sun.scenario import build_geometry
 from tests.report_tables import row, table
 
@@ -22,6 +22,8 @@ SHORT = {
 """1300 s: the eclipse starts at 1001 s, so the last 299 epochs are in it."""
 SETTLED_S = 120.0
 """The filters converge from the 10 deg initial error well within this time."""
+
+PARAMETERS = EXPERIMENT.parameters
 
 
 @pytest.fixture(scope="module")

@@ -93,18 +93,21 @@ import itertools
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.filters import (
     DEFAULT_FILTERS,
     PAPER_FILTER,
     PAPER_SOURCE,
+    SNR_MODELS,
     check_parameters,
+    filter_labels,
     filter_rows,
 )
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
@@ -113,7 +116,8 @@ from attopt.experiments.adsb_snr.scenario import (
     build_adsb_geometry,
     observation_chunks,
 )
-from attopt.experiments.estimators import registered_labels, resolve
+from attopt.experiments.config import Parameters
+from attopt.experiments.estimators import label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import error_columns
 from attopt.experiments.reporting.statistics import (
@@ -124,6 +128,7 @@ from attopt.experiments.reporting.statistics import (
 )
 from attopt.experiments.simulation import INITIAL_ATTITUDE_SIGMA_DEG, child_rng
 from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -157,23 +162,44 @@ def method_labels() -> dict[str, str]:
     return registered_labels("snapshot", SnrMeasurement)
 
 
-PARAMETERS: dict[str, Any] = {
-    "duration_s": 3600.0,
-    "step_s": 1.0,
-    "n_aircraft": 10_000,
-    "traffic_seed": 0,
-    "snr_sigma_db": 1.0,
-    "power_offset_sigma_db": 0.0,
-    "offset_prior_sigma_db": OFFSET_PRIOR_SIGMA_DB,
-    "threshold_db": 6.0,
-    "wrong_minimum_every": 20,
-    "methods": ["deterministic", "nlse", "nlp", "nlp_truncated"],
-    "filters": DEFAULT_FILTERS,
-    "gyros": ["seed000", "mems"],
-    "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
-    "paper_sigma_deg": 1.0,
-    "filter_snr_model": "truncated",
-}
+class AdsbSnrParameters(Parameters):
+    """Parameters of ``adsb-snr`` (Liu et al. 2023 sec. 5.1)."""
+
+    duration_s: float = Field(3600.0, gt=0, description="Length of the pass from the start.")
+    step_s: float = Field(1.0, gt=0, description="Time between epochs.")
+    n_aircraft: int = Field(10_000, ge=1, description="Number of modelled flights.")
+    traffic_seed: int = Field(0, ge=0, description="Seed of the modelled traffic.")
+    snr_sigma_db: float = Field(1.0, gt=0, description="SNR measurement noise sigma.")
+    power_offset_sigma_db: float = Field(
+        0.0, ge=0, description="Sigma of each transmitter's power offset from the nominal."
+    )
+    offset_prior_sigma_db: float = Field(
+        OFFSET_PRIOR_SIGMA_DB, gt=0, description="Prior sigma of the estimated power offsets."
+    )
+    threshold_db: float = Field(6.0, description="Reception threshold of the measured SNR.")
+    wrong_minimum_every: int = Field(
+        20, ge=1, description="Every k-th solved epoch is re-solved from the truth."
+    )
+    methods: list[label_field(method_labels, "methods")] = Field(
+        default_factory=lambda: ["deterministic", "nlse", "nlp", "nlp_truncated"],
+        description="Single-frame SNR solvers (registry names).",
+    )
+    filters: list[label_field(filter_labels, "filters")] = Field(
+        default_factory=lambda: list(DEFAULT_FILTERS),
+        description="Filters and smoothers (row labels).",
+    )
+    gyros: list[Literal[tuple(GYRO_MODELS)]] = Field(
+        default_factory=lambda: ["seed000", "mems"], description="Gyro model presets."
+    )
+    initial_sigma_deg: float = Field(
+        INITIAL_ATTITUDE_SIGMA_DEG, gt=0, description="Per-axis sigma of the filters' prior."
+    )
+    paper_sigma_deg: float = Field(
+        1.0, gt=0, description="Sigma of the Euler-angle measurements of the paper's MEKF."
+    )
+    filter_snr_model: Literal[SNR_MODELS] = Field(
+        "truncated", description="SNR likelihood of the SNR filters."
+    )
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -514,7 +540,7 @@ EXPERIMENT = Experiment(
         "Liu et al. 2023: SNR attitude solvers (two-step QUEST, NLSE, NLP, truncated-ML NLP) and "
         "gyro-aided filters (MEKF, USQUE, RTS) and GTSAM smoothers over an hour, vs the CRB"
     ),
-    parameters=PARAMETERS,
+    schema=AdsbSnrParameters,
     grid=grid,
     trial=trial,
     default_trials=4,

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from attopt.experiments.adsb_snr.experiment import PARAMETERS, noise_free_pass, simulate_pass
+from attopt.experiments.adsb_snr.experiment import EXPERIMENT, noise_free_pass, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
 from attopt.experiments.simulation import child_rng, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
@@ -98,15 +98,15 @@ def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
 def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     """One pass of ``duration_s`` (module docstring)."""
     start = time.perf_counter()
-    scenario = noise_free_pass(duration_s, 1.0, PARAMETERS["n_aircraft"], 0)
-    truth = adsb_gyro_truth(duration_s, 1.0, PARAMETERS["n_aircraft"], 0, 10.0)
+    scenario = noise_free_pass(duration_s, 1.0, EXPERIMENT.parameters["n_aircraft"], 0)
+    truth = adsb_gyro_truth(duration_s, 1.0, EXPERIMENT.parameters["n_aircraft"], 0, 10.0)
     build = time.perf_counter() - start
     root = np.random.SeedSequence(seed)
     noisy = simulate_pass(
         scenario,
         np.random.default_rng(root),
-        PARAMETERS["snr_sigma_db"],
-        PARAMETERS["threshold_db"],
+        EXPERIMENT.parameters["snr_sigma_db"],
+        EXPERIMENT.parameters["threshold_db"],
     )
     model = GYRO_MODELS[gyro]
     inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))

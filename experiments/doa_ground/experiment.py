@@ -79,7 +79,9 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from pydantic import Field
 
+from attopt.experiments.config import Parameters
 from attopt.experiments.doa_ground.methods import (
     BATCH_LS,
     GYRO_FILTERS,
@@ -99,7 +101,7 @@ from attopt.experiments.doa_ground.scenario import (
     DoaGroundGeometry,
     build_geometry,
 )
-from attopt.experiments.estimators import FACTOR_GRAPH, resolve
+from attopt.experiments.estimators import FACTOR_GRAPH, label_field, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
     error_columns,
@@ -150,21 +152,41 @@ FILTER_TRIALS = 4
 """Trials per setting that also run the batch least squares and the gyro-aided rows (about
 25x the cost of the rest)."""
 
-PARAMETERS: dict[str, Any] = {
-    "duration_s": DURATION_S,
-    "step_s": STEP_S,
-    "table1_snr_db": list(TABLE1_SNR_DB),
-    "table1_snapshots": 100,
-    "table2_snapshots": list(TABLE2_SNAPSHOTS),
-    "table2_snr_db": 0.0,
-    "settle_s": 1500.0,
-    "row_step_s": 10.0,
-    "initial_sigma_deg": 60.0,
-    "initial_rate_sigma_deg_s": 0.5,
-    "process_noise": [PROCESS_NOISE, LOW_PROCESS_NOISE],
-    "filters": list(GYRO_FILTERS),
-    "filter_trials": FILTER_TRIALS,
-}
+
+class DoaGroundParameters(Parameters):
+    """Parameters of ``doa-ground`` (Yang et al. 2014 secs. 4-6)."""
+
+    duration_s: float = Field(DURATION_S, gt=0, description="Length of the pass.")
+    step_s: float = Field(STEP_S, gt=0, description="Processing step.")
+    table1_snr_db: list[float] = Field(
+        default_factory=lambda: list(TABLE1_SNR_DB),
+        description="Input SNRs of Table 1 (at table1_snapshots).",
+    )
+    table1_snapshots: int = Field(100, ge=1, description="Snapshots L of Table 1.")
+    table2_snapshots: list[int] = Field(
+        default_factory=lambda: list(TABLE2_SNAPSHOTS),
+        description="Snapshot counts L of Table 2 (at table2_snr_db).",
+    )
+    table2_snr_db: float = Field(0.0, description="Input SNR of Table 2.")
+    settle_s: float = Field(1500.0, ge=0, description="Time after which rows count as settled.")
+    row_step_s: float = Field(10.0, gt=0, description="Time between stored rows.")
+    initial_sigma_deg: float = Field(60.0, gt=0, description="Per-axis sigma of the EKF prior.")
+    initial_rate_sigma_deg_s: float = Field(
+        0.5, gt=0, description="Per-axis rate sigma of the EKF prior."
+    )
+    process_noise: list[float] = Field(
+        default_factory=lambda: [PROCESS_NOISE, LOW_PROCESS_NOISE],
+        description="Diagonals of the EKF's Q per step (one EKF/RTS row per value).",
+    )
+    filters: list[label_field(filter_labels, "filters")] = Field(
+        default_factory=lambda: list(GYRO_FILTERS),
+        description="Gyro-aided filters and smoothers (registry names).",
+    )
+    filter_trials: int = Field(
+        FILTER_TRIALS, ge=0, description="Trials per setting that also run the costly rows."
+    )
+
+
 MUSIC = MusicEstimator()
 """One estimator per process: its grid is built once."""
 GYRO = MEMS_GYRO
@@ -574,7 +596,7 @@ EXPERIMENT = Experiment(
         "Yang et al. 2014: attitude from MUSIC DOAs of ground stations, EKF, Wahba, "
         "gyro-aided MEKF and GTSAM smoother, Tables 1-2"
     ),
-    parameters=PARAMETERS,
+    schema=DoaGroundParameters,
     grid=grid,
     trial=trial,
     default_trials=200,

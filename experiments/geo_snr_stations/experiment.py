@@ -66,8 +66,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
+from pydantic import Field
 from scipy.spatial.transform import Rotation
 
+from attopt.experiments.config import Parameters
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.geo_snr_stations.report import report
 from attopt.experiments.geo_snr_stations.scenario import (
@@ -120,16 +122,29 @@ MIN_WINDOW = 3
 """Fewest epochs in the detection window (a 120 s window is 2 epochs at 60 s steps, where
 the first epoch after the manoeuvre's start alone can miss ``false_alarm``)."""
 
-PARAMETERS: dict[str, Any] = {
-    "duration_s": 3600.0,
-    "step_s": 10.0,
-    "manoeuvre": [False, True],
-    "initial_sigma_deg": 5.0,
-    "rate_arw_deg_sqrt_h": 0.1,
-    "rate_rrw_deg_h_sqrt_h": 1.0,
-    "detection_window_s": 120.0,
-    "false_alarm": 1e-6,
-}
+
+class GeoSnrStationsParameters(Parameters):
+    """Parameters of ``geo-snr-stations`` (the GEO broadcaster seen by ground stations)."""
+
+    duration_s: float = Field(3600.0, gt=0, description="Length of the pass.")
+    step_s: float = Field(10.0, gt=0, description="Time between epochs.")
+    manoeuvre: list[bool] = Field(
+        default_factory=lambda: [False, True],
+        description="One setting per value: without and with the unmodelled manoeuvre.",
+    )
+    initial_sigma_deg: float = Field(5.0, gt=0, description="Per-axis sigma of the prior.")
+    rate_arw_deg_sqrt_h: float = Field(
+        0.1, gt=0, description="Angle random walk of the assumed-rate gyro."
+    )
+    rate_rrw_deg_h_sqrt_h: float = Field(
+        1.0, gt=0, description="Rate random walk of the assumed-rate gyro."
+    )
+    detection_window_s: float = Field(
+        120.0, gt=0, description="Window of the manoeuvre detector's NIS test."
+    )
+    false_alarm: float = Field(
+        1e-6, gt=0, lt=1, description="False-alarm probability of the NIS test."
+    )
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -433,7 +448,7 @@ EXPERIMENT = Experiment(
         "SNRs (cones, least squares, NLP, USQUE with manoeuvre detection, factor-graph "
         "smoother)"
     ),
-    parameters=PARAMETERS,
+    schema=GeoSnrStationsParameters,
     grid=grid,
     trial=trial,
     default_trials=4,

@@ -7,8 +7,8 @@ Dask cluster, writes finished chunks to the output directory as they arrive
 ``report.md``.  See ``docs/sweeps.md``.
 """
 
+from attopt.experiments.config import ConfigError, load_config, resolve_parameters
 from attopt.experiments.sweep.aggregate import summarise
-from attopt.experiments.sweep.config import ConfigError, load_config, resolve_parameters
 from attopt.experiments.sweep.engines import EngineSetupError
 from attopt.experiments.sweep.runner import SweepResult, run_sweep
 from attopt.experiments.sweep.seeding import trial_seed

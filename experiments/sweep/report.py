@@ -9,6 +9,7 @@ from typing import Any
 
 import pandas as pd
 
+from attopt.experiments.config.schema import flat_items
 from attopt.experiments.reporting.tables import markdown_table
 
 MAX_FAILURE_KINDS = 10
@@ -41,9 +42,8 @@ def render_report(
 ) -> str:
     """Return the markdown of the generic report (``integrity``: the integrity section of
     :mod:`attopt.experiments.reporting.integrity`, if any)."""
-    parameters = pd.DataFrame(
-        {"parameter": list(run.parameters), "value": [repr(v) for v in run.parameters.values()]}
-    )
+    flat = flat_items(run.parameters)
+    parameters = pd.DataFrame({"parameter": list(flat), "value": [repr(v) for v in flat.values()]})
     parts = [
         f"# {run.name}\n\n{run.summary}\n",
         "## Reproduce\n\n"

@@ -11,11 +11,11 @@ from typing import Any
 import pandas as pd
 from tqdm import tqdm
 
+from attopt.experiments.config import resolve_parameters, starter_toml
 from attopt.experiments.experiment import Experiment, ReportContext, Setting
 from attopt.experiments.registry import display_name, reference_of
 from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.sweep.aggregate import invalid_reasons, summarise
-from attopt.experiments.sweep.config import resolve_parameters
 from attopt.experiments.sweep.engines import Engine, make_engine
 from attopt.experiments.sweep.report import RunDescription, render_report
 from attopt.experiments.sweep.seeding import check_root_seed
@@ -27,6 +27,9 @@ from attopt.experiments.sweep.tasks import (
     plan_chunks,
     scalar_setting_items,
 )
+
+CONFIG_FILE = "config.toml"
+"""The effective parameters of a sweep, written into its output directory."""
 
 
 @dataclass(frozen=True)
@@ -84,7 +87,9 @@ def run_sweep(
     """Run ``trials`` Monte Carlo trials of every setting of ``experiment`` and summarise them.
 
     Parameters are the experiment's, then its quick variant (``quick``), then
-    the ``[parameters]`` table of the TOML file ``config``, then ``overrides``.
+    the TOML file ``config``, then ``overrides``, validated by the experiment's
+    schema (:func:`~attopt.experiments.config.resolve_parameters`); the effective
+    parameters are written to ``out/config.toml``, a config that reruns the sweep.
     Trial ``j`` of setting ``i`` is seeded with
     ``SeedSequence(seed, spawn_key=(i, j))``.  ``trials=None`` means the
     experiment's ``default_trials`` (``quick_trials`` with ``quick``).
@@ -100,7 +105,8 @@ def run_sweep(
     started = time.perf_counter()
     check_root_seed(seed)
     reference = reference_of(experiment)
-    parameters = resolve_parameters(experiment, quick=quick, config=config, overrides=overrides)
+    validated = resolve_parameters(experiment, quick=quick, config=config, overrides=overrides)
+    parameters = validated.model_dump(mode="json")
     settings = _checked_settings(experiment.grid(parameters))
     if trials is None:
         trials = experiment.quick_trials if quick else experiment.default_trials
@@ -113,6 +119,10 @@ def run_sweep(
         reference=reference,
         trials=trials,
         fresh=fresh,
+    )
+    command = _command(reference, trials, seed, quick, config, overrides)
+    (store.out / CONFIG_FILE).write_text(
+        starter_toml(validated, f"Effective parameters of: {command}")
     )
     finished = store.finished_tasks(trials)
     pending = [
@@ -153,7 +163,7 @@ def run_sweep(
     description = RunDescription(
         name=experiment.name,
         summary=experiment.summary,
-        command=_command(reference, trials, seed, quick, config, overrides),
+        command=command,
         parameters=parameters,
         n_settings=len(settings),
         trials=trials,

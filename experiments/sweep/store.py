@@ -37,6 +37,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from attopt.experiments.config.schema import flat_items
 from attopt.experiments.experiment import Setting
 from attopt.experiments.sweep.tasks import ChunkResult, Task, scalar_setting_items
 
@@ -269,10 +270,11 @@ def _mismatch_message(out: Path, manifest: Mapping[str, Any], identity: SweepIde
         differences.append(f"experiment {manifest.get('experiment')!r} -> {new['experiment']!r}")
     if manifest.get("seed") != new["seed"]:
         differences.append(f"seed {manifest.get('seed')} -> {new['seed']}")
-    old_parameters = manifest.get("parameters", {})
-    for key in sorted(set(old_parameters) | set(new["parameters"])):
-        if old_parameters.get(key) != new["parameters"].get(key):
-            old_value, new_value = old_parameters.get(key), new["parameters"].get(key)
+    old_parameters = flat_items(manifest.get("parameters", {}))
+    new_parameters = flat_items(new["parameters"])
+    for key in sorted(set(old_parameters) | set(new_parameters)):
+        if old_parameters.get(key) != new_parameters.get(key):
+            old_value, new_value = old_parameters.get(key), new_parameters.get(key)
             differences.append(f"parameter {key!r} {old_value!r} -> {new_value!r}")
     if not differences:
         differences.append("the experiment's settings (its grid) changed")

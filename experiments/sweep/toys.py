@@ -12,8 +12,17 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from pydantic import Field
 
+from attopt.experiments.config.schema import Parameters
 from attopt.experiments.experiment import Experiment, Row, Setting
+
+
+class NoopParameters(Parameters):
+    """Parameters of the no-op experiment."""
+
+    settings: int = Field(4, ge=1, description="Number of settings (each the same trial).")
+    sleep_s: float = Field(0.0, ge=0.0, description="Time each trial sleeps.")
 
 
 def noop_grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -44,7 +53,7 @@ def noop_trial(setting: Setting, seed: np.random.SeedSequence) -> list[Row]:
 NOOP = Experiment(
     name="noop",
     summary="No-op trial (random numbers only): checks a cluster and times the runner.",
-    parameters={"settings": 4, "sleep_s": 0.0},
+    schema=NoopParameters,
     grid=noop_grid,
     trial=noop_trial,
     default_trials=1000,

@@ -42,12 +42,14 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
+from pydantic import Field
 
-from attopt.experiments.estimators import FACTOR_GRAPH, registered_labels, resolve
+from attopt.experiments.config import Parameters
+from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
     error_columns,
@@ -99,16 +101,29 @@ def filter_labels() -> dict[str, str]:
     return registered_labels("pass", VectorMeasurement)
 
 
-PARAMETERS: dict[str, Any] = {
-    "duration_s": 6000.0,
-    "step_s": 1.0,
-    "mag_sigma": MAG_SIGMA,
-    "sun_sigma": SUN_SIGMA,
-    "methods": [solver.name for solver in wahba.ESTIMATORS],
-    "filters": ["mekf", "usque", "rts", "fg_batch"],
-    "gyro": "mems",
-    "initial_sigma_deg": INITIAL_ATTITUDE_SIGMA_DEG,
-}
+class WahbaMagSunParameters(Parameters):
+    """Parameters of ``wahba-mag-sun`` (Cilden Guler et al. 2017 sec. 3)."""
+
+    duration_s: float = Field(6000.0, gt=0, description="Length of the pass from the start.")
+    step_s: float = Field(1.0, gt=0, description="Time between epochs.")
+    mag_sigma: float = Field(
+        MAG_SIGMA, gt=0, description="Magnetometer direction-cosine noise standard deviation."
+    )
+    sun_sigma: float = Field(
+        SUN_SIGMA, gt=0, description="Sun-sensor direction-cosine noise standard deviation."
+    )
+    methods: list[label_field(method_labels, "methods")] = Field(
+        default_factory=lambda: [solver.name for solver in wahba.ESTIMATORS],
+        description="Single-frame Wahba solvers (registry names).",
+    )
+    filters: list[label_field(filter_labels, "filters")] = Field(
+        default_factory=lambda: ["mekf", "usque", "rts", "fg_batch"],
+        description="Gyro-aided filters and smoothers (registry names).",
+    )
+    gyro: Literal[tuple(GYRO_MODELS)] = Field("mems", description="Gyro model preset.")
+    initial_sigma_deg: float = Field(
+        INITIAL_ATTITUDE_SIGMA_DEG, gt=0, description="Per-axis sigma of the filters' prior."
+    )
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
@@ -308,7 +323,7 @@ EXPERIMENT = Experiment(
         "Cilden Guler et al. 2017: six Wahba solvers on TIMED with magnetometer + Sun sensor, "
         "vs the CRB"
     ),
-    parameters=PARAMETERS,
+    schema=WahbaMagSunParameters,
     grid=grid,
     trial=trial,
     default_trials=20,
