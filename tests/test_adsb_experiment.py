@@ -288,7 +288,7 @@ def test_power_offsets_modelled_by_the_smoother():
     ("override", "message"),
     [
         ({"filters": ["ekf"]}, "unknown filters"),
-        ({"gyros": ["fog"]}, "unknown gyros"),
+        ({"gyros": ["fog"]}, r"gyros\[0\] = .fog."),
         ({"filter_snr_model": "laplace"}, "filter_snr_model"),
     ],
 )

@@ -35,7 +35,7 @@ def test_run_prints_where_results_went_and_the_summary(tmp_path):
 
 def test_run_accepts_an_import_path_and_reports_failures(tmp_path):
     config = tmp_path / "fail.toml"
-    config.write_text("[parameters]\nfail_every = 2\n")
+    config.write_text("fail_every = 2\n")
     options = ["--workers", "1", "--config", str(config), "--out", str(tmp_path / "out")]
     result = runner.invoke(
         app, ["run", "tests.sweep_toys:TOY", "--quick", *options, "--no-progress"]
@@ -65,10 +65,10 @@ def test_usage_errors_exit_with_a_message(tmp_path, arguments, message):
 
 def test_bad_config_key_is_named(tmp_path):
     config = tmp_path / "bad.toml"
-    config.write_text("[parameters]\nsleep = 1.0\n")
+    config.write_text("sleep = 1.0\n")
     result = runner.invoke(app, ["run", "noop", "--config", str(config), "--out", str(tmp_path)])
     assert result.exit_code == 2
-    assert "unknown parameter 'sleep'" in result.output and "sleep_s" in result.output
+    assert "unknown key 'sleep'" in result.output and "sleep_s" in result.output
 
 
 def test_list_shows_names_and_summaries_even_with_a_broken_entry(monkeypatch):

@@ -97,7 +97,7 @@ def run_benchmark(
 
 def serial_loop(overrides: dict[str, float], trials: int) -> float:
     """Return the time of a plain loop calling the trial function for every setting x trial."""
-    settings = NOOP.grid(resolve_parameters(NOOP, overrides=overrides))
+    settings = NOOP.grid(resolve_parameters(NOOP, overrides=overrides).model_dump(mode="json"))
     started = time.perf_counter()
     for trial_index in range(trials):
         for setting_index, setting in enumerate(settings):
