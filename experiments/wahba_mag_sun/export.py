@@ -61,7 +61,7 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     inputs = simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM), sigma)
     samples = inputs.gyro.samples
     metadata = PassMetadata(
-        description=f"wahba-mag-sun: a simulated pass of TIMED from {geometry.start_utc} UTC",
+        description="wahba-mag-sun: a simulated pass of TIMED (Cilden Guler et al. 2017)",
         start_utc=geometry.start_utc,
         attitude_frame=ORBIT,
         position_frame=INERTIAL,
