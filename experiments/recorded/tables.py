@@ -2,7 +2,7 @@
 
 One file per table in the pass directory, ``NAME.parquet`` (float64 is stored
 exactly) or ``NAME.csv`` (floats written in their shortest round-trip form and
-read back with pandas' round-trip parser, so also exactly; for small data).
+read back by pandas' parser, which rounds correctly, so also exactly; for small data).
 :data:`TABLES` is the schema that ``docs/pass-format.md`` documents; a table is
 checked on load against it (:func:`checked`): unknown and missing columns,
 values of the wrong type, and NaN or infinite values where a column does not
@@ -221,7 +221,7 @@ def read_table(directory: Path, name: str) -> pd.DataFrame | None:
             frame = pd.read_parquet(path)
         else:
             strings = {c.name: str for c in TABLES[name].columns if c.kind == "str"}
-            frame = pd.read_csv(path, float_precision="round_trip", dtype=strings)
+            frame = pd.read_csv(path, dtype=strings)
     except (OSError, ValueError) as error:
         raise PassFormatError.at(name, problem=f"cannot read {path.name}: {error}") from None
     return checked(name, frame)
