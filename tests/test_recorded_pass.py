@@ -424,7 +424,7 @@ def test_an_orbit_frame_gyro_pass_needs_the_position_table(tmp_path):
 
 def test_bad_rows_name_their_table_column_and_row(saved):
     recorded = every_table_pass()
-    snr = recorded.tables["snr"].assign(antenna=[0, 1, 3, 0])
+    snr = recorded.tables["snr"].assign(antenna=[0, 1, 4, 0])
     with pytest.raises(PassFormatError, match="table snr, column antenna, row 2: not one of the 4"):
         RecordedPass(recorded.metadata, {**recorded.tables, "snr": snr})
     doa = recorded.tables["doa"].assign(theta_rad=[0.3, 0.02, 2.0])
