@@ -82,8 +82,8 @@ def estimate(recorded: RecordedPass, methods: Sequence[str]) -> dict[str, Run]:
     runs = run_estimators(recorded.pass_, snapshot) if snapshot else {}
     if passes:
         gyro = recorded.gyro_pass
+        turned = gyro is not None and recorded.frames is not None
         for name, run in run_estimators(gyro or recorded.pass_, passes).items():
-            turned = gyro is not None and recorded.frames is not None
             track = in_orbit_frame(run.track, recorded.frames) if turned else run.track
             runs[name] = replace(run, track=track)
     return {name: runs[name] for name in methods}

@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
@@ -109,7 +108,7 @@ class RecordedPass:
         except InvalidObservationError as error:
             raise PassFormatError.at("gyro", "t_s", None, str(error)) from None
         for name, value in (
-            ("tables", MappingProxyType(tables)),
+            ("tables", tables),
             ("pass_", pass_),
             ("gyro_pass", gyro_pass),
             ("frames", frames),
