@@ -17,6 +17,8 @@ The public API, in one flat namespace (``docs/api.md``):
 * the results: :class:`Solution` (one epoch) and :class:`Track` (a pass),
   with ``to_dataframe()`` and ``plot()``;
 * the bounds: :func:`crb` (one snapshot) and :func:`posterior_bound` (a pass);
+* your own recorded passes: :func:`load_pass` and :func:`save_pass`
+  (``docs/pass-format.md``);
 * the errors every estimator raises instead of returning a wrong attitude.
 
 Example::
@@ -30,6 +32,7 @@ Example::
     True
 """
 
+from attopt.experiments.recorded import PassFormatError, RecordedPass, load_pass, save_pass
 from attopt.formulations.attitude_measurement import (
     AttitudeMeasurement,
     EulerAngleMeasurement,
@@ -88,7 +91,9 @@ __all__ = [
     "ParabolicPattern",
     "Pass",
     "PassEstimator",
+    "PassFormatError",
     "Prior",
+    "RecordedPass",
     "ReferencedMeasurement",
     "RigidBody",
     "Run",
@@ -112,7 +117,9 @@ __all__ = [
     "estimator",
     "estimators",
     "euler321_from_attitude",
+    "load_pass",
     "posterior_bound",
     "run_estimators",
+    "save_pass",
     "simulate_gyro",
 ]

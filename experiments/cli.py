@@ -230,6 +230,22 @@ def estimators_command(
         )
 
 
+@app.command()
+def estimate(
+    pass_dir: Annotated[Path, typer.Argument(help="A recorded pass (docs/pass-format.md).")],
+    methods: Annotated[
+        str, typer.Option(help="Registered estimators, comma separated (`attopt estimators`).")
+    ],
+    out: Annotated[
+        Path | None, typer.Option(help="Output directory (default: results/estimate-PASS).")
+    ] = None,
+) -> None:
+    """Run registered estimators on a recorded pass: rows, summary, report and figures."""
+    from attopt.experiments.recorded.estimate import main
+
+    raise typer.Exit(main(pass_dir, methods, out))
+
+
 @bench_app.command("runner")
 def bench_runner(
     noop_trials: Annotated[int, typer.Option(min=4, help="Trials of the no-op case.")] = 2000,
