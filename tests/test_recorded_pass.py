@@ -218,7 +218,7 @@ def test_any_float_round_trips_bit_for_bit(tmp_path_factory, values, fmt):
 @functools.cache
 def _wahba(duration_s: float = 120.0):
     setting = {
-        **wahba.PARAMETERS,
+        **wahba.EXPERIMENT.parameters,
         "duration_s": duration_s,
         "methods": ["quest"],
         "filters": ["mekf"],

@@ -34,9 +34,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import typer
-from scipy.spatial.transform import Rotation
 
-from attopt.experiments.metrics import error_columns, in_orbit_frame, status_columns
+from attopt.experiments.metrics import (
+    attitude_columns,
+    error_columns,
+    in_orbit_frame,
+    status_columns,
+)
 from attopt.experiments.recorded.recorded_pass import RecordedPass, load_pass
 from attopt.experiments.reporting.figures import image_links, save_figure
 from attopt.experiments.reporting.integrity import integrity_section
@@ -47,7 +51,7 @@ from attopt.formulations.errors import AttoptError
 from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.pipeline import Run, run_estimators
 from attopt.solvers.registry import UnknownEstimatorError, estimator
-from attopt.solvers.results import Track, observable_sigma
+from attopt.solvers.results import observable_sigma
 
 ROWS = "rows.parquet"
 SUMMARY = "summary.csv"
@@ -69,9 +73,10 @@ def estimate(recorded: RecordedPass, methods: Sequence[str]) -> dict[str, Run]:
 
         >>> import numpy as np
         >>> from attopt.experiments.recorded.estimate import estimate
-        >>> from attopt.experiments.wahba_mag_sun.experiment import PARAMETERS
+        >>> from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT
         >>> from attopt.experiments.wahba_mag_sun.export import export
-        >>> recorded = export({**PARAMETERS, "duration_s": 30.0}, np.random.SeedSequence(0))
+        >>> setting = {**EXPERIMENT.parameters, "duration_s": 30.0}
+        >>> recorded = export(setting, np.random.SeedSequence(0))
         >>> runs = estimate(recorded, ["quest", "mekf"])
         >>> [(name, int(run.track.valid.sum())) for name, run in runs.items()]
         [('quest', 30), ('mekf', 30)]
@@ -89,19 +94,6 @@ def estimate(recorded: RecordedPass, methods: Sequence[str]) -> dict[str, Run]:
     return {name: runs[name] for name in methods}
 
 
-def _quaternion_columns(prefix: str, quaternion: np.ndarray) -> dict[str, np.ndarray]:
-    return {f"{prefix}_{c}": quaternion[:, i] for i, c in enumerate("xyzw")}
-
-
-def attitude_columns(track: Track, truth: Rotation | None) -> dict[str, np.ndarray]:
-    """``q_est_{x,y,z,w}`` (NaN where invalid) and, given ``truth``, ``q_true_{x,y,z,w}``."""
-    estimate_q = np.where(track.valid[:, None], track.quaternion, np.nan)
-    columns = _quaternion_columns("q_est", estimate_q)
-    if truth is not None:
-        columns |= _quaternion_columns("q_true", truth.as_quat())
-    return columns
-
-
 def method_rows(name: str, run: Run, recorded: RecordedPass) -> pd.DataFrame:
     """The rows of one method (module docstring)."""
     track, truth = run.track, recorded.truth
@@ -114,7 +106,7 @@ def method_rows(name: str, run: Run, recorded: RecordedPass) -> pd.DataFrame:
         {
             "method": name,
             "t_s": recorded.t,
-            **attitude_columns(track, truth),
+            **attitude_columns(np.where(track.valid[:, None], track.quaternion, np.nan), truth),
             **metrics,
             **status_columns(track),
             "runtime_s": run.seconds,

@@ -18,9 +18,9 @@ from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from tomli_w import dumps
 
 from attopt.experiments.recorded.errors import PassFormatError
-from attopt.experiments.recorded.toml_text import dumps
 from attopt.formulations.doa_measurement import AXIS_THRESHOLD
 from attopt.formulations.gain_patterns import (
     CosinePowerPattern,

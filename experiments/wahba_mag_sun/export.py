@@ -46,9 +46,9 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     Example::
 
         >>> import numpy as np
-        >>> from attopt.experiments.wahba_mag_sun.experiment import PARAMETERS
+        >>> from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT
         >>> from attopt.experiments.wahba_mag_sun.export import export
-        >>> setting = {**PARAMETERS, "duration_s": 60.0}
+        >>> setting = {**EXPERIMENT.parameters, "duration_s": 60.0}
         >>> export(setting, np.random.SeedSequence(0))
         RecordedPass(attitude orbit, Pass(60 epochs, t 0-59 s, 60 with measurements),
                      tables gyro, vectors, position, truth)
