@@ -286,6 +286,8 @@ def _print_result(result: SweepResult) -> None:
         f"{result.n_resumed} already done, {result.n_failed} failed, "
         f"{result.n_missing} missing ({result.elapsed_s:.1f} s)"
     )
+    for line in result.dropped_chunks:
+        typer.echo(f"  warning: {line}", err=True)
     if len(result.code_versions) > 1:
         versions = ", ".join(f"{code} ({n})" for code, n in result.code_versions.items())
         typer.echo(f"  trials computed by several code versions: {versions}")

@@ -61,6 +61,11 @@ class SweepResult:
     code_versions: dict[str, int]
     """Finished trials per version of the code that computed them
     (:func:`~attopt.experiments.sweep.store.code_version`)."""
+    dropped_chunks: list[str]
+    """One line per damaged file found in ``out_dir`` on resuming (a truncated or emptied
+    chunk, rows that are not its record's), naming it and what was wrong; its chunk was
+    deleted and its trials computed again, within ``n_computed``
+    (:meth:`~attopt.experiments.sweep.store.SweepStore.drop_damaged_chunks`)."""
 
     @property
     def complete(self) -> bool:
@@ -192,6 +197,7 @@ def run_sweep(
         errors=errors,
         elapsed_s=time.perf_counter() - started,
         code_versions=code_versions,
+        dropped_chunks=store.dropped,
     )
 
 

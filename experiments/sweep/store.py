@@ -4,7 +4,8 @@ Layout of ``out``::
 
     manifest.json          experiment, parameters, settings, seed, trials, hash, code
     rows/<chunk>.parquet   rows of the chunk's trials (absent if it has none)
-    trials/<chunk>.json    the chunk's (setting, trial) pairs, failures and code
+    trials/<chunk>.json    the chunk's record (:class:`ChunkRecord`): its (setting, trial)
+                           pairs, row count, failures, code and the rows file's SHA-256
 
 ``code`` is the version of the code that wrote the chunk (or last opened the
 directory, in the manifest), :func:`code_version`: a resumed sweep may mix
@@ -13,9 +14,13 @@ chunks of several versions, and :meth:`SweepStore.code_versions` says which.
 A chunk counts as finished once its ``trials/<chunk>.json`` record exists.
 Both files are written to a temporary name and renamed, the rows first, so an
 interruption at any point leaves either a finished chunk or nothing that is
-read back.  The manifest's hash covers the experiment name, parameters,
-settings and root seed: reopening the directory with different ones is
-refused unless ``fresh`` discards the old results.  The number of trials is
+read back.  Opening the directory checks every finished chunk against its
+record (:meth:`SweepStore.drop_damaged_chunks`): a chunk that cannot be read
+back as it was written (a truncated or emptied file, rows that are not the
+record's) is deleted, so that its trials are computed again.  The manifest's
+hash covers the experiment name, parameters, settings and root seed:
+reopening the directory with different ones is refused unless ``fresh``
+discards the old results.  The number of trials is
 not part of the hash: asking for more trials adds the missing ones, asking for
 fewer reads back only those.
 """
@@ -33,9 +38,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+from pydantic import BaseModel, ConfigDict, NonNegativeInt, ValidationError
 
 from attopt.experiments.config.schema import flat_items
 from attopt.experiments.experiment import Setting
@@ -46,19 +53,50 @@ ROWS_DIR = "rows"
 RECORDS_DIR = "trials"
 OUTPUT_FILES = ("summary.csv", "failures.csv", "report.md")
 FORMAT_VERSION = 1
-FAILURE_COLUMNS = (
-    "setting_index",
-    "trial_index",
-    "error_type",
-    "message",
-    "traceback",
-    "seed_entropy",
-    "seed",
-)
+INDEX_COLUMNS = ("setting_index", "trial_index")
 
 
 UNRECORDED = "unrecorded"
 """The code version of a chunk written before versions were recorded."""
+
+
+class FailureRecord(BaseModel):
+    """A trial that raised (:func:`~attopt.experiments.sweep.tasks.failure_record`)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    setting_index: NonNegativeInt
+    trial_index: NonNegativeInt
+    error_type: str
+    message: str
+    traceback: str
+    seed_entropy: int
+    seed: str
+
+
+FAILURE_COLUMNS = tuple(FailureRecord.model_fields)
+
+
+class ChunkRecord(BaseModel):
+    """``trials/<chunk>.json``: what a finished chunk computed.
+
+    ``rows_sha256`` is the SHA-256 of ``rows/<chunk>.parquet`` as written
+    (None when the chunk has no rows, or was written before it was recorded).
+    """
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+
+    chunk: str
+    tasks: list[tuple[NonNegativeInt, NonNegativeInt]]
+    n_rows: NonNegativeInt
+    failures: list[FailureRecord]
+    elapsed_s: float
+    code: str = UNRECORDED
+    rows_sha256: str | None = None
+
+
+class DamagedChunkError(ValueError):
+    """A stored chunk that cannot be read back as it was written (the message names the file)."""
 
 
 def code_version() -> str:
@@ -117,6 +155,8 @@ class SweepStore:
         self.rows_dir = self.out / ROWS_DIR
         self.records_dir = self.out / RECORDS_DIR
         self.code = code_version()
+        self.dropped: list[str] = []
+        """What :meth:`drop_damaged_chunks` deleted on opening the directory, one line each."""
 
     @classmethod
     def open(
@@ -147,6 +187,7 @@ class SweepStore:
         store.rows_dir.mkdir(parents=True, exist_ok=True)
         store.records_dir.mkdir(parents=True, exist_ok=True)
         store._remove_temporary_files()
+        store.dropped = store.drop_damaged_chunks()
         created = previous.get("created") if previous and not fresh else None
         store._write_manifest(reference=reference, trials=trials, created=created)
         return store
@@ -170,43 +211,84 @@ class SweepStore:
 
     def commit(self, result: ChunkResult) -> None:
         """Store a finished chunk: its rows, then the record that marks it finished."""
+        rows_sha256 = None
         if len(result.rows):
-            table = pa.Table.from_pandas(result.rows, preserve_index=False)
-            path = self.rows_dir / f"{result.chunk_id}.parquet"
-            pq.write_table(table, _temporary(path))
+            sink = pa.BufferOutputStream()
+            pq.write_table(pa.Table.from_pandas(result.rows, preserve_index=False), sink)
+            data = sink.getvalue()
+            rows_sha256 = hashlib.sha256(data).hexdigest()
+            path = self._rows_path(result.chunk_id)
+            _temporary(path).write_bytes(data)
             os.replace(_temporary(path), path)
-        record = {
-            "chunk": result.chunk_id,
-            "tasks": [list(task) for task in result.tasks],
-            "n_rows": len(result.rows),
-            "failures": result.failures,
-            "elapsed_s": result.elapsed_s,
-            "code": self.code,
-        }
+        record = ChunkRecord(
+            chunk=result.chunk_id,
+            tasks=list(result.tasks),
+            n_rows=len(result.rows),
+            failures=result.failures,
+            elapsed_s=result.elapsed_s,
+            code=self.code,
+            rows_sha256=rows_sha256,
+        )
         path = self.records_dir / f"{result.chunk_id}.json"
-        _temporary(path).write_text(json.dumps(record))
+        _temporary(path).write_text(record.model_dump_json())
         os.replace(_temporary(path), path)
+
+    def drop_damaged_chunks(self) -> list[str]:
+        """Delete every stored chunk that cannot be read back as it was written; say which.
+
+        A chunk is damaged when its record is not readable as a
+        :class:`ChunkRecord` of its name, lists a trial twice, outside the
+        settings or held by another chunk, or records failures that are not one
+        per trial it lists; or when its rows file is missing, differs from the
+        SHA-256 the record holds, is not readable parquet, or holds other rows
+        than the record's (another number of rows, rows of a trial the record
+        does not list as succeeded).  Both files of a damaged chunk are deleted,
+        so that its trials are computed again; so is a rows file that belongs
+        to no finished chunk (left by an interrupted write or a deleted record).
+        Returns one line per deletion naming the file and what was wrong.
+        """
+        dropped = []
+        owners: dict[Task, str] = {}
+        with_rows = set()
+        for path in sorted(self.records_dir.glob("*.json")):
+            try:
+                record = self._checked_record(path, owners)
+            except DamagedChunkError as damage:
+                path.unlink()
+                self._rows_path(path.stem).unlink(missing_ok=True)
+                dropped.append(
+                    f"{damage}; chunk {path.stem} dropped, its trials are computed again"
+                )
+                continue
+            owners.update(dict.fromkeys(record.tasks, record.chunk))
+            if record.n_rows:
+                with_rows.add(record.chunk)
+        for path in sorted(self.rows_dir.glob("*.parquet")):
+            if path.stem not in with_rows:
+                path.unlink()
+                dropped.append(
+                    f"{ROWS_DIR}/{path.name}: the rows of no finished chunk (left by an "
+                    "interrupted write or a deleted record); deleted"
+                )
+        return dropped
 
     def finished_tasks(self, trials: int) -> set[Task]:
         """Return the ``(setting, trial)`` pairs already finished (succeeded or failed)."""
-        return {(s, t) for record in self._records() for s, t in record["tasks"] if t < trials}
+        return {(s, t) for record in self._records() for s, t in record.tasks if t < trials}
 
     def code_versions(self, trials: int) -> dict[str, int]:
         """Finished trials among the first ``trials`` per code version that computed them."""
         counts = Counter(
-            record.get("code", UNRECORDED)
-            for record in self._records()
-            for _, t in record["tasks"]
-            if t < trials
+            record.code for record in self._records() for _, t in record.tasks if t < trials
         )
         return dict(counts.most_common())
 
     def load_rows(self, trials: int) -> pd.DataFrame:
         """Return the stored rows of the first ``trials`` trials, in (setting, trial, row) order."""
         tables = [
-            pq.read_table(self.rows_dir / f"{record['chunk']}.parquet")
+            pq.read_table(self._rows_path(record.chunk))
             for record in self._records()
-            if record["n_rows"]
+            if record.n_rows
         ]
         if not tables:
             return pd.DataFrame()
@@ -219,19 +301,83 @@ class SweepStore:
         """Return the failure records of the first ``trials`` trials with their setting columns."""
         settings = self.identity.settings
         failures = [
-            {**failure, **scalar_setting_items(settings[failure["setting_index"]])}
+            {**failure.model_dump(), **scalar_setting_items(settings[failure.setting_index])}
             for record in self._records()
-            for failure in record["failures"]
-            if failure["trial_index"] < trials
+            for failure in record.failures
+            if failure.trial_index < trials
         ]
         frame = pd.DataFrame(failures, columns=None if failures else list(FAILURE_COLUMNS))
         if failures:
             frame = frame.sort_values(["setting_index", "trial_index"], kind="stable")
         return frame.reset_index(drop=True)
 
-    def _records(self) -> Iterator[dict[str, Any]]:
+    def _records(self) -> Iterator[ChunkRecord]:
         for path in sorted(self.records_dir.glob("*.json")):
-            yield json.loads(path.read_text())
+            yield ChunkRecord.model_validate_json(path.read_bytes())
+
+    def _rows_path(self, chunk: str) -> Path:
+        return self.rows_dir / f"{chunk}.parquet"
+
+    def _checked_record(self, path: Path, owners: Mapping[Task, str]) -> ChunkRecord:
+        """Return the record at ``path`` if its chunk reads back as written (trials
+        held by earlier chunks in ``owners``), else raise :class:`DamagedChunkError`."""
+        name = f"{RECORDS_DIR}/{path.name}"
+        try:
+            record = ChunkRecord.model_validate_json(path.read_bytes())
+        except ValidationError as error:
+            raise DamagedChunkError(f"{name}: not a chunk record ({_first_error(error)})") from None
+        tasks = set(record.tasks)
+        failed = [(failure.setting_index, failure.trial_index) for failure in record.failures]
+        shared = sorted(tasks & owners.keys())
+        n_settings = len(self.identity.settings)
+        if record.chunk != path.stem:
+            raise DamagedChunkError(f"{name}: holds the record of chunk {record.chunk}")
+        if len(tasks) < len(record.tasks):
+            raise DamagedChunkError(f"{name}: lists a trial twice")
+        if any(s >= n_settings for s, _ in tasks):
+            raise DamagedChunkError(f"{name}: lists a setting beyond the sweep's {n_settings}")
+        if shared:
+            raise DamagedChunkError(f"{name}: lists trial {shared[0]} of chunk {owners[shared[0]]}")
+        if len(set(failed)) < len(failed) or not tasks.issuperset(failed):
+            raise DamagedChunkError(f"{name}: records failures of trials it does not list")
+        if record.n_rows:
+            self._check_rows(record, tasks.difference(failed))
+        return record
+
+    def _check_rows(self, record: ChunkRecord, succeeded: set[Task]) -> None:
+        """Raise :class:`DamagedChunkError` unless the rows file holds ``record``'s rows."""
+        path = self._rows_path(record.chunk)
+        name = f"{ROWS_DIR}/{path.name}"
+        if not path.exists():
+            raise DamagedChunkError(f"{name}: missing (its record holds {record.n_rows} rows)")
+        data = path.read_bytes()
+        if record.rows_sha256 not in (None, hashlib.sha256(data).hexdigest()):
+            raise DamagedChunkError(
+                f"{name}: changed since it was written ({len(data)} bytes whose SHA-256 is "
+                "not the record's; truncated or overwritten)"
+            )
+        try:
+            table = pq.read_table(pa.BufferReader(data))
+        except pa.ArrowException as error:
+            raise DamagedChunkError(f"{name}: not readable parquet ({error})") from None
+        if table.num_rows != record.n_rows:
+            raise DamagedChunkError(
+                f"{name}: holds {table.num_rows} rows, its record {record.n_rows}"
+            )
+        if not all(
+            column in table.column_names
+            and pa.types.is_integer(table.schema.field(column).type)
+            and table[column].null_count == 0
+            for column in INDEX_COLUMNS
+        ):
+            raise DamagedChunkError(f"{name}: has no integer {' and '.join(INDEX_COLUMNS)} columns")
+        index = np.unique(np.column_stack([table[c].to_numpy() for c in INDEX_COLUMNS]), axis=0)
+        strays = sorted({(int(s), int(t)) for s, t in index} - succeeded)
+        if strays:
+            raise DamagedChunkError(
+                f"{name}: holds rows of trial {strays[0]}, which its record does not list "
+                "as succeeded"
+            )
 
     def _write_manifest(self, *, reference: str, trials: int, created: str | None) -> None:
         now = datetime.now(UTC).isoformat(timespec="seconds")
@@ -257,6 +403,12 @@ class SweepStore:
 
 def _temporary(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
+
+
+def _first_error(error: ValidationError) -> str:
+    first = error.errors()[0]
+    where = ".".join(str(part) for part in first["loc"])
+    return f"{where}: {first['msg']}" if where else first["msg"]
 
 
 def _canonical_json(value: Any) -> str:
