@@ -247,9 +247,9 @@ class SweepStore:
         to no finished chunk (left by an interrupted write or a deleted record).
         Returns one line per deletion naming the file and what was wrong.
         """
-        dropped = []
+        dropped: list[str] = []
         owners: dict[Task, str] = {}
-        with_rows = set()
+        with_rows: set[str] = set()
         for path in sorted(self.records_dir.glob("*.json")):
             try:
                 record = self._checked_record(path, owners)
