@@ -251,6 +251,20 @@ def test_damaged_chunk_is_named_dropped_and_recomputed_bit_for_bit(
     assert_bitwise_equal(again.rows, finished.rows)
 
 
+def test_a_record_key_of_another_code_version_is_no_damage(
+    tmp_path: Path, finished: SweepResult
+) -> None:
+    out = tmp_path / "out"
+    shutil.copytree(finished.out_dir, out)
+    for path in (out / "trials").glob("*.json"):
+        edit_record(out, path.stem, lambda record: record.__setitem__("added_later", [1, 2]))
+
+    resumed = sweep(out)
+
+    assert not resumed.dropped_chunks and resumed.n_computed == 0
+    assert_bitwise_equal(resumed.rows, finished.rows)
+
+
 def test_records_hold_the_checksum_of_their_rows(finished: SweepResult) -> None:
     """Each record's ``rows_sha256`` is that of its rows file, so a changed byte is found."""
     out = finished.out_dir

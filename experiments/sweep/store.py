@@ -63,7 +63,7 @@ UNRECORDED = "unrecorded"
 class FailureRecord(BaseModel):
     """A trial that raised (:func:`~attopt.experiments.sweep.tasks.failure_record`)."""
 
-    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
 
     setting_index: NonNegativeInt
     trial_index: NonNegativeInt
@@ -82,9 +82,11 @@ class ChunkRecord(BaseModel):
 
     ``rows_sha256`` is the SHA-256 of ``rows/<chunk>.parquet`` as written
     (None when the chunk has no rows, or was written before it was recorded).
+    Keys this version does not know (written by another one) are kept, not
+    taken for damage.
     """
 
-    model_config = ConfigDict(strict=True, extra="forbid", frozen=True)
+    model_config = ConfigDict(strict=True, extra="allow", frozen=True)
 
     chunk: str
     tasks: list[tuple[NonNegativeInt, NonNegativeInt]]
