@@ -3,6 +3,9 @@ bad values refused with exit code 2."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -38,6 +41,7 @@ DAWN_DUSK = {
     "epoch_utc": "2025-06-21T00:00:00",
 }
 """A generated dawn-dusk Sun-synchronous orbit: no eclipse near the June solstice."""
+ROOT = Path(__file__).resolve().parents[1]
 QUATERNION = ("x", "y", "z", "w")
 ERRORS = ["err_x_deg", "err_y_deg", "err_z_deg"]
 BOUNDS = ["bound_x_deg", "bound_y_deg", "bound_z_deg"]
@@ -122,6 +126,46 @@ def test_a_circular_orbit_without_eclipse_is_no_eclipse_throughout():
     assert len(rows) == 2 * 300  # 6000 s at 20 s, a whole orbit (about 99 min) in sunlight
 
 
+SHORT_CIRCULAR = {
+    "start_utc": "2025-06-21T01:00:00",
+    "duration_s": 200.0,
+    "step_s": 20.0,
+    "methods": ["quest"],
+    "filters": [],
+}
+
+
+@pytest.fixture(scope="module")
+def dawn_dusk_rows() -> pd.DataFrame:
+    return rows_of({**SHORT_CIRCULAR, "orbit": DAWN_DUSK})
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"altitude_km": 900.0},
+        {"inclination_deg": 60.0},
+        {"ltan_h": 9.0},
+        {"epoch_utc": "2025-06-20T23:00:00"},
+        {"eccentricity": 0.01},
+        {"argument_of_perigee_deg": 90.0},
+        {"mean_anomaly_deg": 30.0},
+    ],
+    ids=lambda change: ",".join(change),
+)
+def test_every_element_of_a_circular_orbit_moves_the_satellite(dawn_dusk_rows, change):
+    """The bound follows the Sun and field directions along the orbit (none in eclipse), so
+    it changes with each element."""
+    moved = rows_of({**SHORT_CIRCULAR, "orbit": {**DAWN_DUSK, **change}})
+    bounds = dawn_dusk_rows[BOUNDS]
+    assert not np.allclose(moved[BOUNDS], bounds, rtol=1e-4, atol=0.0, equal_nan=True)
+
+
+def test_the_catalogue_number_only_names_the_satellite(dawn_dusk_rows):
+    renamed = rows_of({**SHORT_CIRCULAR, "orbit": {**DAWN_DUSK, "satellite_number": 12345}})
+    pd.testing.assert_frame_equal(renamed, dawn_dusk_rows)
+
+
 def test_a_longer_window_holds_two_eclipses_and_the_sunlight_between():
     rows = method(rows_of({"duration_s": 9000.0, "step_s": 30.0, "filters": []}), "quest")
     runs = rows["interval"].loc[rows["interval"].shift() != rows["interval"]].tolist()
@@ -140,6 +184,7 @@ def test_report_of_a_window_without_eclipse_says_so(tmp_path):
         "step_s": 2.0,
         "methods": ["quest"],
         "filters": ["mekf"],
+        "gyro": {"name": "tactical", "rate_hz": 50.0, "arw_deg_sqrt_h": 0.05},
     }
     result = run_sweep(
         EXPERIMENT, trials=1, out=tmp_path, workers=1, progress=False, overrides=overrides
@@ -152,6 +197,10 @@ def test_report_of_a_window_without_eclipse_says_so(tmp_path):
     assert table1["interval"].tolist() == ["no_eclipse"]
     assert row(table1, {"method": "quest"})["valid"] == "1.000"
     assert "no_eclipse includes the convergence" in report
+    assert (
+        "`tactical` (50 Hz, angle random walk 0.05 deg/h^(1/2), rate random walk 10 deg/h per "
+        "h^(1/2), turn-on bias 360 deg/h) gyro" in report
+    )
     filters = table(report, "Gyro-aided filters through the eclipse")
     assert filters["interval"].tolist() == ["no_eclipse"]
     for name in ("error_quest.png", "filter_errors.png", "gyro_bias.png"):
@@ -292,6 +341,33 @@ def test_methods_and_filters_choose_the_rows():
     rows = rows_of({"duration_s": 20.0, "methods": ["foam", "map_nlp"], "filters": ["usque"]})
     assert rows["method"].unique().tolist() == ["foam", "map_nlp", "usque"]
     assert rows.groupby("method").size().eq(20).all()
+
+
+# --- the documents' examples ------------------------------------------------------------
+
+
+def toml_blocks(text: str) -> list[str]:
+    return re.findall(r"^```toml\n(.*?)^```$", text, flags=re.MULTILINE | re.DOTALL)
+
+
+def wahba_examples() -> list[str]:
+    results = (ROOT / "docs" / "results.md").read_text()
+    (section,) = [s for s in results.split("\n## ") if s.startswith("`wahba-mag-sun`")]
+    gyro = [b for b in toml_blocks((ROOT / "docs" / "filters.md").read_text()) if "[gyro]" in b]
+    return toml_blocks(section) + gyro
+
+
+def test_the_documents_examples_are_valid_configs(tmp_path):
+    examples = wahba_examples()
+    assert len(examples) == 2
+    for index, text in enumerate(examples):
+        config = tmp_path / f"example{index}.toml"
+        config.write_text(text)
+        resolve_parameters(EXPERIMENT, config=config)
+    cbers2 = resolve_parameters(EXPERIMENT, config=tmp_path / "example0.toml")
+    assert cbers2.orbit.model_dump() == CBERS2
+    gyro = resolve_parameters(EXPERIMENT, config=tmp_path / "example1.toml").gyro
+    assert (gyro.name, gyro.rate_hz, gyro.turn_on_bias_deg_h) == ("tactical", 100.0, 10.0)
 
 
 # --- bad values -------------------------------------------------------------------------
