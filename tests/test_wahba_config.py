@@ -21,7 +21,7 @@ from attopt.experiments.environment.orbit import propagate, satellite_from_tle
 from attopt.experiments.environment.shadow import in_cylindrical_shadow
 from attopt.experiments.environment.sun import sun_direction_eci
 from attopt.experiments.sweep import run_sweep
-from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT
+from attopt.experiments.wahba_mag_sun.experiment import EXPERIMENT, geometry_of
 from attopt.experiments.wahba_mag_sun.report import eclipse_spans
 from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
 from tests.report_tables import row, table
@@ -167,7 +167,10 @@ def test_the_catalogue_number_only_names_the_satellite(dawn_dusk_rows):
 
 
 def test_a_longer_window_holds_two_eclipses_and_the_sunlight_between():
-    rows = method(rows_of({"duration_s": 9000.0, "step_s": 30.0, "filters": []}), "quest")
+    overrides = {"duration_s": 9000.0, "step_s": 30.0, "filters": []}
+    rows = method(rows_of(overrides), "quest")
+    geometry = geometry_of(resolve_parameters(EXPERIMENT, overrides=overrides))
+    assert eclipse_spans(rows, 30.0) == list(geometry.eclipses)
     runs = rows["interval"].loc[rows["interval"].shift() != rows["interval"]].tolist()
     assert runs == ["before_eclipse", "eclipse", "between_eclipses", "eclipse", "after_eclipse"]
     np.testing.assert_array_equal(rows["valid"], rows["interval"] != "eclipse")

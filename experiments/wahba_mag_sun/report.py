@@ -37,7 +37,7 @@ from attopt.experiments.reporting.tables import (
     section,
     with_paper,
 )
-from attopt.experiments.wahba_mag_sun.scenario import INTERVALS
+from attopt.experiments.wahba_mag_sun.scenario import INTERVALS, eclipse_intervals
 
 PACKAGE = "attopt.experiments.wahba_mag_sun"
 KEYS = ["method", "interval"]
@@ -78,15 +78,11 @@ def interval_statistics(rows: pd.DataFrame, methods: list[str]) -> pd.DataFrame:
 
 
 def eclipse_spans(rows: pd.DataFrame, step_s: float) -> list[tuple[float, float]]:
-    """``[start, end)`` of each eclipse in the rows (runs of ``eclipse`` epochs one step
-    apart), ``end`` one step after the run's last epoch."""
-    t = np.unique(rows.loc[rows["interval"] == "eclipse", TIME].to_numpy(dtype=float))
-    if not t.size:
-        return []
-    breaks = np.flatnonzero(np.diff(t) > 1.5 * step_s)
-    starts = t[np.concatenate([[0], breaks + 1])]
-    ends = t[np.concatenate([breaks, [t.size - 1]])] + step_s
-    return [(float(a), float(b)) for a, b in zip(starts, ends, strict=True)]
+    """``[start, end)`` of each eclipse in the rows of one setting (its runs of ``eclipse``
+    epochs, :func:`~attopt.experiments.wahba_mag_sun.scenario.eclipse_intervals`)."""
+    epochs = rows.drop_duplicates(TIME).sort_values(TIME)
+    in_eclipse = (epochs["interval"] == "eclipse").to_numpy()
+    return list(eclipse_intervals(epochs[TIME].to_numpy(dtype=float), in_eclipse, step_s))
 
 
 def orbit_label(orbit: Mapping[str, Any]) -> str:
