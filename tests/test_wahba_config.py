@@ -78,6 +78,7 @@ def test_another_tle_gives_its_own_eclipse_and_vector_geometry():
             "step_s": step,
             "methods": ["quest"],
             "filters": ["mekf"],
+            "gyro": {"rate_hz": 1.0},
         }
     )
     quest, mekf = method(rows, "quest"), method(rows, "mekf")
@@ -167,7 +168,7 @@ def test_the_catalogue_number_only_names_the_satellite(dawn_dusk_rows):
 
 
 def test_a_longer_window_holds_two_eclipses_and_the_sunlight_between():
-    overrides = {"duration_s": 9000.0, "step_s": 30.0, "filters": []}
+    overrides = {"duration_s": 9000.0, "step_s": 30.0, "methods": ["quest"], "filters": []}
     rows = method(rows_of(overrides), "quest")
     geometry = geometry_of(resolve_parameters(EXPERIMENT, overrides=overrides))
     assert eclipse_spans(rows, 30.0) == list(geometry.eclipses)
@@ -187,7 +188,7 @@ def test_report_of_a_window_without_eclipse_says_so(tmp_path):
         "step_s": 2.0,
         "methods": ["quest"],
         "filters": ["mekf"],
-        "gyro": {"name": "tactical", "rate_hz": 50.0, "arw_deg_sqrt_h": 0.05},
+        "gyro": {"name": "tactical", "rate_hz": 5.0, "arw_deg_sqrt_h": 0.05},
     }
     result = run_sweep(
         EXPERIMENT, trials=1, out=tmp_path, workers=1, progress=False, overrides=overrides
@@ -201,7 +202,7 @@ def test_report_of_a_window_without_eclipse_says_so(tmp_path):
     assert row(table1, {"method": "quest"})["valid"] == "1.000"
     assert "no_eclipse includes the convergence" in report
     assert (
-        "`tactical` (50 Hz, angle random walk 0.05 deg/h^(1/2), rate random walk 10 deg/h per "
+        "`tactical` (5 Hz, angle random walk 0.05 deg/h^(1/2), rate random walk 10 deg/h per "
         "h^(1/2), turn-on bias 360 deg/h) gyro" in report
     )
     filters = table(report, "Gyro-aided filters through the eclipse")
@@ -222,6 +223,7 @@ def test_start_duration_and_step_set_the_epochs():
                 "start_utc": "2026-05-10T23:33:00",
                 "duration_s": 1500.0,
                 "step_s": 5.0,
+                "methods": ["q_method"],
                 "filters": [],
             }
         ),
