@@ -16,12 +16,8 @@ from attopt.experiments.environment.geomagnetic import (
 from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
 from attopt.experiments.environment.shadow import EARTH_RADIUS_KM, in_cylindrical_shadow
 from attopt.experiments.environment.sun import sun_direction_eci
+from attopt.experiments.wahba_mag_sun.experiment import WahbaMagSunParameters
 from attopt.experiments.wahba_mag_sun.scenario import (
-    MAG_SIGMA,
-    START_UTC,
-    SUN_SIGMA,
-    TLE_LINE1,
-    TLE_LINE2,
     VectorGeometry,
     build_geometry,
     simulate_measurements,
@@ -29,11 +25,23 @@ from attopt.experiments.wahba_mag_sun.scenario import (
 from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
 
 CHECK_ENU_NT = np.array([874.0, 18540.0, -32983.0])  # ppigrf: 45N 10E, 500 km, 2025-06-01
+DEFAULTS = WahbaMagSunParameters()
+"""The paper's scenario: TIMED, 6000 s at 1 Hz, sigmas 0.008 and 0.002."""
+TLE_LINES = DEFAULTS.orbit.tle()
+MAG_SIGMA = DEFAULTS.magnetometer.sigma_rad
+SUN_SIGMA = DEFAULTS.sun_sensor.sigma_rad
+SIGMAS = {"mag_sigma_rad": MAG_SIGMA, "sun_sigma_rad": SUN_SIGMA}
+
+
+def scenario_geometry(**window: float) -> VectorGeometry:
+    """The default scenario's geometry, with ``duration_s`` or ``step_s`` changed."""
+    p = DEFAULTS.model_copy(update=window)
+    return build_geometry(p.orbit, p.start_utc, p.duration_s, p.step_s, p.attitude)
 
 
 @pytest.fixture(scope="module")
 def geometry() -> VectorGeometry:
-    return build_geometry()
+    return scenario_geometry()
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +123,7 @@ def test_sun_parallax_shifts_direction_by_position_over_distance() -> None:
 
 
 def test_orbit_altitude_and_inclination(geometry: VectorGeometry, times: Time) -> None:
-    orbit = propagate(satellite_from_tle(TLE_LINE1, TLE_LINE2), times[::60])
+    orbit = propagate(satellite_from_tle(*TLE_LINES), times[::60])
     # 14.952 rev/day: a = 6961 km, i.e. about 583 km above the equator (TIMED has decayed
     # from its 625 km launch orbit); geodetic heights vary with latitude and eccentricity.
     assert 570.0 < orbit.height_km.min() < orbit.height_km.max() < 615.0
@@ -128,7 +136,7 @@ def test_orbit_altitude_and_inclination(geometry: VectorGeometry, times: Time) -
 
 
 def test_ecef_to_eci_matrices_rotate_positions(times: Time) -> None:
-    orbit = propagate(satellite_from_tle(TLE_LINE1, TLE_LINE2), times[::500])
+    orbit = propagate(satellite_from_tle(*TLE_LINES), times[::500])
     matrices = ecef_to_eci_matrices(orbit.times)
     np.testing.assert_allclose(
         matrices @ np.swapaxes(matrices, -1, -2),
@@ -177,7 +185,7 @@ def test_shadow_predicate_on_constructed_points() -> None:
 
 
 def test_geometry_vectors_are_consistent(geometry: VectorGeometry, times: Time) -> None:
-    assert geometry.t.shape == (6000,) and geometry.start_utc == START_UTC
+    assert geometry.t.shape == (6000,) and geometry.start_utc == DEFAULTS.start_utc
     np.testing.assert_allclose(np.linalg.norm(geometry.sun_orbit, axis=-1), 1.0)
     np.testing.assert_allclose(np.linalg.norm(geometry.mag_orbit, axis=-1), 1.0)
     assert 15_000.0 < geometry.mag_nT.min() < geometry.mag_nT.max() < 60_000.0
@@ -205,8 +213,8 @@ def test_eclipse_matches_shadow_predicate_and_blocked_sun(geometry: VectorGeomet
 
 
 def test_single_contiguous_eclipse_of_plausible_duration(geometry: VectorGeometry) -> None:
-    assert geometry.eclipse_interval is not None
-    start, end = geometry.eclipse_interval
+    assert len(geometry.eclipses) == 1
+    ((start, end),) = geometry.eclipses
     np.testing.assert_array_equal(geometry.in_eclipse, (geometry.t >= start) & (geometry.t < end))
     assert 300.0 <= start <= 1500.0 and end < geometry.t[-1]
     # cylindrical shadow, circular orbit: duration = T/pi acos(sqrt(1 - (R/r)^2) / cos(beta))
@@ -223,7 +231,20 @@ def test_single_contiguous_eclipse_of_plausible_duration(geometry: VectorGeometr
 
 
 def test_short_window_without_eclipse() -> None:
-    assert build_geometry(duration_s=600.0, step_s=10.0).eclipse_interval is None
+    geometry = scenario_geometry(duration_s=600.0, step_s=10.0)
+    assert geometry.eclipses == () and not geometry.in_eclipse.any()
+
+
+def test_a_longer_window_holds_two_eclipses_one_orbit_apart() -> None:
+    geometry = scenario_geometry(duration_s=9000.0, step_s=10.0)
+    (first_start, first_end), (second_start, second_end) = geometry.eclipses
+    inside = np.zeros_like(geometry.in_eclipse)
+    for start, end in geometry.eclipses:
+        inside |= (geometry.t >= start) & (geometry.t < end)
+    np.testing.assert_array_equal(geometry.in_eclipse, inside)
+    period = 86400.0 / 14.95201872
+    assert second_start - first_start == pytest.approx(period, abs=30.0)
+    assert second_end - second_start == pytest.approx(first_end - first_start, abs=30.0)
 
 
 def test_true_pitch_profile(geometry: VectorGeometry) -> None:
@@ -239,7 +260,7 @@ def test_true_pitch_profile(geometry: VectorGeometry) -> None:
 
 def test_noise_free_measurements_are_the_true_body_vectors(geometry: VectorGeometry) -> None:
     sun, mag = simulate_measurements(
-        geometry, np.random.default_rng(0), mag_sigma=0.0, sun_sigma=0.0
+        geometry, np.random.default_rng(0), mag_sigma_rad=0.0, sun_sigma_rad=0.0
     )
     np.testing.assert_allclose(mag, geometry.truth.apply(geometry.mag_orbit), atol=1e-12)
     lit = ~geometry.in_eclipse
@@ -247,7 +268,7 @@ def test_noise_free_measurements_are_the_true_body_vectors(geometry: VectorGeome
 
 
 def test_measurement_noise_statistics(geometry: VectorGeometry) -> None:
-    sun, mag = simulate_measurements(geometry, np.random.default_rng(12345))
+    sun, mag = simulate_measurements(geometry, np.random.default_rng(12345), **SIGMAS)
     assert np.all(np.isnan(sun[geometry.in_eclipse]))
     assert not np.any(np.isnan(sun[~geometry.in_eclipse])) and not np.any(np.isnan(mag))
     np.testing.assert_allclose(np.linalg.norm(mag, axis=-1), 1.0)
@@ -264,12 +285,14 @@ def test_measurement_noise_statistics(geometry: VectorGeometry) -> None:
 
 
 def test_measurements_are_reproducible(geometry: VectorGeometry) -> None:
-    first = simulate_measurements(geometry, np.random.default_rng(7))
-    again = simulate_measurements(geometry, np.random.default_rng(7))
-    other = simulate_measurements(geometry, np.random.default_rng(8))
+    first = simulate_measurements(geometry, np.random.default_rng(7), **SIGMAS)
+    again = simulate_measurements(geometry, np.random.default_rng(7), **SIGMAS)
+    other = simulate_measurements(geometry, np.random.default_rng(8), **SIGMAS)
     for a, b, c in zip(first, again, other, strict=True):
         np.testing.assert_array_equal(a, b)
         assert not np.allclose(np.nan_to_num(a), np.nan_to_num(c))
     # magnetometer noise is drawn first, so it does not depend on the Sun noise
-    mag_only = simulate_measurements(geometry, np.random.default_rng(7), sun_sigma=0.0)[1]
+    mag_only = simulate_measurements(
+        geometry, np.random.default_rng(7), mag_sigma_rad=MAG_SIGMA, sun_sigma_rad=0.0
+    )[1]
     np.testing.assert_array_equal(mag_only, first[1])

@@ -113,7 +113,7 @@ def test_resume_with_another_config_names_the_nested_key(tmp_path):
         "duration_s = -5\n",
         "duration_s = 'long'\n",
         "bogus = 1\n",
-        "[gyro]\nrate_hz = 1\n",
+        "[gyro]\nrate_hz = 0\n",
         "duration_s = \n",
     ],
 )

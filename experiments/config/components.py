@@ -22,7 +22,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, field_validator, model_validator
 from sgp4.api import Satrec
 
 from attopt.experiments.config.schema import Parameters
@@ -294,6 +294,10 @@ def _checked_time(value: str) -> str:
 
     try:
         Time(value, scale="utc")
-    except ValueError as error:
-        raise ValueError(f"not an ISO 8601 UTC time: {error}") from None
+    except ValueError:
+        raise ValueError("not an ISO 8601 UTC time such as 2026-05-10T23:23:00") from None
     return value
+
+
+UtcTime = Annotated[str, AfterValidator(_checked_time)]
+"""An ISO 8601 UTC time that astropy parses (e.g. a pass's ``start_utc``)."""

@@ -74,11 +74,12 @@ def satellite_from_tle(line1: str, line2: str) -> Satrec:
     return Satrec.twoline2rv(line1, line2)
 
 
-def propagate(satellite: Satrec, times: Time) -> OrbitStates:
-    """Propagate ``satellite`` to the 1-D array of UTC epochs ``times``.
+def sgp4_teme(satellite: Satrec, times: Time) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """SGP4 positions (km) and velocities (km/s) in TEME at the 1-D array of UTC epochs
+    ``times``, each ``(N, 3)``.
 
     Raises:
-        RuntimeError: if SGP4 reports an error at any epoch.
+        RuntimeError: if SGP4 reports an error at any epoch (the first one is named).
     """
     utc = times.utc
     error, position_teme, velocity_teme = satellite.sgp4_array(
@@ -91,6 +92,16 @@ def propagate(satellite: Satrec, times: Time) -> OrbitStates:
             f"SGP4 error {code} ({SGP4_ERRORS.get(code, 'unknown')}) at {utc[first].isot} "
             f"for satellite {satellite.satnum}"
         )
+    return position_teme, velocity_teme
+
+
+def propagate(satellite: Satrec, times: Time) -> OrbitStates:
+    """Propagate ``satellite`` to the 1-D array of UTC epochs ``times``.
+
+    Raises:
+        RuntimeError: if SGP4 reports an error at any epoch (:func:`sgp4_teme`).
+    """
+    position_teme, velocity_teme = sgp4_teme(satellite, times)
     teme = TEME(
         CartesianRepresentation(position_teme.T * u.km).with_differentials(
             CartesianDifferential(velocity_teme.T * (u.km / u.s))

@@ -1,7 +1,9 @@
 """Experiment ``wahba-mag-sun``: every Wahba solver on Cilden Guler et al. 2017's scenario.
 
-One trial is one pass of :mod:`attopt.experiments.wahba_mag_sun.scenario` (6000 s
-at 1 Hz) with fresh sensor noise (:func:`simulate_pass`): each epoch one
+One trial is one pass of :mod:`attopt.experiments.wahba_mag_sun.scenario` (by
+default TIMED, 6000 s at 1 Hz; every choice is a parameter of
+:mod:`attopt.experiments.wahba_mag_sun.parameters`) with fresh sensor noise
+(:func:`simulate_pass`): each epoch one
 :class:`~attopt.formulations.attitude_measurement.VectorMeasurement` of the Sun
 and field directions with orbit-frame references (the Sun row dropped in
 eclipse).  Every estimator sees the same measurements:
@@ -14,14 +16,19 @@ eclipse).  Every estimator sees the same measurements:
   RTS smoother over the MEKF and the GTSAM whole-pass smoother ``fg_batch``,
   started from the RTS estimates) run by
   :func:`attopt.solvers.pipeline.run_estimators` on the same vectors plus a
-  simulated gyro (``gyro``, a :data:`attopt.formulations.gyro.GYRO_MODELS`
-  name; Cilden Guler et al. 2017 has none, so the default is the MEMS unit)
-  and a prior with ``initial_sigma_deg`` attitude error per axis
-  (:mod:`attopt.experiments.simulation`).  The gyro and the prior draw from a
-  child stream of the trial's seed (:func:`attopt.experiments.simulation.child_rng`),
-  so the single-frame rows do not depend on the filters.
+  simulated gyro (``gyro``: a :data:`attopt.formulations.gyro.GYRO_MODELS`
+  name or a ``[gyro]`` table of datasheet numbers; Cilden Guler et al. 2017 has
+  none, so the default is the MEMS unit) and a prior with ``initial_sigma_deg``
+  attitude error per axis (:mod:`attopt.experiments.simulation`).  The gyro and
+  the prior draw from a child stream of the trial's seed
+  (:func:`attopt.experiments.simulation.child_rng`), so the single-frame rows do
+  not depend on the filters.
 
-Rows are per method and epoch: the metric columns of
+Rows are per method and epoch: ``t_s`` (seconds from ``start_utc``), the
+eclipse ``interval``
+(:data:`~attopt.experiments.wahba_mag_sun.scenario.INTERVALS`), the estimated
+and true orbit -> body attitudes ``q_est_{x,y,z,w}`` and ``q_true_{x,y,z,w}``
+(:func:`attopt.experiments.metrics.attitude_columns`), the metric columns of
 :func:`attopt.experiments.metrics.error_columns` (body-axis error, the
 method's own sigma and NEES, the 3-2-1 Euler-angle differences the paper's
 Table 1 reports) and the Cramer-Rao bound of that epoch (``bound_*``: ``sqrt``
@@ -39,19 +46,27 @@ rows have NaN there.
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 
 from attopt.experiments.config import Parameters
+from attopt.experiments.config.components import (
+    CircularOrbit,
+    Gyro,
+    Orbit,
+    TleOrbit,
+    UtcTime,
+    gyro_model,
+)
 from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
+    attitude_columns,
     error_columns,
     gyro_columns,
     in_orbit_frame,
@@ -66,18 +81,23 @@ from attopt.experiments.simulation import (
     gyro_truth,
     simulate_filter_inputs,
 )
+from attopt.experiments.wahba_mag_sun.parameters import (
+    TIMED,
+    AttitudeProfile,
+    Magnetometer,
+    SunSensor,
+)
 from attopt.experiments.wahba_mag_sun.report import report
 from attopt.experiments.wahba_mag_sun.scenario import (
-    MAG_SIGMA,
-    SUN_SIGMA,
     VectorGeometry,
     build_geometry,
+    check_window,
+    interval_labels,
     simulate_measurements,
     true_attitude,
 )
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import orbit_frame_attitude
-from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.passes import Pass
 from attopt.formulations.wahba_covariance import quest_covariance
 from attopt.solvers import wahba
@@ -85,8 +105,6 @@ from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.pipeline import run_estimators
 from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
-
-INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
 
 
 def method_labels() -> dict[str, str]:
@@ -102,15 +120,45 @@ def filter_labels() -> dict[str, str]:
 
 
 class WahbaMagSunParameters(Parameters):
-    """Parameters of ``wahba-mag-sun`` (Cilden Guler et al. 2017 sec. 3)."""
+    """Parameters of ``wahba-mag-sun``: the window, the orbit, the true attitude, the
+    sensors and the estimators; the defaults are Cilden Guler et al. 2017 sec. 3's set-up
+    (:mod:`attopt.experiments.wahba_mag_sun.parameters`), a 6000 s window at 1 Hz from a
+    start chosen so that it holds one eclipse, and the MEMS gyro.
 
-    duration_s: float = Field(6000.0, gt=0, description="Length of the pass from the start.")
-    step_s: float = Field(1.0, gt=0, description="Time between epochs.")
-    mag_sigma: float = Field(
-        MAG_SIGMA, gt=0, description="Magnetometer direction-cosine noise standard deviation."
+    A config file changes any of it, e.g. another satellite (CBERS-2, one of sgp4's
+    verification TLEs)::
+
+        start_utc = "2006-06-26T20:00:00"
+
+        [orbit]
+        type = "tle"
+        line1 = "1 28057U 03049A   06177.78615833  .00000060  00000-0  35940-4 0  1836"
+        line2 = "2 28057  98.4283 247.6961 0000884  88.1964 271.9322 14.35478080140550"
+
+    or a generated orbit (``[orbit] type = "circular"``,
+    :class:`~attopt.experiments.config.components.CircularOrbit`).  SGP4 must reach every
+    epoch of the window (checked when the config is read); start the window near the
+    elements' epoch, where they are accurate.  With ``filters``, the gyro's samples must
+    fall on the epochs (``step_s * rate_hz`` a whole number).
+    """
+
+    start_utc: UtcTime = Field(
+        "2026-05-10T23:23:00",
+        description="Start of the pass (the default's eclipse begins 1001 s later).",
     )
-    sun_sigma: float = Field(
-        SUN_SIGMA, gt=0, description="Sun-sensor direction-cosine noise standard deviation."
+    duration_s: float = Field(
+        6000.0, gt=0, allow_inf_nan=False, description="Length of the pass from the start."
+    )
+    step_s: float = Field(1.0, gt=0, allow_inf_nan=False, description="Time between epochs.")
+    orbit: Orbit = Field(default_factory=lambda: TIMED, description="The satellite's orbit.")
+    attitude: AttitudeProfile = Field(
+        default_factory=AttitudeProfile, description="True attitude profile."
+    )
+    magnetometer: Magnetometer = Field(
+        default_factory=Magnetometer, description="Magnetometer (field direction)."
+    )
+    sun_sensor: SunSensor = Field(
+        default_factory=SunSensor, description="Sun sensor (Sun direction, blind in eclipse)."
     )
     methods: list[label_field(method_labels, "methods")] = Field(
         default_factory=lambda: [solver.name for solver in wahba.ESTIMATORS],
@@ -120,45 +168,71 @@ class WahbaMagSunParameters(Parameters):
         default_factory=lambda: ["mekf", "usque", "rts", "fg_batch"],
         description="Gyro-aided filters and smoothers (registry names).",
     )
-    gyro: Literal[tuple(GYRO_MODELS)] = Field("mems", description="Gyro model preset.")
+    gyro: Gyro = Field("mems", description="The filters' gyro: a preset or a [gyro] table.")
     initial_sigma_deg: float = Field(
-        INITIAL_ATTITUDE_SIGMA_DEG, gt=0, description="Per-axis sigma of the filters' prior."
+        INITIAL_ATTITUDE_SIGMA_DEG,
+        gt=0,
+        le=180.0,
+        description="Per-axis sigma of the filters' prior.",
     )
+
+    @field_validator("step_s")
+    @classmethod
+    def _two_epochs(cls, step_s: float, info: ValidationInfo) -> float:
+        duration_s = info.data.get("duration_s")
+        if duration_s is not None and step_s >= duration_s:
+            raise ValueError(f"must be shorter than duration_s = {duration_s} (two epochs)")
+        return step_s
+
+    @field_validator("orbit")
+    @classmethod
+    def _propagates_over_the_window(cls, orbit: Orbit, info: ValidationInfo) -> Orbit:
+        if {"start_utc", "duration_s", "step_s"} <= info.data.keys():
+            check_window(
+                orbit, info.data["start_utc"], info.data["duration_s"], info.data["step_s"]
+            )
+        return orbit
+
+    @field_validator("filters")
+    @classmethod
+    def _unique_names(cls, filters: list[str], info: ValidationInfo) -> list[str]:
+        names = [*info.data.get("methods", []), *filters]
+        repeated = sorted({name for name in names if names.count(name) > 1})
+        if repeated:
+            raise ValueError(f"names must be unique across methods and filters: {repeated}")
+        return filters
+
+    @field_validator("gyro")
+    @classmethod
+    def _samples_on_the_epochs(cls, gyro: Gyro, info: ValidationInfo) -> Gyro:
+        step_s = info.data.get("step_s")
+        rate_hz = gyro_model(gyro).rate_hz
+        if step_s is not None and info.data.get("filters"):
+            samples = step_s * rate_hz
+            if abs(samples - round(samples)) > 1e-6:
+                raise ValueError(
+                    f"a {rate_hz:g} Hz gyro has no samples at the epochs every "
+                    f"step_s = {step_s:g} s (step_s * rate_hz must be a whole number)"
+                )
+        return gyro
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting: the paper's sensor noise; methods are compared inside each trial.
+    """One setting: the parameters validated by :class:`WahbaMagSunParameters` (missing
+    ones at their defaults); methods are compared inside each trial.
 
     Raises:
-        ValueError: for a method or filter the registry does not have (the message
-            lists the registered ones), an unknown gyro model, a name used twice
-            across ``methods`` and ``filters``, or a non-positive ``initial_sigma_deg``.
+        pydantic.ValidationError: a ValueError naming each bad value (e.g. a method or
+            filter the registry does not have, listing the registered ones).
     """
-    resolve(parameters["methods"], method_labels(), "methods")
-    filters = list(parameters.get("filters", []))
-    resolve(filters, filter_labels(), "filters")
-    names = [*parameters["methods"], *filters]
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        raise ValueError(f"method names must be unique across methods and filters: {repeated}")
-    if parameters.get("gyro", "mems") not in GYRO_MODELS:
-        raise ValueError(f"unknown gyro {parameters['gyro']!r}; known: {sorted(GYRO_MODELS)}")
-    sigma = parameters.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG)
-    if isinstance(sigma, bool) or not (
-        isinstance(sigma, int | float) and math.isfinite(sigma) and sigma > 0
-    ):
-        raise ValueError(f"initial_sigma_deg must be a positive number, got {sigma!r}")
-    return [dict(parameters)]
+    return [WahbaMagSunParameters.model_validate(dict(parameters)).model_dump(mode="json")]
 
 
-def interval_labels(geometry: VectorGeometry) -> np.ndarray:
-    """``before_eclipse``, ``eclipse`` or ``after_eclipse`` per epoch."""
-    labels = np.full(geometry.t.shape, INTERVALS[0], dtype=object)
-    if geometry.eclipse_interval is not None:
-        start, end = geometry.eclipse_interval
-        labels[geometry.t >= start] = INTERVALS[1]
-        labels[geometry.t >= end] = INTERVALS[2]
-    return labels
+def geometry_of(parameters: WahbaMagSunParameters) -> VectorGeometry:
+    """The pass's geometry (:func:`~attopt.experiments.wahba_mag_sun.scenario.build_geometry`,
+    cached per process)."""
+    p = parameters
+    return build_geometry(p.orbit, p.start_utc, p.duration_s, p.step_s, p.attitude)
 
 
 @dataclass(frozen=True)
@@ -186,21 +260,20 @@ class VectorPass:
 
 
 def simulate_pass(
-    geometry: VectorGeometry, seed: np.random.SeedSequence, setting: Setting
+    geometry: VectorGeometry, seed: np.random.SeedSequence, parameters: WahbaMagSunParameters
 ) -> VectorPass:
     """The trial's noisy vectors
-    (:func:`~attopt.experiments.wahba_mag_sun.scenario.simulate_measurements`, the
-    trial's seed)."""
+    (:func:`~attopt.experiments.wahba_mag_sun.scenario.simulate_measurements` with the
+    sensors' sigmas, the trial's seed)."""
+    sun_sigma = parameters.sun_sensor.sigma_rad
+    mag_sigma = parameters.magnetometer.sigma_rad
     sun_body, mag_body = simulate_measurements(
-        geometry,
-        np.random.default_rng(seed),
-        mag_sigma=setting["mag_sigma"],
-        sun_sigma=setting["sun_sigma"],
+        geometry, np.random.default_rng(seed), mag_sigma_rad=mag_sigma, sun_sigma_rad=sun_sigma
     )
     n = geometry.t.size
     body = np.stack([sun_body, mag_body], axis=1)
     reference = np.stack([geometry.sun_orbit, geometry.mag_orbit], axis=1)
-    sigma = (setting["sun_sigma"], setting["mag_sigma"])
+    sigma = (sun_sigma, mag_sigma)
     present = np.stack([~geometry.in_eclipse, np.ones(n, dtype=bool)], axis=1)
     return VectorPass(
         body, reference, sigma, present, Pass.from_vectors(geometry.t, body, reference, sigma)
@@ -210,29 +283,32 @@ def simulate_pass(
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One noisy pass solved by every method in ``setting["methods"]`` and every filter
     in ``setting["filters"]``."""
-    geometry = build_geometry(setting["duration_s"], setting["step_s"])
-    vectors = simulate_pass(geometry, seed, setting)
+    parameters = WahbaMagSunParameters.model_validate(setting)
+    geometry = geometry_of(parameters)
+    vectors = simulate_pass(geometry, seed, parameters)
     common = epoch_columns(geometry, vectors)
-    methods = resolve(setting["methods"], method_labels(), "methods")
+    methods = resolve(parameters.methods, method_labels(), "methods")
     frames = [
         _method_rows(label, snapshot_track(estimator(name), vectors), geometry, common)
         for label, name in methods.items()
     ]
-    if setting.get("filters"):
-        frames += _filter_rows(setting, seed, vectors, geometry, common)
+    if parameters.filters:
+        frames += _filter_rows(parameters, seed, vectors, geometry, common)
     return pd.concat(frames, ignore_index=True)
 
 
 def epoch_columns(geometry: VectorGeometry, vectors: VectorPass) -> dict[str, np.ndarray]:
-    """``t``, the eclipse ``interval`` and the Cramer-Rao bound ``bound_{x,y,z}_deg`` of
-    each epoch (NaN where the information is singular)."""
+    """``t_s``, the eclipse ``interval``
+    (:func:`~attopt.experiments.wahba_mag_sun.scenario.interval_labels`) and the
+    Cramer-Rao bound ``bound_{x,y,z}_deg`` of each epoch (NaN where the information is
+    singular)."""
     true_body = np.stack(
         [geometry.truth.apply(geometry.sun_orbit), geometry.truth.apply(geometry.mag_orbit)], axis=1
     )
     with np.errstate(divide="ignore", invalid="ignore"):
         crb = _safe_inverse_diag(true_body, np.where(vectors.present, vectors.weights, 0.0))
     return {
-        "t": geometry.t,
+        "t_s": geometry.t,
         "interval": interval_labels(geometry),
         "bound_x_deg": np.degrees(np.sqrt(crb[:, 0])),
         "bound_y_deg": np.degrees(np.sqrt(crb[:, 1])),
@@ -248,36 +324,42 @@ def snapshot_track(method: SnapshotEstimator, vectors: VectorPass) -> Track:
     return method.solve_sequence(vectors.pass_.snapshots)
 
 
-def filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth:
-    """Inertial truth of :func:`build_geometry`'s pass at the gyro rate (cached per
-    process like the geometry): ``A_bi`` at ``rate_hz`` and ``A_oi`` at the epochs."""
-    return _filter_truth(float(duration_s), float(step_s), float(rate_hz))
+def filter_truth(parameters: WahbaMagSunParameters, rate_hz: float) -> GyroTruth:
+    """Inertial truth of the pass at the gyro rate (cached per process like the geometry):
+    ``A_bi`` at ``rate_hz`` and ``A_oi`` at the epochs."""
+    p = parameters
+    return _filter_truth(p.orbit, p.start_utc, p.duration_s, p.step_s, p.attitude, rate_hz)
 
 
 @functools.lru_cache(maxsize=8)
-def _filter_truth(duration_s: float, step_s: float, rate_hz: float) -> GyroTruth:
-    geometry = build_geometry(duration_s, step_s)
+def _filter_truth(
+    orbit: TleOrbit | CircularOrbit,
+    start_utc: str,
+    duration_s: float,
+    step_s: float,
+    attitude: AttitudeProfile,
+    rate_hz: float,
+) -> GyroTruth:
+    geometry = build_geometry(orbit, start_utc, duration_s, step_s, attitude)
     frames = orbit_frame_attitude(geometry.position_eci_km, geometry.velocity_eci_kms)
-    return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
+    profile = functools.partial(true_attitude, profile=attitude)
+    return gyro_truth(geometry.t, frames, profile, rate_hz)
 
 
 def _filter_rows(
-    setting: Setting,
+    parameters: WahbaMagSunParameters,
     seed: np.random.SeedSequence,
     vectors: VectorPass,
     geometry: VectorGeometry,
     common: Mapping[str, np.ndarray],
 ) -> list[pd.DataFrame]:
-    model = GYRO_MODELS[setting.get("gyro", "mems")]
-    truth = filter_truth(setting["duration_s"], setting["step_s"], model.rate_hz)
+    model = gyro_model(parameters.gyro)
+    truth = filter_truth(parameters, model.rate_hz)
     inputs = simulate_filter_inputs(
-        truth,
-        model,
-        child_rng(seed, GYRO_STREAM),
-        setting.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG),
+        truth, model, child_rng(seed, GYRO_STREAM), parameters.initial_sigma_deg
     )
     simulated = inputs.gyro_pass(truth, vectors.pass_.snapshots)
-    filters = resolve(setting["filters"], filter_labels(), "filters")
+    filters = resolve(parameters.filters, filter_labels(), "filters")
     runs = run_estimators(simulated.pass_, filters)
     bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & set(filters.values()) else {}
     frames = []
@@ -288,6 +370,7 @@ def _filter_rows(
                 {
                     "method": label,
                     **common,
+                    **attitude_columns(track.quaternion, geometry.truth),
                     **error_columns(track, geometry.truth),
                     **status_columns(track),
                     **gyro_columns(run.track, simulated),
@@ -313,7 +396,13 @@ def _method_rows(
     label: str, track: Track, geometry: VectorGeometry, common: Mapping[str, np.ndarray]
 ) -> pd.DataFrame:
     return pd.DataFrame(
-        {"method": label, **common, **error_columns(track, geometry.truth), **status_columns(track)}
+        {
+            "method": label,
+            **common,
+            **attitude_columns(track.quaternion, geometry.truth),
+            **error_columns(track, geometry.truth),
+            **status_columns(track),
+        }
     )
 
 

@@ -7,6 +7,9 @@ in ``docs/results.md``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 import pandas as pd
 
@@ -34,10 +37,9 @@ from attopt.experiments.reporting.tables import (
     section,
     with_paper,
 )
-from attopt.experiments.wahba_mag_sun.scenario import START_UTC
+from attopt.experiments.wahba_mag_sun.scenario import INTERVALS, eclipse_intervals
 
 PACKAGE = "attopt.experiments.wahba_mag_sun"
-INTERVALS = ("before_eclipse", "eclipse", "after_eclipse")
 KEYS = ["method", "interval"]
 ANGLES = ("roll", "pitch", "yaw")
 FIGURE_FILTERS = ("mekf", "rts")
@@ -45,6 +47,7 @@ FIGURE_FILTERS = ("mekf", "rts")
 SETTLE_S = 120.0
 """The filter figures fit their y axes to t >= this (the convergence from the prior is
 off scale)."""
+TIME = "t_s"
 
 
 def _group_statistics(group: pd.DataFrame) -> pd.Series:
@@ -74,9 +77,42 @@ def interval_statistics(rows: pd.DataFrame, methods: list[str]) -> pd.DataFrame:
     return table.reset_index(drop=True)
 
 
-def _eclipse(rows: pd.DataFrame, step_s: float) -> tuple[float, float] | None:
-    t = rows.loc[rows["interval"] == "eclipse", "t"]
-    return (float(t.min()), float(t.max()) + step_s) if len(t) else None
+def eclipse_spans(rows: pd.DataFrame, step_s: float) -> list[tuple[float, float]]:
+    """``[start, end)`` of each eclipse in the rows of one setting (its runs of ``eclipse``
+    epochs, :func:`~attopt.experiments.wahba_mag_sun.scenario.eclipse_intervals`)."""
+    epochs = rows.drop_duplicates(TIME).sort_values(TIME)
+    in_eclipse = (epochs["interval"] == "eclipse").to_numpy()
+    return list(eclipse_intervals(epochs[TIME].to_numpy(dtype=float), in_eclipse, step_s))
+
+
+def orbit_label(orbit: Mapping[str, Any]) -> str:
+    """The configured orbit in a few words (its TLE's catalogue number, or the circular
+    orbit's altitude, inclination and node time)."""
+    if orbit["type"] == "tle":
+        return f"TLE of catalogue number {orbit['line1'][2:7].strip()}"
+    inclination = orbit["inclination_deg"]
+    tilt = "Sun-synchronous" if inclination is None else f"{inclination:g} deg inclination"
+    return f"circular {orbit['altitude_km']:g} km, {tilt}, ascending node at {orbit['ltan_h']:g} h"
+
+
+def gyro_label(gyro: str | Mapping[str, Any]) -> str:
+    """The configured gyro: its preset name, or its name and datasheet numbers."""
+    if isinstance(gyro, str):
+        return f"`{gyro}`"
+    return (
+        f"`{gyro['name']}` ({gyro['rate_hz']:g} Hz, angle random walk "
+        f"{gyro['arw_deg_sqrt_h']:g} deg/h^(1/2), rate random walk "
+        f"{gyro['rrw_deg_h_sqrt_h']:g} deg/h per h^(1/2), turn-on bias "
+        f"{gyro['turn_on_bias_deg_h']:g} deg/h)"
+    )
+
+
+def window_label(eclipses: list[tuple[float, float]]) -> str:
+    """The eclipses of the window for a caption."""
+    if not eclipses:
+        return "no eclipse in the window (every epoch no_eclipse)"
+    spans = ", ".join(f"{start:.0f}-{end:.0f} s" for start, end in eclipses)
+    return f"eclipse{'s' if len(eclipses) > 1 else ''} (cylindrical shadow) t = {spans}"
 
 
 def table1_section(ctx: ReportContext, stats: pd.DataFrame) -> str:
@@ -102,18 +138,16 @@ def table1_section(ctx: ReportContext, stats: pd.DataFrame) -> str:
             "inside 3 sigma": single["inside_3_sigma"].to_numpy(),
         }
     )
-    eclipse = _eclipse(ctx.rows, float(ctx.parameters["step_s"]))
+    p = ctx.parameters
+    window = window_label(eclipse_spans(ctx.rows, float(p["step_s"])))
     stated = paper_values(PACKAGE)["eclipse"]
-    window = (
-        "no eclipse in the window"
-        if eclipse is None
-        else f"eclipse (cylindrical shadow) t = {eclipse[0]:.0f}-{eclipse[1]:.0f} s"
-    )
     caption = (
         "Single-frame methods per interval, over the valid epochs of all trials: body-axis RMS "
         "error and RMS of the 3-2-1 Euler-angle differences (deg; the paper tabulates the "
         "latter), total RMS over the RMS of the single-epoch Cramer-Rao bound, mean NEES (3 "
-        f"when consistent), share of epochs within 3 sigma on all axes; {window} (the paper's "
+        "when consistent), share of epochs within 3 sigma on all axes. Orbit: "
+        f"{orbit_label(p['orbit'])}, {p['duration_s']:g} s from {p['start_utc']} UTC; "
+        f"{window}. The paper's columns are its own pass (TIMED, eclipse at "
         f"{stated['start_s']:.0f}-{stated['end_s']:.0f} s); nd: no data in the paper."
         + made_by(ctx.command)
     )
@@ -141,10 +175,11 @@ def filter_section(ctx: ReportContext, stats: pd.DataFrame, filters: list[str]) 
         },
     )
     p = ctx.parameters
+    first = chosen["interval"].iloc[0] if len(chosen) else INTERVALS[0]
     caption = (
-        f"Filters on the single-frame methods' vectors plus a simulated `{p['gyro']}` gyro, "
-        f"from an initial attitude error of {p['initial_sigma_deg']:g} deg per axis, over the "
-        "valid epochs of all trials (deg; before_eclipse includes the convergence): RMS / CRB "
+        f"Filters on the single-frame methods' vectors plus a simulated {gyro_label(p['gyro'])} "
+        f"gyro, from an initial attitude error of {p['initial_sigma_deg']:g} deg per axis, over "
+        f"the valid epochs of all trials (deg; {first} includes the convergence): RMS / CRB "
         "against the single-epoch Cramer-Rao bound (none in eclipse), RMS / posterior bound "
         "against the posterior Cramer-Rao bound of the pass (gyro and every vector), NEES of "
         "the attitude (3) and of attitude and bias (6), largest 3 sigma of the filter's own "
@@ -180,14 +215,17 @@ def filter_section(ctx: ReportContext, stats: pd.DataFrame, filters: list[str]) 
 def figures(ctx: ReportContext, filters: list[str]) -> list[str]:
     """Per single-frame method its errors (first trial); the filters' attitude and bias errors."""
     rows = first_trial(ctx.rows)
-    eclipse = _eclipse(rows, float(ctx.parameters["step_s"]))
-    spans = [] if eclipse is None else [(*eclipse, "eclipse")]
-    xlabel = f"t (s) from {START_UTC} UTC"
+    spans = [(*span, "eclipse") for span in eclipse_spans(rows, float(ctx.parameters["step_s"]))]
+    xlabel = f"t (s) from {ctx.parameters['start_utc']} UTC"
     names = []
     for method in ctx.parameters["methods"]:
         frame = rows[rows["method"] == method]
         figure = error_figure(
-            {method: frame}, f"{method}: body-axis error, first trial", spans=spans, xlabel=xlabel
+            {method: frame},
+            f"{method}: body-axis error, first trial",
+            time=TIME,
+            spans=spans,
+            xlabel=xlabel,
         )
         names.append(save_figure(figure, ctx.out_dir, f"error_{method}.png"))
     drawn = {f: rows[rows["method"] == f] for f in FIGURE_FILTERS if f in filters}
@@ -195,7 +233,9 @@ def figures(ctx: ReportContext, filters: list[str]) -> list[str]:
         title = (
             f"{', '.join(drawn)}: body-axis error, first trial (y fitted to t >= {SETTLE_S:g} s)"
         )
-        figure = error_figure(drawn, title, spans=spans, xlabel=xlabel, fit_from=SETTLE_S)
+        figure = error_figure(
+            drawn, title, time=TIME, spans=spans, xlabel=xlabel, fit_from=SETTLE_S
+        )
         names.append(save_figure(figure, ctx.out_dir, "filter_errors.png"))
         figure = error_figure(
             drawn,
@@ -204,6 +244,7 @@ def figures(ctx: ReportContext, filters: list[str]) -> list[str]:
             sigmas=[f"bias_sigma_{a}_deg_h" for a in AXES],
             unit="deg/h",
             names=[f"bias {a}" for a in AXES],
+            time=TIME,
             spans=spans,
             xlabel=xlabel,
             fit_from=SETTLE_S,
