@@ -32,12 +32,10 @@ from attopt.experiments.recorded.records import (
     truth_table,
     vector_table,
 )
-from attopt.experiments.simulation import GYRO_STREAM, child_rng, simulate_filter_inputs
 from attopt.experiments.sweep.seeding import trial_seed
 from attopt.experiments.wahba_mag_sun import experiment as wahba
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.gain_patterns import SEED000_HELIX, ParabolicPattern, TabulatedPattern
-from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.passes import GyroRecord, Prior
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.pipeline import run_estimators
@@ -228,13 +226,9 @@ def _wahba(duration_s: float = 120.0):
 
 def _in_memory_passes(setting, seed):
     """The two passes trial(setting, seed) estimates, built as the experiment builds them."""
-    geometry = wahba.build_geometry(setting["duration_s"], setting["step_s"])
-    vectors = wahba.simulate_pass(geometry, seed, setting)
-    model = GYRO_MODELS[setting["gyro"]]
-    truth = wahba.filter_truth(setting["duration_s"], setting["step_s"], model.rate_hz)
-    inputs = simulate_filter_inputs(
-        truth, model, child_rng(seed, GYRO_STREAM), setting["initial_sigma_deg"]
-    )
+    parameters = wahba.WahbaMagSunParameters.model_validate(setting)
+    vectors = wahba.simulate_pass(wahba.geometry_of(parameters), seed, parameters)
+    truth, inputs = wahba.filter_inputs(parameters, seed)
     return vectors.pass_, inputs.gyro_pass(truth, vectors.pass_.snapshots)
 
 
@@ -256,7 +250,8 @@ def test_exported_wahba_pass_estimates_bit_identically_after_save_and_load(tmp_p
         assert _same_track(run_estimators(candidate.pass_, ["quest"])["quest"].track, quest)
         assert _same_track(run_estimators(candidate.gyro_pass, ["mekf"])["mekf"].track, mekf)
     assert np.array_equal(
-        loaded.truth.as_quat(), wahba.build_geometry(setting["duration_s"]).truth.as_quat()
+        loaded.truth.as_quat(),
+        wahba.geometry_of(wahba.WahbaMagSunParameters.model_validate(setting)).truth.as_quat(),
     )
 
 
@@ -273,11 +268,12 @@ def test_estimating_the_exported_pass_gives_the_experiments_rows():
         "sigma_z_deg",
         "nees",
         "valid",
+        *(f"q_{kind}_{c}" for kind in ("est", "true") for c in "xyzw"),
     ]
     for name, run in estimate(recorded, ["quest", "mekf"]).items():
         ours = method_rows(name, run, recorded)
         theirs = rows[rows["method"] == name].reset_index(drop=True)
-        assert np.array_equal(ours["t_s"], theirs["t"])
+        assert np.array_equal(ours["t_s"], theirs["t_s"])
         for column in columns:
             assert np.array_equal(ours[column], theirs[column], equal_nan=True), (name, column)
 

@@ -22,7 +22,7 @@ from typing import Annotated, Literal
 
 import numpy as np
 import pandas as pd
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import AfterValidator, Discriminator, Field, Tag, field_validator, model_validator
 from sgp4.api import Satrec
 
 from attopt.experiments.config.schema import Parameters
@@ -159,8 +159,12 @@ class GyroNumbers(Parameters):
 
 
 GyroPreset = Literal[tuple(GYRO_MODELS)]
-Gyro = GyroPreset | GyroNumbers
-"""``gyro = "mems"`` (a preset) or a ``[gyro]`` table of numbers."""
+Gyro = Annotated[
+    Annotated[GyroPreset, Tag("preset")] | Annotated[GyroNumbers, Tag("numbers")],
+    Discriminator(lambda value: "preset" if isinstance(value, str) else "numbers"),
+]
+"""``gyro = "mems"`` (a preset) or a ``[gyro]`` table of numbers (a string is checked
+against the presets only, a table against the numbers only)."""
 
 
 def gyro_model(gyro: str | GyroNumbers | dict) -> GyroModel:

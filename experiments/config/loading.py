@@ -82,7 +82,7 @@ def validate_parameters(
     try:
         return schema.model_validate(dict(document))
     except ValidationError as error:
-        raise ConfigError(source, [_problem(schema, item) for item in error.errors()]) from None
+        raise ConfigError(source, _problems(schema, error.errors())) from None
 
 
 def load_config(path: Path) -> dict[str, Any]:
@@ -122,25 +122,39 @@ def deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, 
     return merged
 
 
-def _problem(schema: type[Parameters], error: Mapping[str, Any]) -> str:
-    """One line for a pydantic error: key path, the bad value, what is expected."""
-    location, _ = _follow(schema, list(error["loc"]))
-    path = _path(location)
-    if error["type"] == "extra_forbidden":
-        _, parents = _follow(schema, location[:-1])
-        valid = sorted({name for model in parents for name in model.model_fields})
-        listing = f"; valid keys here: {', '.join(valid)}" if valid else ""
-        return f"unknown key {path!r}{listing}"
-    if error["type"] == "missing":
-        return f"{path}: missing"
-    return f"{path} = {error['input']!r}: {error['msg']}"
+def _problems(schema: type[Parameters], errors: list[Any]) -> list[str]:
+    """One line per bad key: a value that fits no variant of a union (``gyro = "x"``, a
+    preset or a table) gets one line joining what each variant expects."""
+    lines: dict[str, list[str]] = {}
+    for error in errors:
+        unknown = error["type"] == "extra_forbidden"
+        location, _ = _follow(schema, list(error["loc"]), keep_unknown_key=unknown)
+        path = _path(location)
+        if unknown:
+            _, parents = _follow(schema, location[:-1])
+            valid = sorted({name for model in parents for name in model.model_fields})
+            listing = f"; valid keys here: {', '.join(valid)}" if valid else ""
+            lines[f"unknown {path}"] = [f"unknown key {path!r}{listing}"]
+        elif error["type"] == "missing":
+            lines.setdefault(path, []).append(f"{path}: missing")
+        else:
+            head = f"{path} = {error['input']!r}: "
+            lines.setdefault(path, []).append(head + error["msg"])
+    return [_joined(group) for group in lines.values()]
+
+
+def _joined(group: list[str]) -> str:
+    """The messages of one key path as one line."""
+    head = group[0][: group[0].index(": ") + 2] if ": " in group[0] else ""
+    return head + ", or ".join(message[len(head) :] for message in group)
 
 
 def _follow(
-    schema: type[Parameters], location: list[Any]
+    schema: type[Parameters], location: list[Any], *, keep_unknown_key: bool = False
 ) -> tuple[list[Any], list[type[BaseModel]]]:
     """The key path of a pydantic error location without the union variants' tags that
-    pydantic inserts, and the models that can hold the last key."""
+    pydantic inserts (a last part that is no field is an unknown key only with
+    ``keep_unknown_key``), and the models that can hold the last key."""
     models: list[type[BaseModel]] = [schema]
     path: list[Any] = []
     for index, part in enumerate(location):
@@ -148,7 +162,7 @@ def _follow(
             path.append(part)
             continue
         fields = [m.model_fields[part] for m in models if part in m.model_fields]
-        if not fields and index < len(location) - 1:
+        if not fields and (index < len(location) - 1 or not keep_unknown_key):
             continue  # the tag or class name of a union's variant
         path.append(part)
         models = [m for f in fields for m in model_classes(f.annotation, items=True)]

@@ -125,11 +125,13 @@ def _leaves(
             yield from _variant_leaves(model_classes(info.annotation)[0], path)
         else:
             yield ParameterInfo(path, _plain(value), unit_of(name), description)
+            for variant in model_classes(info.annotation):
+                yield from _variant_leaves(variant, path)
 
 
 def _variant_leaves(variant: type[BaseModel], path: str) -> Iterator[ParameterInfo]:
     tag = _tag(variant)
-    label = f"{path}({tag})." if tag else f"{path}."
+    label = f"{path}({tag or 'table'})."
     yield from _leaves(variant, None, label)
 
 

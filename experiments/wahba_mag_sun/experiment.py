@@ -76,6 +76,7 @@ from attopt.experiments.metrics import (
 from attopt.experiments.simulation import (
     GYRO_STREAM,
     INITIAL_ATTITUDE_SIGMA_DEG,
+    FilterInputs,
     GyroTruth,
     child_rng,
     gyro_truth,
@@ -346,6 +347,19 @@ def _filter_truth(
     return gyro_truth(geometry.t, frames, profile, rate_hz)
 
 
+def filter_inputs(
+    parameters: WahbaMagSunParameters, seed: np.random.SeedSequence
+) -> tuple[GyroTruth, FilterInputs]:
+    """The inertial truth at the gyro rate and the trial's gyro record and prior (from the
+    trial's gyro stream), as the gyro-aided rows and the pass export use them."""
+    model = gyro_model(parameters.gyro)
+    truth = filter_truth(parameters, model.rate_hz)
+    inputs = simulate_filter_inputs(
+        truth, model, child_rng(seed, GYRO_STREAM), parameters.initial_sigma_deg
+    )
+    return truth, inputs
+
+
 def _filter_rows(
     parameters: WahbaMagSunParameters,
     seed: np.random.SeedSequence,
@@ -353,11 +367,7 @@ def _filter_rows(
     geometry: VectorGeometry,
     common: Mapping[str, np.ndarray],
 ) -> list[pd.DataFrame]:
-    model = gyro_model(parameters.gyro)
-    truth = filter_truth(parameters, model.rate_hz)
-    inputs = simulate_filter_inputs(
-        truth, model, child_rng(seed, GYRO_STREAM), parameters.initial_sigma_deg
-    )
+    truth, inputs = filter_inputs(parameters, seed)
     simulated = inputs.gyro_pass(truth, vectors.pass_.snapshots)
     filters = resolve(parameters.filters, filter_labels(), "filters")
     runs = run_estimators(simulated.pass_, filters)

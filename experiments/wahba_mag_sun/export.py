@@ -5,7 +5,7 @@ simulates for ``(setting, seed)``, with the experiment's own functions: the
 Sun and field directions with their orbit-frame references
 (:func:`~attopt.experiments.wahba_mag_sun.experiment.simulate_pass`; no Sun
 row in eclipse), the gyro record and the prior of the gyro-aided estimators
-(:func:`~attopt.experiments.simulation.simulate_filter_inputs` from the
+(:func:`~attopt.experiments.wahba_mag_sun.experiment.filter_inputs`, from the
 trial's gyro stream), the satellite's ECI position and velocity (the orbit
 frames the filters' measurements are re-expressed with) and the true
 orbit -> body attitude.
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from attopt.experiments.config.components import gyro_model
 from attopt.experiments.experiment import Setting
 from attopt.experiments.recorded.metadata import INERTIAL, ORBIT, PassMetadata, gyro_entry
 from attopt.experiments.recorded.recorded_pass import RecordedPass
@@ -25,15 +26,12 @@ from attopt.experiments.recorded.records import (
     truth_table,
     vector_table,
 )
-from attopt.experiments.simulation import (
-    GYRO_STREAM,
-    INITIAL_ATTITUDE_SIGMA_DEG,
-    child_rng,
-    simulate_filter_inputs,
+from attopt.experiments.wahba_mag_sun.experiment import (
+    WahbaMagSunParameters,
+    filter_inputs,
+    geometry_of,
+    simulate_pass,
 )
-from attopt.experiments.wahba_mag_sun.experiment import filter_truth, simulate_pass
-from attopt.experiments.wahba_mag_sun.scenario import build_geometry
-from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.passes import GyroRecord
 
 SENSORS = ("sun", "magnetometer")
@@ -53,12 +51,11 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
         RecordedPass(attitude orbit, Pass(60 epochs, t 0-59 s, 60 with measurements),
                      tables gyro, vectors, position, truth)
     """
-    geometry = build_geometry(setting["duration_s"], setting["step_s"])
-    vectors = simulate_pass(geometry, seed, setting)
-    model = GYRO_MODELS[setting.get("gyro", "mems")]
-    truth = filter_truth(setting["duration_s"], setting["step_s"], model.rate_hz)
-    sigma = setting.get("initial_sigma_deg", INITIAL_ATTITUDE_SIGMA_DEG)
-    inputs = simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM), sigma)
+    parameters = WahbaMagSunParameters.model_validate(setting)
+    geometry = geometry_of(parameters)
+    vectors = simulate_pass(geometry, seed, parameters)
+    _, inputs = filter_inputs(parameters, seed)
+    model = gyro_model(parameters.gyro)
     samples = inputs.gyro.samples
     metadata = PassMetadata(
         description="wahba-mag-sun: a simulated pass of TIMED (Cilden Guler et al. 2017)",
