@@ -246,6 +246,49 @@ def estimate(
     raise typer.Exit(main(pass_dir, methods, out))
 
 
+@app.command("export")
+def export_command(
+    experiment: Annotated[
+        str, typer.Argument(help="Registered name (see `attopt list`) or 'module:OBJECT'.")
+    ],
+    out: Annotated[Path, typer.Argument(help="Directory of the recorded pass to write.")],
+    setting: Annotated[int, typer.Option(min=0, help="Index of the setting in the grid.")] = 0,
+    trial: Annotated[int, typer.Option(min=0, help="Trial index.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Root seed of the sweep.")] = 0,
+    quick: Annotated[bool, typer.Option(help="With the quick parameters.")] = False,
+    config: Annotated[
+        Path | None, typer.Option(help="TOML file of parameters (as for `attopt run`).")
+    ] = None,
+    csv: Annotated[bool, typer.Option("--csv", help="CSV tables instead of parquet.")] = False,
+) -> None:
+    """Write trial TRIAL of setting SETTING of EXPERIMENT as a recorded pass
+    (docs/pass-format.md): the pass `attopt run` simulates for that trial, which
+    `attopt estimate` reads back."""
+    from attopt.experiments.config import ConfigError, resolve_parameters
+    from attopt.experiments.recorded import save_pass
+    from attopt.experiments.recorded.export import exporter
+    from attopt.experiments.sweep.seeding import trial_seed
+
+    declared = _load_experiment(experiment)
+    try:
+        export = exporter(experiment)
+        document = resolve_parameters(declared, quick=quick, config=config).model_dump(mode="json")
+    except ConfigError as error:
+        for problem in error.problems:
+            typer.echo(f"error: {error.source}: {problem}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    except ValueError as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    settings = declared.grid(document)
+    if setting >= len(settings):
+        typer.echo(f"error: --setting {setting}: the grid has {len(settings)} settings", err=True)
+        raise typer.Exit(EXIT_USAGE)
+    recorded = export(settings[setting], trial_seed(seed, setting, trial))
+    written = save_pass(recorded, out, "csv" if csv else "parquet")
+    typer.echo(f"Recorded pass in {written}/ (`attopt estimate {written} --methods ...`)")
+
+
 @bench_app.command("runner")
 def bench_runner(
     noop_trials: Annotated[int, typer.Option(min=4, help="Trials of the no-op case.")] = 2000,

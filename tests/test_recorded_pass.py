@@ -464,3 +464,30 @@ def test_estimate_exits_2_with_one_line_for_bad_input(saved, arguments, message)
 def test_estimate_of_a_missing_directory_exits_2(tmp_path):
     result = runner.invoke(app, ["estimate", str(tmp_path / "absent"), "--methods", "quest"])
     assert result.exit_code == 2 and "no such pass directory" in result.output
+
+
+def test_cli_export_writes_the_trials_pass_and_estimate_reads_it(tmp_path):
+    config = tmp_path / "short.toml"
+    config.write_text('duration_s = 60.0\nmethods = ["quest"]\nfilters = []\n')
+    out = tmp_path / "pass"
+    result = runner.invoke(app, ["export", "wahba-mag-sun", str(out), "--config", str(config)])
+    assert result.exit_code == 0, result.output
+    parameters = wahba.WahbaMagSunParameters.model_validate(
+        {**wahba.EXPERIMENT.parameters, "duration_s": 60.0, "methods": ["quest"], "filters": []}
+    )
+    expected = exporter("wahba-mag-sun")(parameters.model_dump(mode="json"), trial_seed(0, 0, 0))
+    loaded = load_pass(out)
+    for name, table in expected.tables.items():
+        pd.testing.assert_frame_equal(loaded.tables[name], table, check_exact=True)
+    estimated = runner.invoke(
+        app, ["estimate", str(out), "--methods", "quest", "--out", str(tmp_path / "est")]
+    )
+    assert estimated.exit_code == 0, estimated.output
+    rows = pd.read_parquet(tmp_path / "est" / "rows.parquet")
+    trial_rows = wahba.trial(parameters.model_dump(mode="json"), trial_seed(0, 0, 0))
+    assert np.array_equal(rows["err_x_deg"], trial_rows["err_x_deg"], equal_nan=True)
+
+
+def test_cli_export_of_an_experiment_without_export_exits_2(tmp_path):
+    result = CliRunner().invoke(app, ["export", "noop", str(tmp_path / "p")])
+    assert result.exit_code == 2 and "cannot export" in result.stderr
