@@ -10,12 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.doa_ground.scenario import (
-    FILTER_INITIAL_EULER_DEG,
-    FILTER_INITIAL_RATE_DEG_S,
-    WHEEL_MOMENTUM,
-    build_geometry,
-)
+from attopt.experiments.doa_ground.parameters import DoaScenario, FilterPrior, RigidBodyTruth
+from attopt.experiments.doa_ground.scenario import build_geometry
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import ConvergenceError
@@ -35,6 +31,9 @@ from attopt.solvers.results import Track
 PASS_S = 1200.0
 STEP_S = 1.0
 """Coarser than the paper's 250 ms to keep the test cheap; the model is the same."""
+SCENARIO = DoaScenario(duration_s=PASS_S, step_s=STEP_S)
+WHEEL_MOMENTUM = RigidBodyTruth().wheel_momentum
+PRIOR = FilterPrior()
 
 
 def _step(omega: np.ndarray, attitude: np.ndarray, turn: np.ndarray):
@@ -44,7 +43,7 @@ def _step(omega: np.ndarray, attitude: np.ndarray, turn: np.ndarray):
 
 def test_step_reproduces_the_rigid_body_truth() -> None:
     """One filter step from the true state lands on the scenario's solve_ivp truth (eqs. 23-24)."""
-    geometry = build_geometry(PASS_S, STEP_S)
+    geometry = build_geometry(SCENARIO)
     turns = geometry.orbit_turns().as_matrix()
     for k in (0, 300, 1000):
         omega, attitude, _ = _step(geometry.rate[k], geometry.truth[k].as_matrix(), turns[k])
@@ -74,7 +73,7 @@ def test_transition_matrix_matches_finite_differences() -> None:
 
 def test_converges_from_the_paper_initial_condition_noise_free() -> None:
     """From yaw = pitch = roll = 50 deg and 0.5 deg/s per axis (sec. 6) to the truth."""
-    geometry = build_geometry(PASS_S, STEP_S)
+    geometry = build_geometry(SCENARIO)
     reference = geometry.line_of_sight_km / np.linalg.norm(
         geometry.line_of_sight_km, axis=-1, keepdims=True
     )
@@ -84,8 +83,8 @@ def test_converges_from_the_paper_initial_condition_noise_free() -> None:
         body = geometry.truth[k].apply(reference[k, visible])
         measurements.append(VectorMeasurement(body, reference[k, visible], np.radians(0.3)))
     prior = rate_prior(
-        attitude_from_euler321(*np.radians(FILTER_INITIAL_EULER_DEG)),
-        np.radians(FILTER_INITIAL_RATE_DEG_S),
+        attitude_from_euler321(*np.radians(PRIOR.euler_deg)),
+        np.radians(PRIOR.rate_deg_s),
         np.diag(np.radians([0.5] * 3 + [60.0] * 3) ** 2),
     )
     dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)

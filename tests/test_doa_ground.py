@@ -6,36 +6,31 @@ import numpy as np
 import pandas as pd
 
 from attopt.experiments.doa_ground.experiment import EXPERIMENT, grid
-from attopt.experiments.doa_ground.scenario import (
-    DURATION_S,
-    MIN_ELEVATION_DEG,
-    WHEEL_MOMENTUM,
-    build_geometry,
-    coverage,
-)
+from attopt.experiments.doa_ground.parameters import DoaScenario, RigidBodyTruth
+from attopt.experiments.doa_ground.scenario import build_geometry, coverage
 from attopt.experiments.sweep.seeding import trial_seed
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.rigid_body import INERTIA_SEED003
 
-COARSE_STEP_S = 10.0
-"""The whole pass at a coarse step keeps the geometry cheap."""
+COARSE = DoaScenario(step_s=10.0)
+"""The whole (default, 5000 s) pass at a coarse step keeps the geometry cheap."""
 
 
 def test_a_station_is_visible_over_the_pass_within_the_array_cone() -> None:
     """At least one station above 10 deg until the last pass ends; theta stays near 62 deg."""
-    geometry = build_geometry(DURATION_S, COARSE_STEP_S)
+    geometry = build_geometry(COARSE)
     last_pass_end = geometry.t[np.flatnonzero(coverage(geometry))[-1]]
     assert last_pass_end > 4800.0
     assert np.all(coverage(geometry)[geometry.t <= last_pass_end] >= 1)
     assert np.all(geometry.visible.any(axis=0))  # every station is seen
-    assert np.all(geometry.elevation_deg[geometry.visible] >= MIN_ELEVATION_DEG)
+    assert np.all(geometry.elevation_deg[geometry.visible] >= COARSE.min_elevation_deg)
     theta = np.degrees(geometry.doa[..., 0][geometry.visible])
     assert theta.max() < 62.0 + 5.0  # the 62 deg of sec. 4.2 plus the attitude's wander
 
 
 def test_doas_are_the_measurement_model_at_the_truth() -> None:
     """The scenario's true DOAs are eqs. 13-16 (``DoaMeasurement``) at the true attitude."""
-    geometry = build_geometry(DURATION_S, COARSE_STEP_S)
+    geometry = build_geometry(COARSE)
     for k in (0, 150, 300):
         visible = geometry.visible[k]
         doa = geometry.doa[k, visible]
@@ -48,8 +43,8 @@ def test_doas_are_the_measurement_model_at_the_truth() -> None:
 
 def test_torque_free_dynamics_conserve_inertial_angular_momentum() -> None:
     """Eq. 23 without torque: ``A_bi^T (I omega + h)`` is constant over the pass."""
-    geometry = build_geometry(DURATION_S, COARSE_STEP_S)
-    body_momentum = geometry.rate @ INERTIA_SEED003.T + WHEEL_MOMENTUM
+    geometry = build_geometry(COARSE)
+    body_momentum = geometry.rate @ INERTIA_SEED003.T + RigidBodyTruth().wheel_momentum
     inertial = (geometry.truth * geometry.eci_to_orbit).inv().apply(body_momentum)
     drift = np.abs(inertial - inertial[0]).max()
     assert drift < 1e-9 * np.linalg.norm(inertial[0])

@@ -10,7 +10,10 @@ Euler errors are ``(e, 2 e, 3 e)``; signs alternate over the rows):
   in the first two trials); ``crb_*`` 0.02 per axis on the EKF rows, 0.01 on
   the RTS rows;
 * ``wahba``: 2.0 on every other settled row, invalid (NaN) on the rest;
-* converging rows (t < 100 s) 10 deg, valid, which no RMSE may include.
+* converging rows (t < 100 s) 10 deg, valid, which no RMSE may include;
+* DOAs: 100 per trial, 50, 75 and 75 accepted, theta MSE ``1 + trial`` deg^2; per
+  station (their own numbers), ``North`` 60 per trial with 40, 45, 45 accepted and theta
+  MSE ``1 + trial``, ``South`` 40 with 10, 30, 30 accepted and theta MSE 4.
 """
 
 from __future__ import annotations
@@ -54,6 +57,11 @@ PARAMETERS: dict[str, Any] = {
     "process_noise": [1e-9, 1e-12],
     "filters": ["mekf", "fg_batch"],
     "filter_trials": FILTER_TRIALS,
+    "step_s": 0.25,
+    "stations": [
+        {"name": "North", "latitude_deg": 60.0, "longitude_deg": 10.0, "height_m": 100.0},
+        {"name": "South", "latitude_deg": -30.0, "longitude_deg": 20.0, "height_m": 0.0},
+    ],
 }
 
 
@@ -64,7 +72,7 @@ def _frame(method: str, error: float, **extra: Any) -> pd.DataFrame:
     signed = np.where(settled, error, 10.0) * (-1.0) ** np.arange(N_ROWS)
     columns = {
         "method": method,
-        "t": t,
+        "t_s": t,
         "phase": np.where(settled, "settled", "converging"),
         "err_x_deg": signed,
         "err_y_deg": 0.0,
@@ -115,6 +123,17 @@ def _trial(trial: int, q_scales: Mapping[str, float], filters: bool) -> list[pd.
     accepted = 50 if trial == 0 else 75
     music |= {"doa_accepted": accepted, "doa_theta_mse_deg2": 1.0 + trial}
     music |= {"doa_phi_mse_deg2": 4.0, "method": "music", "phase": "all", "valid": False}
+    stations = {
+        1: (60, 40 if trial == 0 else 45, 1.0 + trial),
+        2: (40, 10 if trial == 0 else 30, 4.0),
+    }
+    for k, (count, taken, theta) in stations.items():
+        music |= {f"doa_count_station{k}": count, f"doa_accepted_station{k}": taken}
+        music |= {f"doa_theta_mse_station{k}_deg2": theta, f"doa_phi_mse_station{k}_deg2": 1.0}
+        music |= {
+            f"doa_crb_theta_station{k}_deg2": 0.01 * k**2,
+            f"doa_crb_phi_station{k}_deg2": 1.0,
+        }
     return [*frames, pd.DataFrame([music])]
 
 
@@ -278,6 +297,21 @@ def test_report_writes_the_convergence_figure_and_times(tmp_path: Path) -> None:
     assert row(convergence, {"row": "EKF Q = 1e-09"}).iloc[1:].tolist() == ["-", "50"]
     assert row(convergence, {"row": "EKF Q = 1e-12"}).iloc[1:].tolist() == ["100", "50"]
     assert row(convergence, {"row": "Yang et al. 2014 Sec. 6, Figs. 6-7"}).iloc[1] == "within 1500"
+
+
+def test_stations_table_follows_the_configured_stations(tmp_path: Path) -> None:
+    """One line per station at 0 dB, L = 100 (the paper's first simulation), from its own
+    columns: theta RMSE weighted by its accepted estimates, CRB by its estimates."""
+    stations = table(_report(_rows(), tmp_path), "Stations")
+    assert stations["station"].tolist() == ["North", "South"]
+    north, south = row(stations, {"station": "North"}), row(stations, {"station": "South"})
+    assert north.iloc[1:5].tolist() == ["60.000", "10.000", "100", "15"]  # 60 DOAs x 0.25 s
+    theta = np.sqrt((40 * 1.0 + 45 * 2.0 + 45 * 3.0) / 130.0)
+    assert north["accepted"] == f"{130 / 180:.3f}"
+    assert north["theta RMSE / CRB"] == f"{theta:.3f} / 0.100"
+    assert south["visible per pass (s)"] == "10" and south["accepted"] == f"{70 / 120:.3f}"
+    assert south["theta RMSE / CRB"] == "2.000 / 0.200"
+    assert south["phi RMSE / CRB"] == "1.000 / 1.000"
 
 
 def test_runtime_is_the_mean_over_passes() -> None:

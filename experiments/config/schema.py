@@ -37,6 +37,8 @@ UNITS: dict[str, str] = {
     "_dbw": "dBW",
     "_db": "dB",
     "_k": "K",
+    "_kg_m2": "kg m^2",
+    "_nms": "N m s",
 }
 """Name suffix -> unit, longest suffixes first (:func:`unit_of`)."""
 

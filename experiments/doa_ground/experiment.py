@@ -5,11 +5,15 @@ Settings are Yang et al. 2014's Tables 1 and 2: input SNR -14..14 dB at ``L = 10
 snapshots and ``L = 1..1000`` at 0 dB (the shared setting 0 dB, ``L = 100``
 once).  One trial is one pass of :mod:`attopt.experiments.doa_ground.scenario`
 (geometry and truth are the same in every trial, as in the paper; only the
-noise is drawn), and every estimator sees the same DOAs (each row label names a
-registry estimator with its options, :mod:`attopt.experiments.doa_ground.methods`;
-the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
+noise is drawn).  Every physical choice is a parameter
+(:class:`DoaGroundParameters`: the scenario's orbit, stations and rigid body, the
+``[array]``, ``[music]``, the ``gyro``, the ``[prior]``), and every estimator sees
+the same DOAs (each row label names a registry estimator with its options,
+:mod:`attopt.experiments.doa_ground.methods`; the pass estimators run by
+:func:`attopt.solvers.pipeline.run_estimators`):
 
-1. MUSIC (:class:`~attopt.solvers.doa.music.MusicEstimator`, eq. 11) on every
+1. MUSIC (:class:`~attopt.solvers.doa.music.MusicEstimator`, eq. 11, with the
+   ``[music]`` grid and thresholds) on the ``[array]`` for every
    visible ``(epoch, station)`` pair, from a sample covariance drawn from
    ``numpy.random.default_rng(seed)`` with the exact distribution of eqs.
    8-10's ``X X^H / L`` (:func:`estimate_doas`).  MUSIC is given the input SNR
@@ -20,12 +24,13 @@ the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
    17, far field) with ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2``
    from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
 2. ``ekf_seed003_q<Q>``: the EKF of Yang et al. 2014 (:mod:`attopt.solvers.doa.ekf`,
-   rigid-body dynamics, no gyro) over all epochs from the paper's initial condition (50
-   deg Euler angles, 0.5 deg/s rates; :mod:`attopt.experiments.doa_ground.scenario`
-   explains that reading) with prior sigmas ``initial_sigma_deg`` and
-   ``initial_rate_sigma_deg_s``, once per ``Q = q E_6`` in ``process_noise``:
-   the paper's printed 1e-9 and :data:`LOW_PROCESS_NOISE` (1e-12), with which
-   our EKF reproduces the paper's attitude RMSEs (docs/doa.md).
+   rigid-body dynamics of the ``[attitude]`` table, no gyro) over all epochs from the
+   ``[prior]``'s initial estimate (default the paper's initial condition, 50 deg Euler
+   angles, 0.5 deg/s rates; :mod:`attopt.experiments.doa_ground.scenario` explains that
+   reading) with its sigmas ``sigma_deg`` and ``rate_sigma_deg_s``, once per
+   ``Q = q E_6`` in ``process_noise``: the paper's printed 1e-9 and
+   :data:`LOW_PROCESS_NOISE` (1e-12), with which our EKF reproduces the paper's
+   attitude RMSEs (docs/doa.md).
 3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
    model, same data; :func:`attopt.solvers.filters.rts.rts_smooth`).  The EKF
    and RTS rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
@@ -48,8 +53,8 @@ the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
 6. ``filters`` (registry pass estimators that accept unit vectors; default
    ``mekf`` and ``fg_batch``), in the first ``filter_trials`` trials of each
    setting only (they cost about 25x the rest): the gyro-aided MEKF and the
-   GTSAM whole-pass smoother on the same unit vectors plus a MEMS-class gyro
-   sampled at the epochs (``GYRO``; Yang et al. 2014 has none), from the
+   GTSAM whole-pass smoother on the same unit vectors plus the ``gyro`` (default
+   the MEMS-class preset; Yang et al. 2014 has none) sampled at the epochs, from the
    EKF's initial estimate and sigma (the same prior information as the EKF).
    The estimators that can start from an RTS pass (the smoothers) start their
    iterations from the lowest-``Q`` RTS pass (their result does not depend on
@@ -59,29 +64,34 @@ the pass estimators run by :func:`attopt.solvers.pipeline.run_estimators`):
    (:func:`attopt.experiments.metrics.posterior_bound_columns`).
 
 Rows.  Attitude rows every ``row_step_s`` (a 5000 s pass has 20 000 epochs)
-per method with :func:`attopt.experiments.metrics.error_columns`, the ``phase``
+per method at ``t_s`` with :func:`attopt.experiments.metrics.error_columns`, the
+estimated and true ``C_bo`` (``q_est_*``, ``q_true_*``:
+:func:`attopt.experiments.metrics.attitude_columns`), the ``phase``
 (``converging`` before ``settle_s``, then ``settled``: Yang et al. 2014's RMSEs of
 about 0.1 deg can only be post-convergence values, its Fig. 6 shows
 convergence within 1500 s), rate errors (``rate_err_{x,y,z}_deg_s``) of the
 EKF and RTS rows, and ``runtime_s`` (wall time of the pass).  One ``music``
 row per trial carries the DOA statistics over all estimates: counts,
 acceptance, rejections by reason, and mean squared errors of ``theta`` and
-``phi`` and of their CRBs at the true DOAs (``doa_*`` columns, deg^2).
+``phi`` and of their CRBs at the true DOAs (``doa_*`` columns, deg^2), and the same
+per configured station ``k`` (1-based, ``doa_count_station<k>``,
+``doa_accepted_station<k>``, ``doa_theta_mse_station<k>_deg2``, ...).
 """
 
 from __future__ import annotations
 
 import functools
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import pandas as pd
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 
-from attopt.experiments.config import Parameters
+from attopt.experiments.config.components import Gyro, GyroNumbers, gyro_model
 from attopt.experiments.doa_ground.methods import (
     BATCH_LS,
     GYRO_FILTERS,
@@ -91,19 +101,18 @@ from attopt.experiments.doa_ground.methods import (
     filter_labels,
     rts_method,
 )
-from attopt.experiments.doa_ground.report import report
-from attopt.experiments.doa_ground.scenario import (
-    DURATION_S,
-    FILTER_INITIAL_EULER_DEG,
-    FILTER_INITIAL_RATE_DEG_S,
-    STEP_S,
-    WHEEL_MOMENTUM,
-    DoaGroundGeometry,
-    build_geometry,
+from attopt.experiments.doa_ground.parameters import (
+    DoaArray,
+    DoaScenario,
+    FilterPrior,
+    MusicGrid,
 )
+from attopt.experiments.doa_ground.report import report
+from attopt.experiments.doa_ground.scenario import DoaGroundGeometry, build_geometry
 from attopt.experiments.estimators import FACTOR_GRAPH, label_field, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
+    attitude_columns,
     error_columns,
     in_orbit_frame,
     posterior_bound_columns,
@@ -118,6 +127,7 @@ from attopt.experiments.simulation import (
 from attopt.experiments.sweep.seeding import trial_index
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.doa_array import (
+    UniformCircularArray,
     doa_unit_vector,
     simulate_sample_covariance,
     unit_vector_covariance,
@@ -125,9 +135,8 @@ from attopt.formulations.doa_array import (
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.errors import ConvergenceError, UnobservableError
-from attopt.formulations.gyro import MEMS_GYRO
-from attopt.formulations.passes import Pass, Prior, RigidBody
-from attopt.formulations.rigid_body import INERTIA_SEED003
+from attopt.formulations.gyro import GyroModel
+from attopt.formulations.passes import Pass, Prior
 from attopt.solvers.bounds import posterior_bound_ekf
 from attopt.solvers.doa.ekf import PROCESS_NOISE
 from attopt.solvers.doa.music import DoaEstimates, MusicEstimator
@@ -142,6 +151,8 @@ TABLE2_SNAPSHOTS = (1, 10, 20, 50, 100, 1000)
 RAD2_TO_DEG2 = np.degrees(1.0) ** 2
 DOA_ROW_REASON = "DOA statistics row (no attitude)"
 """``reason`` of the per-trial ``music`` row, which the attitude summaries count as invalid."""
+SETTING_KEYS = ("snr_db", "snapshots")
+"""The keys :func:`grid` adds to the parameters to make a setting."""
 
 REJECTIONS = {"ambiguous": "ambiguous peak", "horizon": "source at the array horizon"}
 """Counted MUSIC rejections (``doa_rejected_<name>``) by the start of their reason."""
@@ -152,30 +163,41 @@ FILTER_TRIALS = 4
 """Trials per setting that also run the batch least squares and the gyro-aided rows (about
 25x the cost of the rest)."""
 
+Snapshots = Annotated[int, Field(ge=1)]
+ProcessNoise = Annotated[float, Field(gt=0.0)]
 
-class DoaGroundParameters(Parameters):
-    """Parameters of ``doa-ground`` (Yang et al. 2014 secs. 4-6)."""
 
-    duration_s: float = Field(DURATION_S, gt=0, description="Length of the pass.")
-    step_s: float = Field(STEP_S, gt=0, description="Processing step.")
+class DoaGroundParameters(DoaScenario):
+    """Parameters of ``doa-ground`` (Yang et al. 2014 secs. 4-6): the scenario's
+    (:class:`~attopt.experiments.doa_ground.parameters.DoaScenario`), the array, MUSIC, the
+    gyro of the gyro-aided rows, the filters' prior, Tables 1 and 2 and the rows."""
+
+    array: DoaArray = Field(
+        default_factory=DoaArray, description="The DOA array (Yang et al. 2014 sec. 4.1)."
+    )
+    music: MusicGrid = Field(default_factory=MusicGrid, description="MUSIC's grid and thresholds.")
+    gyro: Gyro = Field(
+        "mems",
+        description="Gyro of the gyro-aided rows, sampled at the epochs (rate 1 / step_s).",
+    )
+    prior: FilterPrior = Field(
+        default_factory=FilterPrior, description="The filters' initial estimate (sec. 6)."
+    )
     table1_snr_db: list[float] = Field(
         default_factory=lambda: list(TABLE1_SNR_DB),
         description="Input SNRs of Table 1 (at table1_snapshots).",
     )
     table1_snapshots: int = Field(100, ge=1, description="Snapshots L of Table 1.")
-    table2_snapshots: list[int] = Field(
+    table2_snapshots: list[Snapshots] = Field(
         default_factory=lambda: list(TABLE2_SNAPSHOTS),
         description="Snapshot counts L of Table 2 (at table2_snr_db).",
     )
     table2_snr_db: float = Field(0.0, description="Input SNR of Table 2.")
     settle_s: float = Field(1500.0, ge=0, description="Time after which rows count as settled.")
-    row_step_s: float = Field(10.0, gt=0, description="Time between stored rows.")
-    initial_sigma_deg: float = Field(60.0, gt=0, description="Per-axis sigma of the EKF prior.")
-    initial_rate_sigma_deg_s: float = Field(
-        0.5, gt=0, description="Per-axis rate sigma of the EKF prior."
-    )
-    process_noise: list[float] = Field(
+    row_step_s: float = Field(10.0, gt=0, description="Time between stored rows (>= step_s).")
+    process_noise: list[ProcessNoise] = Field(
         default_factory=lambda: [PROCESS_NOISE, LOW_PROCESS_NOISE],
+        min_length=1,
         description="Diagonals of the EKF's Q per step (one EKF/RTS row per value).",
     )
     filters: list[label_field(filter_labels, "filters")] = Field(
@@ -186,35 +208,73 @@ class DoaGroundParameters(Parameters):
         FILTER_TRIALS, ge=0, description="Trials per setting that also run the costly rows."
     )
 
+    @field_validator("music")
+    @classmethod
+    def _grid_resolves_the_main_lobe(cls, value: MusicGrid, info: ValidationInfo) -> MusicGrid:
+        array = info.data.get("array")
+        if array is not None and value.grid_step >= array.array().first_null_radius:
+            raise ValueError(
+                f"grid_step must be below the array's first-null radius "
+                f"{array.array().first_null_radius:.4g} (2.405 / (k r))"
+            )
+        return value
 
-MUSIC = MusicEstimator()
-"""One estimator per process: its grid is built once."""
-GYRO = MEMS_GYRO
-"""The gyro of the gyro-aided rows, sampled at the epochs (``rate_hz = 1 / step_s``)."""
+    @field_validator("gyro", mode="before")
+    @classmethod
+    def _rate_of_the_epochs(cls, value: Any, info: ValidationInfo) -> Any:
+        step = info.data.get("step_s")
+        if isinstance(value, dict) and "rate_hz" not in value and step:
+            return {**value, "rate_hz": 1.0 / step}
+        return value
+
+    @field_validator("gyro")
+    @classmethod
+    def _sampled_at_the_epochs(cls, value: Any, info: ValidationInfo) -> Any:
+        step = info.data.get("step_s")
+        if isinstance(value, GyroNumbers) and step and not math.isclose(value.rate_hz * step, 1.0):
+            raise ValueError(
+                f"the gyro is sampled at the epochs: rate_hz must be 1 / step_s = {1.0 / step:g}"
+            )
+        return value
+
+    @field_validator("row_step_s")
+    @classmethod
+    def _at_least_a_step(cls, value: float, info: ValidationInfo) -> float:
+        step = info.data.get("step_s")
+        if step and value < step:
+            raise ValueError(f"row_step_s must be at least step_s = {step:g}")
+        return value
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2.
+    """One setting per distinct ``(snr_db, snapshots)`` of Tables 1 and 2 (the validated
+    parameters without the tables' keys, plus ``snr_db`` and ``snapshots``).
 
     Raises:
         ValueError: a filter the registry does not have (the message lists the
-            registered ones), or another bad parameter.
+            registered ones).
     """
+    resolve(parameters["filters"], filter_labels(), "filters")
     pairs = [(float(s), int(parameters["table1_snapshots"])) for s in parameters["table1_snr_db"]]
     pairs += [(float(parameters["table2_snr_db"]), int(n)) for n in parameters["table2_snapshots"]]
-    resolve(parameters["filters"], filter_labels(), "filters")
-    if not parameters["process_noise"] or min(parameters["process_noise"]) <= 0.0:
-        raise ValueError("process_noise must be a non-empty list of positive numbers")
-    if any(n < 1 for _, n in pairs):
-        raise ValueError("numbers of snapshots must be >= 1")
-    if parameters["row_step_s"] < parameters["step_s"]:
-        raise ValueError("row_step_s must be at least step_s")
     common = {k: v for k, v in parameters.items() if not k.startswith(("table1_", "table2_"))}
     return [{**common, "snr_db": s, "snapshots": n} for s, n in dict.fromkeys(pairs)]
 
 
+def setting_parameters(setting: Setting) -> DoaGroundParameters:
+    """The parameters of a setting (validated again: the workers receive plain documents)."""
+    return DoaGroundParameters.model_validate(
+        {k: v for k, v in setting.items() if k not in SETTING_KEYS}
+    )
+
+
 def estimate_doas(
-    geometry: DoaGroundGeometry, snr_db: float, snapshots: int, rng: np.random.Generator
+    geometry: DoaGroundGeometry,
+    snr_db: float,
+    snapshots: int,
+    rng: np.random.Generator,
+    array: DoaArray,
+    music: MusicGrid,
 ) -> tuple[tuple[np.ndarray, np.ndarray], DoaEstimates]:
     """MUSIC estimates of every visible ``(epoch, station)`` pair, in epoch-major order.
 
@@ -224,39 +284,81 @@ def estimate_doas(
     """
     epochs, stations = np.nonzero(geometry.visible)
     truth = geometry.doa[epochs, stations]
-    covariance = simulate_sample_covariance(truth[:, 0], truth[:, 1], snr_db, snapshots, rng)
-    estimates = MUSIC.estimate_covariance(covariance, snapshots, snr_db=snr_db)
+    uca = array.array()
+    covariance = simulate_sample_covariance(truth[:, 0], truth[:, 1], snr_db, snapshots, rng, uca)
+    estimates = music_estimator(music, uca).estimate_covariance(
+        covariance, snapshots, snr_db=snr_db
+    )
     return (epochs, stations), estimates
+
+
+def music_estimator(music: MusicGrid, array: UniformCircularArray) -> MusicEstimator:
+    """MUSIC on ``array`` with the ``[music]`` options (one per process and set-up: its grid
+    is built once)."""
+    return _music(
+        array,
+        music.grid_step,
+        music.cone_half_angle_deg,
+        music.peak_ratio_threshold,
+        music.horizon_angle_deg,
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _music(
+    array: UniformCircularArray,
+    grid_step: float,
+    cone_half_angle_deg: float,
+    peak_ratio_threshold: float,
+    horizon_angle_deg: float,
+) -> MusicEstimator:
+    return MusicEstimator(
+        array=array,
+        cone_half_angle=float(np.radians(cone_half_angle_deg)),
+        grid_step=grid_step,
+        peak_ratio_threshold=peak_ratio_threshold,
+        horizon_angle=float(np.radians(horizon_angle_deg)),
+    )
 
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One pass at the setting's SNR and ``L``: every estimator on the same DOAs (docstring)."""
-    geometry = build_geometry(setting["duration_s"], setting["step_s"])
+    parameters = setting_parameters(setting)
+    geometry = build_geometry(parameters)
     (epochs, stations), doas = estimate_doas(
-        geometry, setting["snr_db"], setting["snapshots"], np.random.default_rng(seed)
+        geometry,
+        setting["snr_db"],
+        setting["snapshots"],
+        np.random.default_rng(seed),
+        parameters.array,
+        parameters.music,
     )
     vectors = unit_vector_observations(geometry, epochs, stations, doas)
-    doa_pass = _vector_pass(geometry, vectors, _prior(setting))
-    row_epochs = np.arange(0, geometry.t.size, round(setting["row_step_s"] / setting["step_s"]))
+    doa_pass = _vector_pass(geometry, vectors, _prior(parameters.prior))
+    row_epochs = np.arange(0, geometry.t.size, round(parameters.row_step_s / parameters.step_s))
     common = {
-        "t": geometry.t[row_epochs],
-        "phase": np.where(geometry.t[row_epochs] < setting["settle_s"], "converging", "settled"),
+        "t_s": geometry.t[row_epochs],
+        "phase": np.where(geometry.t[row_epochs] < parameters.settle_s, "converging", "settled"),
     }
-    passes = {q: _dynamics_passes(setting, doa_pass, q) for q in setting["process_noise"]}
+    passes = {
+        q: _dynamics_passes(setting, parameters, doa_pass, q) for q in parameters.process_noise
+    }
     frames = [
         _dynamics_rows(label, run, geometry, row_epochs, common)
         for runs in passes.values()
         for label, run in runs.items()
     ]
     frames += [
-        _wahba_rows(label, name, geometry, vectors, row_epochs, common, setting)
+        _wahba_rows(label, name, geometry, vectors, row_epochs, common, setting, parameters)
         for label, name in WAHBA.items()
     ]
-    if trial_index(seed) < setting["filter_trials"]:
+    if trial_index(seed) < parameters.filter_trials:
         lowest = passes[min(passes)][rts_method(min(passes))]
         frames.append(_batch_ls_rows(doa_pass, geometry, row_epochs, common, lowest))
-        frames += _gyro_rows(setting, seed, geometry, doa_pass, row_epochs, common, lowest)
-    frames.append(pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting)]))
+        frames += _gyro_rows(parameters, seed, geometry, doa_pass, row_epochs, common, lowest)
+    frames.append(
+        pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting, parameters.array)])
+    )
     return pd.concat(frames, ignore_index=True)
 
 
@@ -266,19 +368,23 @@ def _vector_pass(
     prior: Prior,
 ) -> Pass:
     """The pass of the unit vectors (NaN body rows: absent) with the scenario's rigid-body
-    dynamics (inertia of Yang et al. 2014 eq. 25, wheel momentum, orbit frames) and ``prior``."""
-    dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)
-    return replace(Pass.from_vectors(geometry.t, *vectors), dynamics=dynamics, prior=prior)
+    dynamics (inertia, wheel momentum, orbit frames) and ``prior``."""
+    return replace(Pass.from_vectors(geometry.t, *vectors), dynamics=geometry.dynamics, prior=prior)
 
 
 def _dynamics_passes(
-    setting: Setting, doa_pass: Pass, process_noise: float
+    setting: Setting, parameters: DoaGroundParameters, doa_pass: Pass, process_noise: float
 ) -> dict[str, DynamicsPass]:
     """The paper's EKF and its RTS pass with ``Q = process_noise E_6``, by row label: each
     run (the RTS's time includes the EKF's), the model's bound and the ``Q = 0`` bound."""
     runs = run_estimators(doa_pass, dynamics_estimators(process_noise))
-    keys = [setting[k] for k in ("duration_s", "step_s", "snr_db", "snapshots")]
-    prior_sigmas = setting["initial_sigma_deg"], setting["initial_rate_sigma_deg_s"]
+    keys = (
+        parameters.scenario().model_dump_json(),
+        parameters.array.array(),
+        setting["snr_db"],
+        setting["snapshots"],
+    )
+    prior_sigmas = parameters.prior.sigma_deg, parameters.prior.rate_sigma_deg_s
     bounds = zip(
         *(_model_bound(*keys, q, *prior_sigmas) for q in (process_noise, 0.0)), strict=True
     )
@@ -300,8 +406,8 @@ class DynamicsPass:
 
 @functools.lru_cache(maxsize=16)
 def _model_bound(
-    duration_s: float,
-    step_s: float,
+    scenario: str,
+    array: UniformCircularArray,
     snr_db: float,
     snapshots: int,
     process_noise: float,
@@ -311,11 +417,14 @@ def _model_bound(
     """Attitude standard deviations (deg, ``(N, 3)``) of the posterior Cramer-Rao bound of
     the EKF's model (filter, smoother), :func:`attopt.solvers.bounds.posterior_bound_ekf` with
     the DOA CRB of every visible station at the truth: the same for every trial of a
-    setting, so cached.  With ``process_noise = 0`` it is the Cramer-Rao bound of the
-    seed's problem itself (known, torque-free dynamics)."""
-    geometry = build_geometry(duration_s, step_s)
+    setting, so cached (``scenario``: the scenario's JSON document).  With
+    ``process_noise = 0`` it is the Cramer-Rao bound of Yang et al. 2014's problem itself
+    (known, torque-free dynamics)."""
+    geometry = build_geometry(DoaScenario.model_validate_json(scenario))
     truth_doa = geometry.doa[geometry.visible]
-    crb = stochastic_crb(truth_doa[:, 0], truth_doa[:, 1], 10.0 ** (snr_db / 10.0), snapshots)
+    crb = stochastic_crb(
+        truth_doa[:, 0], truth_doa[:, 1], 10.0 ** (snr_db / 10.0), snapshots, array
+    )
     sigma = np.ones(geometry.visible.shape)
     sigma[geometry.visible] = _isotropic_sigma(truth_doa[:, 0], truth_doa[:, 1], crb)
     covariance = np.diag(np.radians([initial_sigma_deg] * 3 + [initial_rate_sigma_deg_s] * 3) ** 2)
@@ -348,6 +457,7 @@ def _batch_ls_rows(
             {
                 "method": BATCH_LS,
                 **common,
+                **attitude_columns(np.full((rows.size, 4), np.nan), geometry.truth[rows]),
                 "valid": False,
                 "reason": f"{type(error).__name__}: {error}",
                 "runtime_s": start.run.seconds + time.perf_counter() - began,
@@ -375,6 +485,7 @@ def _dynamics_rows(
             "method": label,
             **common,
             **error_columns(estimates, geometry.truth[rows]),
+            **_attitudes(estimates, geometry.truth[rows]),
             **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
             **{f"pbound_{a}_deg": run.bound[rows, i] for i, a in enumerate("xyz")},
             **{f"crb_{a}_deg": run.crb[rows, i] for i, a in enumerate("xyz")},
@@ -385,10 +496,24 @@ def _dynamics_rows(
     )
 
 
-def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float) -> Prior:
-    """The EKF's initial attitude estimate and sigma (Yang et al. 2014 sec. 6) for the gyro-aided
-    rows, in the inertial frame, with the gyro's initial bias sigma."""
-    ekf = _prior(setting)
+def _attitudes(track: Track, truth: Any) -> dict[str, np.ndarray]:
+    """``q_est_*`` (NaN where the track is invalid) and ``q_true_*`` (``C_bo``, orbit frame)."""
+    quaternion = np.where(track.valid[:, None], track.quaternion, np.nan)
+    return attitude_columns(quaternion, truth)
+
+
+def epoch_gyro(parameters: DoaGroundParameters) -> GyroModel:
+    """The gyro of the gyro-aided rows at the epochs' rate ``1 / step_s`` (a preset's own rate
+    replaced; a table's is validated to be that rate)."""
+    return replace(gyro_model(parameters.gyro), rate_hz=1.0 / parameters.step_s)
+
+
+def _gyro_prior(
+    parameters: DoaGroundParameters, geometry: DoaGroundGeometry, bias_sigma: float
+) -> Prior:
+    """The EKF's initial attitude estimate and sigma (Yang et al. 2014 sec. 6) for the
+    gyro-aided rows, in the inertial frame, with the gyro's initial bias sigma."""
+    ekf = _prior(parameters.prior)
     return Prior(
         attitude=ekf.attitude * geometry.eci_to_orbit[0],
         covariance=np.diag([ekf.covariance[0, 0]] * 3 + [bias_sigma**2] * 3),
@@ -397,7 +522,7 @@ def _gyro_prior(setting: Setting, geometry: DoaGroundGeometry, bias_sigma: float
 
 
 def _gyro_rows(
-    setting: Setting,
+    parameters: DoaGroundParameters,
     seed: np.random.SeedSequence,
     geometry: DoaGroundGeometry,
     doa_pass: Pass,
@@ -406,10 +531,10 @@ def _gyro_rows(
     start: DynamicsPass,
 ) -> list[pd.DataFrame]:
     """Rows of the gyro-aided filters and smoothers (module docstring, 6)."""
-    filters = resolve(setting["filters"], filter_labels(), "filters")
+    filters = resolve(parameters.filters, filter_labels(), "filters")
     if not filters:
         return []
-    model = replace(GYRO, rate_hz=1.0 / setting["step_s"])
+    model = epoch_gyro(parameters)
     truth = GyroTruth(
         t=geometry.t,
         attitude=geometry.truth * geometry.eci_to_orbit,
@@ -418,7 +543,7 @@ def _gyro_rows(
     )
     inputs = replace(
         simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM)),
-        prior=_gyro_prior(setting, geometry, model.initial_bias_sigma),
+        prior=_gyro_prior(parameters, geometry, model.initial_bias_sigma),
     )
     simulated = inputs.gyro_pass(truth, doa_pass.snapshots)
     smoothed = start.run.track
@@ -440,6 +565,7 @@ def _gyro_rows(
     for label, run in runs.items():
         track = in_orbit_frame(run.track, simulated.frames)
         errors = error_columns(track, geometry.truth)
+        attitudes = _attitudes(track, geometry.truth)
         status = status_columns(track)
         frames.append(
             pd.DataFrame(
@@ -447,6 +573,7 @@ def _gyro_rows(
                     "method": label,
                     **common,
                     **{name: column[rows] for name, column in errors.items()},
+                    **{name: column[rows] for name, column in attitudes.items()},
                     **bound,
                     **{name: column[rows] for name, column in status.items()},
                     "runtime_s": run.seconds,
@@ -486,16 +613,14 @@ def _unit(vectors: np.ndarray) -> np.ndarray:
     return vectors / np.linalg.norm(vectors, axis=-1, keepdims=True)
 
 
-def _prior(setting: Setting) -> Prior:
-    """Yang et al. 2014 sec. 6's initial estimate with the experiment's prior sigmas (covariance of
-    ``[attitude, rate]``)."""
-    sigma = np.radians(
-        [setting["initial_sigma_deg"]] * 3 + [setting["initial_rate_sigma_deg_s"]] * 3
-    )
+def _prior(prior: FilterPrior) -> Prior:
+    """The filters' initial estimate (Yang et al. 2014 sec. 6 by default) with its sigmas
+    (covariance of ``[attitude, rate]``)."""
+    sigma = np.radians([prior.sigma_deg] * 3 + [prior.rate_sigma_deg_s] * 3)
     return Prior(
-        attitude=attitude_from_euler321(*np.radians(FILTER_INITIAL_EULER_DEG)),
+        attitude=attitude_from_euler321(*np.radians(prior.euler_deg)),
         covariance=np.diag(sigma**2),
-        rate=np.radians(FILTER_INITIAL_RATE_DEG_S),
+        rate=np.radians(prior.rate_deg_s),
     )
 
 
@@ -522,6 +647,7 @@ def _wahba_rows(
     rows: np.ndarray,
     common: Mapping[str, Any],
     setting: Setting,
+    parameters: DoaGroundParameters,
 ) -> pd.DataFrame:
     """Single-epoch solutions of Wahba solver ``name`` (its vectorised path) at the row
     epochs, with the single-epoch CRB."""
@@ -530,26 +656,30 @@ def _wahba_rows(
     track = estimator(name).solve_batch(
         np.where(present[..., None], body, reference), reference, sigma**-2.0, present
     )
-    bound = np.array([_single_epoch_bound(geometry, k, setting) for k in rows])
+    array = parameters.array.array()
+    bound = np.array([_single_epoch_bound(geometry, k, setting, array) for k in rows])
     return pd.DataFrame(
         {
             "method": label,
             **common,
             **error_columns(track, geometry.truth[rows]),
+            **_attitudes(track, geometry.truth[rows]),
             **{f"bound_{a}_deg": bound[:, i] for i, a in enumerate("xyz")},
             **status_columns(track),
         }
     )
 
 
-def _single_epoch_bound(geometry: DoaGroundGeometry, k: int, setting: Setting) -> np.ndarray:
+def _single_epoch_bound(
+    geometry: DoaGroundGeometry, k: int, setting: Setting, array: UniformCircularArray
+) -> np.ndarray:
     """Standard deviations (deg) of the CRB of ``C_bo`` from epoch ``k``'s stations alone."""
     visible = geometry.visible[k]
     if visible.sum() < 2:
         return np.full(3, np.nan)
     doa = geometry.doa[k, visible]
     crb = stochastic_crb(
-        doa[:, 0], doa[:, 1], 10.0 ** (setting["snr_db"] / 10.0), setting["snapshots"]
+        doa[:, 0], doa[:, 1], 10.0 ** (setting["snr_db"] / 10.0), setting["snapshots"], array
     )
     measurement = DoaMeasurement(doa, crb, geometry.line_of_sight_km[k, visible])
     _, jacobian = measurement.predict(geometry.truth[k])
@@ -563,16 +693,23 @@ def _doa_row(
     stations: np.ndarray,
     doas: DoaEstimates,
     setting: Setting,
+    array: DoaArray,
 ) -> dict[str, Any]:
-    """Counts and mean squared DOA errors (deg^2) of the trial, and of the CRB at the truth."""
+    """Counts and mean squared DOA errors (deg^2) of the trial, and of the CRB at the truth,
+    over all stations and per station (``..._station<k>``, ``k`` the 1-based index in
+    ``stations``)."""
     truth = geometry.doa[epochs, stations]
     crb = stochastic_crb(
-        truth[:, 0], truth[:, 1], 10.0 ** (setting["snr_db"] / 10.0), setting["snapshots"]
+        truth[:, 0],
+        truth[:, 1],
+        10.0 ** (setting["snr_db"] / 10.0),
+        setting["snapshots"],
+        array.array(),
     )
     valid = doas.valid
     theta_error = np.degrees(doas.theta[valid] - truth[valid, 0])
     phi_error = np.degrees((doas.phi[valid] - truth[valid, 1] + np.pi) % (2.0 * np.pi) - np.pi)
-    return {
+    row = {
         "method": "music",
         "phase": "all",
         "valid": False,
@@ -588,6 +725,24 @@ def _doa_row(
         "doa_crb_theta_deg2": float(np.mean(crb[:, 0, 0]) * RAD2_TO_DEG2),
         "doa_crb_phi_deg2": float(np.mean(crb[:, 1, 1]) * RAD2_TO_DEG2),
     }
+    accepted = stations[valid]
+    for k in range(geometry.visible.shape[1]):
+        here, good = stations == k, accepted == k
+        label = f"station{k + 1}"
+        row |= {
+            f"doa_count_{label}": int(here.sum()),
+            f"doa_accepted_{label}": int(good.sum()),
+            f"doa_theta_mse_{label}_deg2": _mean(theta_error[good] ** 2),
+            f"doa_phi_mse_{label}_deg2": _mean(phi_error[good] ** 2),
+            f"doa_crb_theta_{label}_deg2": _mean(crb[here, 0, 0]) * RAD2_TO_DEG2,
+            f"doa_crb_phi_{label}_deg2": _mean(crb[here, 1, 1]) * RAD2_TO_DEG2,
+        }
+    return row
+
+
+def _mean(values: np.ndarray) -> float:
+    """The mean, NaN for no values."""
+    return float(np.mean(values)) if values.size else np.nan
 
 
 EXPERIMENT = Experiment(

@@ -1,12 +1,13 @@
 """Report of ``doa-ground``: Yang et al. 2014 Tables 1 and 2 beside ours, a summary line
 per setting, the smoothers against the EKF on the same trials, consistency by phase,
-integrity, runtimes and the convergence (Figs. 6-7).
+integrity, the configured stations, runtimes and the convergence (Figs. 6-7).
 
 Pooling:
 
 * DOA RMSEs pool every accepted MUSIC estimate of every trial (the ``music``
   row of a trial holds its counts and mean squared errors, weighted by the
-  accepted count; the CRB by the count of estimates).
+  accepted count; the CRB by the count of estimates), over all stations or per
+  configured station (its ``..._station<k>`` columns).
 * Attitude RMSEs follow Yang et al. 2014 eq. 34: one root mean square over
   all ``settled`` valid rows of all trials of a setting.  Yaw, roll and pitch
   are the 3-2-1 Euler-angle differences; the total is ``sqrt(mean(err_x^2 +
@@ -68,24 +69,29 @@ TABLE1_SNAPSHOTS = 100
 TABLE2_SNR_DB = 0.0
 
 
-def doa_table(rows: pd.DataFrame) -> pd.DataFrame:
-    """Per ``(snr_db, snapshots)``: pooled DOA RMSE, RMS CRB at the truth and acceptance."""
+def doa_table(rows: pd.DataFrame, station: int | None = None) -> pd.DataFrame:
+    """Per ``(snr_db, snapshots)``: pooled DOA RMSE, RMS CRB at the truth and acceptance, of
+    all stations or of ``station`` (1-based index of the configured stations: the music
+    rows' ``..._station<k>`` columns)."""
+    tag = "" if station is None else f"_station{station}"
     music = rows[rows["method"] == "music"].copy()
-    weight = music["doa_accepted"]
-    music["theta_sq"] = music["doa_theta_mse_deg2"].fillna(0.0) * weight
-    music["phi_sq"] = music["doa_phi_mse_deg2"].fillna(0.0) * weight
-    music["crb_theta_sq"] = music["doa_crb_theta_deg2"] * music["doa_count"]
-    music["crb_phi_sq"] = music["doa_crb_phi_deg2"] * music["doa_count"]
+    weight = music[f"doa_accepted{tag}"]
+    count = music[f"doa_count{tag}"]
+    music["theta_sq"] = music[f"doa_theta_mse{tag}_deg2"].fillna(0.0) * weight
+    music["phi_sq"] = music[f"doa_phi_mse{tag}_deg2"].fillna(0.0) * weight
+    music["crb_theta_sq"] = music[f"doa_crb_theta{tag}_deg2"].fillna(0.0) * count
+    music["crb_phi_sq"] = music[f"doa_crb_phi{tag}_deg2"].fillna(0.0) * count
+    music["accepted_n"], music["count_n"] = weight, count
     sums = music.groupby(SETTING)[
-        ["theta_sq", "phi_sq", "crb_theta_sq", "crb_phi_sq", "doa_accepted", "doa_count"]
+        ["theta_sq", "phi_sq", "crb_theta_sq", "crb_phi_sq", "accepted_n", "count_n"]
     ].sum()
     return pd.DataFrame(
         {
-            "theta_rmse_deg": np.sqrt(sums["theta_sq"] / sums["doa_accepted"]),
-            "phi_rmse_deg": np.sqrt(sums["phi_sq"] / sums["doa_accepted"]),
-            "crb_theta_deg": np.sqrt(sums["crb_theta_sq"] / sums["doa_count"]),
-            "crb_phi_deg": np.sqrt(sums["crb_phi_sq"] / sums["doa_count"]),
-            "accepted": sums["doa_accepted"] / sums["doa_count"],
+            "theta_rmse_deg": np.sqrt(sums["theta_sq"] / sums["accepted_n"]),
+            "phi_rmse_deg": np.sqrt(sums["phi_sq"] / sums["accepted_n"]),
+            "crb_theta_deg": np.sqrt(sums["crb_theta_sq"] / sums["count_n"]),
+            "crb_phi_deg": np.sqrt(sums["crb_phi_sq"] / sums["count_n"]),
+            "accepted": sums["accepted_n"] / sums["count_n"],
         }
     )
 
@@ -148,7 +154,7 @@ def convergence_times(
     rate error within ``rate_deg_s`` (NaN if not at the end of the pass)."""
     attitude = curve[[f"euler_{n}_err_deg" for n in EULER]].abs().max(axis=1) > attitude_deg
     rate = curve[[f"rate_err_{a}_deg_s" for a in AXES]].abs().max(axis=1) > rate_deg_s
-    return _settling_time(curve["t"], attitude), _settling_time(curve["t"], rate)
+    return _settling_time(curve["t_s"], attitude), _settling_time(curve["t_s"], rate)
 
 
 def _settling_time(t: pd.Series, outside: pd.Series) -> float:
@@ -158,20 +164,52 @@ def _settling_time(t: pd.Series, outside: pd.Series) -> float:
     return float(t.iloc[last[-1] + 1]) if last.size else float(t.iloc[0])
 
 
-def convergence_trial(
-    rows: pd.DataFrame, methods: Sequence[str], snr_db: float, snapshots: int
-) -> tuple[dict[str, pd.DataFrame], float, int]:
-    """Rows (sorted by ``t``) per method of the first trial of the setting nearest
-    ``snr_db`` and ``snapshots``, with that setting's SNR and ``L``."""
-    attitude = rows[rows["method"].isin(methods)]
-    settings = attitude[SETTING].drop_duplicates()
+def nearest_setting(settings: pd.DataFrame, snr_db: float, snapshots: int) -> tuple[float, int]:
+    """The ``(snr_db, snapshots)`` among ``settings`` nearest the given ones (SNR in dB plus
+    decades of ``L``)."""
+    settings = settings[SETTING].drop_duplicates()
     distance = (settings["snr_db"] - snr_db).abs() + np.abs(
         np.log10(settings["snapshots"] / snapshots)
     )
     snr, count = settings.iloc[int(np.argmin(distance.to_numpy()))]
+    return float(snr), int(count)
+
+
+def convergence_trial(
+    rows: pd.DataFrame, methods: Sequence[str], snr_db: float, snapshots: int
+) -> tuple[dict[str, pd.DataFrame], float, int]:
+    """Rows (sorted by ``t_s``) per method of the first trial of the setting nearest
+    ``snr_db`` and ``snapshots``, with that setting's SNR and ``L``."""
+    attitude = rows[rows["method"].isin(methods)]
+    snr, count = nearest_setting(attitude, snr_db, snapshots)
     chosen = attitude[(attitude["snr_db"] == snr) & (attitude["snapshots"] == count)]
-    first = chosen[chosen["trial_index"] == chosen["trial_index"].min()].sort_values("t")
-    return dict(tuple(first.groupby("method"))), float(snr), int(count)
+    first = chosen[chosen["trial_index"] == chosen["trial_index"].min()].sort_values("t_s")
+    return dict(tuple(first.groupby("method"))), snr, count
+
+
+def station_table(
+    rows: pd.DataFrame, parameters: Mapping[str, Any], snr_db: float, snapshots: int
+) -> pd.DataFrame:
+    """Per configured station at the setting nearest ``snr_db``, ``snapshots``: its
+    position, visible time per pass, DOAs accepted, and DOA RMSE and RMS CRB (deg)."""
+    music = rows[rows["method"] == "music"]
+    snr, count = nearest_setting(music, snr_db, snapshots)
+    chosen = music[(music["snr_db"] == snr) & (music["snapshots"] == count)]
+    lines = []
+    for k, station in enumerate(parameters["stations"], start=1):
+        doa = doa_table(chosen, k).iloc[0]
+        lines.append(
+            {
+                "station": station["name"],
+                "latitude (deg)": station["latitude_deg"],
+                "longitude (deg)": station["longitude_deg"],
+                "height (m)": station["height_m"],
+                "visible per pass (s)": chosen[f"doa_count_station{k}"].mean()
+                * parameters["step_s"],
+                **doa.to_dict(),
+            }
+        )
+    return pd.DataFrame(lines)
 
 
 def _entry(table: pd.DataFrame, key: tuple[Any, ...]) -> pd.Series:
@@ -377,6 +415,39 @@ def consistency_section(rows: pd.DataFrame, methods: Sequence[str], command: str
     return section("Consistency", caption, markdown_table(pd.DataFrame(lines), formats, spec=".3f"))
 
 
+def station_section(ctx: ReportContext) -> str:
+    """One line per configured station at the setting nearest the paper's first simulation
+    (nothing without stations in the parameters or DOA rows)."""
+    stated = paper_values(PACKAGE)["convergence"]
+    music = ctx.rows[ctx.rows["method"] == "music"]
+    if music.empty or not ctx.parameters.get("stations"):
+        return ""
+    snr, count = nearest_setting(music, stated["snr_db"], stated["snapshots"])
+    table = station_table(ctx.rows, ctx.parameters, snr, count)
+    lines = table.assign(
+        **{
+            "theta RMSE / CRB": [
+                f"{cell(a, '.3f')} / {cell(b, '.3f')}"
+                for a, b in zip(table["theta_rmse_deg"], table["crb_theta_deg"], strict=True)
+            ],
+            "phi RMSE / CRB": [
+                f"{cell(a, '.3f')} / {cell(b, '.3f')}"
+                for a, b in zip(table["phi_rmse_deg"], table["crb_phi_deg"], strict=True)
+            ],
+        }
+    ).drop(columns=["theta_rmse_deg", "phi_rmse_deg", "crb_theta_deg", "crb_phi_deg"])
+    caption = (
+        f"The configured stations at SNR {snr:g} dB, L = {count}: geodetic position, time "
+        "above the minimum elevation per pass, the share of MUSIC estimates accepted, and "
+        "the DOA RMSE over the accepted estimates of all trials beside the RMS Cramer-Rao "
+        "bound at the true DOAs (deg; - where the station is never visible)." + made_by(ctx.command)
+    )
+    formats = {"visible per pass (s)": ".0f", "height (m)": ".0f"}
+    return section(
+        "Stations", caption, markdown_table(lines, SETTING_FORMATS | formats, spec=".3f")
+    )
+
+
 def runtime_section(rows: pd.DataFrame, methods: Sequence[str], command: str) -> str:
     """Mean pass time per method."""
     table = runtime_table(rows, methods).reset_index()
@@ -414,7 +485,7 @@ def convergence_section(ctx: ReportContext, methods: Sequence[str], qs: Sequence
     drawn = [ekf_method(qs[0]), ekf_method(min(qs)), BATCH_LS]
     frames = {m: curves[m] for m in dict.fromkeys(drawn) if m in curves}
     figure = error_figure(
-        frames, f"Body-axis error, first trial at SNR {snr:g} dB, L = {snapshots}"
+        frames, f"Body-axis error, first trial at SNR {snr:g} dB, L = {snapshots}", time="t_s"
     )
     for axis in figure.axes:
         axis.set_yscale("symlog", linthresh=0.1)
@@ -466,6 +537,7 @@ def report(ctx: ReportContext) -> str:
             smoother_section(ctx.rows, methods, qs, ctx.command),
             consistency_section(ctx.rows, methods, ctx.command),
             integrity_section(attitude_rows, KEYS, ctx.command),
+            station_section(ctx),
             runtime_section(ctx.rows, methods, ctx.command),
             convergence_section(ctx, methods, qs),
         ]
