@@ -127,11 +127,14 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
     shared by every point.  The map is built for
     :func:`~attopt.formulations.attitude_model.bucket` ``(N)`` points (the last
     repeated) and evaluated on numpy buffers (no CasADi matrices): each
-    point's nonzeros, column-major, follow the previous point's.
+    point's nonzeros, column-major, follow the previous point's.  No points (an input
+    with none and none shared) give empty outputs.
     """
     arrays = [np.asarray(x, dtype=float) for x in inputs]
     shapes = [function.size_in(i) for i in range(len(arrays))]
     n = max(a.size // (r * c) for a, (r, c) in zip(arrays, shapes, strict=True))
+    if n == 0 or min(a.size for a in arrays) == 0:
+        return [np.zeros((0, *function.size_out(i))) for i in range(function.n_out())]
     size = bucket(n)
     pad = np.minimum(np.arange(size), n - 1)
     buffer, evaluate = _mapped(function, size).buffer()

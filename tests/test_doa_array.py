@@ -5,6 +5,7 @@ bound."""
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -16,6 +17,7 @@ from attopt.formulations.doa_array import (
     doa_from_unit_vector,
     doa_jacobian,
     doa_unit_vector,
+    evaluate_mapped,
     simulate_sample_covariance,
     simulate_snapshots,
     steering_vector,
@@ -204,3 +206,14 @@ def test_crb_is_infinite_for_unobservable_angles() -> None:
     assert np.isinf(axis[1, 1]) and np.isfinite(axis[0, 0])
     assert stochastic_crb(np.pi / 2, 1.0, 1.0, 100)[0, 0] > 1e20
     np.testing.assert_array_equal(stochastic_crb(0.5, 1.0, np.inf, 100), np.zeros((2, 2)))
+
+
+def test_mapped_functions_of_no_points_are_empty() -> None:
+    """A pass that sees no station: a mapped CasADi function of no points gives empty
+    outputs of the function's shapes (MUSIC's refinement of no sets relies on it)."""
+    x = ca.SX.sym("x", 2)
+    function = ca.Function("f", [x, ca.SX.sym("w")], [x @ x.T, ca.sum1(x)])
+    outer, total = evaluate_mapped(function, np.empty((0, 2)), 1.0)
+    assert outer.shape == (0, 2, 2) and total.shape == (0, 1, 1)
+    (value, _) = evaluate_mapped(function, np.array([[1.0, 2.0]]), 1.0)
+    np.testing.assert_array_equal(value[0], [[1.0, 2.0], [2.0, 4.0]])

@@ -311,3 +311,10 @@ def test_rmse_and_acceptance_agree_between_the_covariance_and_snapshot_draws() -
         ]
         error = np.sqrt(sum(e.var() / e.size for e in squared))
         assert abs(squared[0].mean() - squared[1].mean()) < 4.0 * error
+
+
+def test_no_sets_give_no_estimates() -> None:
+    """Zero covariances (no station visible) give empty estimates of every field."""
+    result = MUSIC.estimate_covariance(np.empty((0, M, M), dtype=complex), 100, snr_db=0.0)
+    assert result.theta.shape == result.valid.shape == (0,) and result.covariance.shape == (0, 2, 2)
+    assert all(value.shape == (0,) for value in result.diagnostics.values())
