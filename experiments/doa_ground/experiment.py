@@ -720,10 +720,10 @@ def _doa_row(
             f"doa_rejected_{name}": int(np.char.startswith(doas.reason.astype(str), prefix).sum())
             for name, prefix in REJECTIONS.items()
         },
-        "doa_theta_mse_deg2": float(np.mean(theta_error**2)) if valid.any() else np.nan,
-        "doa_phi_mse_deg2": float(np.mean(phi_error**2)) if valid.any() else np.nan,
-        "doa_crb_theta_deg2": float(np.mean(crb[:, 0, 0]) * RAD2_TO_DEG2),
-        "doa_crb_phi_deg2": float(np.mean(crb[:, 1, 1]) * RAD2_TO_DEG2),
+        "doa_theta_mse_deg2": _mean(theta_error**2),
+        "doa_phi_mse_deg2": _mean(phi_error**2),
+        "doa_crb_theta_deg2": _mean(crb[:, 0, 0]) * RAD2_TO_DEG2,
+        "doa_crb_phi_deg2": _mean(crb[:, 1, 1]) * RAD2_TO_DEG2,
     }
     accepted = stations[valid]
     for k in range(geometry.visible.shape[1]):

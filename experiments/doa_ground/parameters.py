@@ -22,7 +22,7 @@ import math
 from typing import Any
 
 import numpy as np
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from attopt.experiments.config import Parameters
 from attopt.experiments.config.components import Orbit, Station, TleOrbit, UtcTime
@@ -148,6 +148,14 @@ class DoaScenario(Parameters):
     attitude: RigidBodyTruth = Field(
         default_factory=RigidBodyTruth, description="True rigid body and initial state."
     )
+
+    @field_validator("step_s")
+    @classmethod
+    def _two_epochs(cls, value: float, info: ValidationInfo) -> float:
+        duration = info.data.get("duration_s")
+        if duration is not None and value >= duration:
+            raise ValueError(f"step_s must be below duration_s = {duration:g}")
+        return value
 
     @field_validator("stations")
     @classmethod
