@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import json
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -435,3 +436,13 @@ def test_every_bad_value_is_reported_with_its_key_path() -> None:
     ):
         assert path in text
     assert "rate_hz must be 1 / step_s = 4" in text
+
+
+def test_the_documented_configuration_is_valid() -> None:
+    """``docs/doa.md``'s three-station, 8-element example loads as written."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "doa.md").read_text()
+    block = text.split("### Your own set-up")[1].split("```toml\n")[1].split("```")[0]
+    chosen = DoaGroundParameters.model_validate(tomllib.loads(block))
+    assert [s.name for s in chosen.stations] == ["Kiruna", "Svalbard", "Troll"]
+    assert chosen.array.array().n_elements == 8
+    assert chosen.array.wavelength_m == SPEED_OF_LIGHT_M_S / 1.5e9
