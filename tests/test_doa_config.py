@@ -385,6 +385,7 @@ BAD_VALUES = [
     "[attitude]\ninertia_kg_m2 = [[1.0, 0.5, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]\n",
     "[attitude]\ninertia_kg_m2 = [[1.0, 0.0], [0.0, 1.0]]\n",
     "[attitude]\nwheel_momentum_nms = [0.0, 1.0]\n",
+    "[attitude]\ninitial_euler_deg = [nan, 0.0, 0.0]\n",
     "[prior]\nsigma_deg = 0.0\n",
     "[prior]\neuler_deg = ['50', 50, 50]\n",
     "gyro = 'navgrade'\n",

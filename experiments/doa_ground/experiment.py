@@ -411,8 +411,8 @@ def _model_bound(
     snr_db: float,
     snapshots: int,
     process_noise: float,
-    initial_sigma_deg: float,
-    initial_rate_sigma_deg_s: float,
+    prior_sigma_deg: float,
+    prior_rate_sigma_deg_s: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Attitude standard deviations (deg, ``(N, 3)``) of the posterior Cramer-Rao bound of
     the EKF's model (filter, smoother), :func:`attopt.solvers.bounds.posterior_bound_ekf` with
@@ -427,7 +427,7 @@ def _model_bound(
     )
     sigma = np.ones(geometry.visible.shape)
     sigma[geometry.visible] = _isotropic_sigma(truth_doa[:, 0], truth_doa[:, 1], crb)
-    covariance = np.diag(np.radians([initial_sigma_deg] * 3 + [initial_rate_sigma_deg_s] * 3) ** 2)
+    covariance = np.diag(np.radians([prior_sigma_deg] * 3 + [prior_rate_sigma_deg_s] * 3) ** 2)
     reference = _unit(geometry.line_of_sight_km)
     body = np.einsum("nij,nsj->nsi", geometry.truth.as_matrix(), reference)
     body[~geometry.visible] = np.nan

@@ -19,7 +19,7 @@ paper leaves open (the stations, the true initial state, the wheel) is explained
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
@@ -67,6 +67,10 @@ STATIONS = tuple(
 track, one every 600 s from 300 s on (the scenario's docstring)."""
 
 
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+"""A finite number (TOML has nan and inf)."""
+
+
 def _vector(default: list[float], description: str) -> Any:
     return Field(
         default_factory=lambda: list(default),
@@ -90,13 +94,13 @@ class RigidBodyTruth(Parameters):
         default_factory=lambda: INERTIA_SEED003.tolist(),
         description="Inertia matrix, body axes (Yang et al. 2014 eq. 25).",
     )
-    wheel_momentum_nms: list[float] = _vector(
+    wheel_momentum_nms: list[Finite] = _vector(
         [0.0, -0.1, 0.0], "Constant wheel angular momentum, body axes (a pitch momentum bias)."
     )
-    initial_euler_deg: list[float] = _vector(
+    initial_euler_deg: list[Finite] = _vector(
         [3.0, -2.0, 2.0], "True initial 3-2-1 (yaw, pitch, roll) of the body from the orbit frame."
     )
-    initial_rate_offset_deg_s: list[float] = _vector(
+    initial_rate_offset_deg_s: list[Finite] = _vector(
         [0.005, 0.0, -0.004], "True initial body rate minus the orbit frame's, body axes."
     )
 
@@ -233,10 +237,10 @@ class FilterPrior(Parameters):
     Yang et al. 2014's EKF, its RTS pass and the gyro-aided rows start from it (the
     gyro-aided rows with the gyro's turn-on bias sigma instead of a rate)."""
 
-    euler_deg: list[float] = _vector(
+    euler_deg: list[Finite] = _vector(
         [50.0, 50.0, 50.0], "Initial 3-2-1 (yaw, pitch, roll) estimate of the body from the orbit."
     )
-    rate_deg_s: list[float] = _vector(
+    rate_deg_s: list[Finite] = _vector(
         [0.5, 0.5, 0.5], "Initial estimate of the inertial body rate, body axes."
     )
     sigma_deg: float = Field(60.0, gt=0.0, description="Per-axis attitude sigma of the prior.")
