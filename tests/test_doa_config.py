@@ -308,8 +308,10 @@ def test_the_prior_table_is_the_filters_start() -> None:
     assert error(default) > 20.0 and error(truth) < 5.0
     rate = [0.1, -0.2, 0.3]
     moved = method(trial(prior={"rate_deg_s": rate}), EKF)
-    shift = moved.loc[0, [f"rate_err_{a}_deg_s" for a in "xyz"]].to_numpy(float)
-    shift -= default.loc[0, [f"rate_err_{a}_deg_s" for a in "xyz"]].to_numpy(float)
+    first_rate_error = [f"rate_err_{a}_deg_s" for a in "xyz"]
+    shift = moved.loc[0, first_rate_error].to_numpy(float) - default.loc[
+        0, first_rate_error
+    ].to_numpy(float)
     np.testing.assert_allclose(shift, np.subtract(rate, 0.5), atol=1e-9)
     tight = method(trial(prior={"sigma_deg": 5.0, "rate_sigma_deg_s": 0.05}), EKF)
     sigma = [f"sigma_{a}_deg" for a in "xyz"]
