@@ -86,7 +86,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.config import Parameters
@@ -207,23 +207,32 @@ class GeoSnrStationsParameters(GeoWorld):
     )
     restart: Restart = Field(default_factory=Restart, description="Restart after a detection.")
 
-    @model_validator(mode="after")
-    def _names(self) -> GeoSnrStationsParameters:
-        unknown = sorted(set(self.filter_stations) - set(self.station_names))
-        if unknown:
-            raise ValueError(
-                f"filter_stations {unknown} are not stations; stations: {self.station_names}"
-            )
-        for what, names in (
-            ("filter_stations", self.filter_stations),
-            ("method names", [*self.methods, *self.filters]),
-        ):
-            repeated = sorted({name for name in names if names.count(name) > 1})
-            if repeated:
-                raise ValueError(f"{what} must be unique across methods and filters: {repeated}")
-        if not self.methods and not self.filters:
+    @field_validator("filters")
+    @classmethod
+    def _labels(cls, value: list[str], info: ValidationInfo) -> list[str]:
+        methods = info.data.get("methods")
+        if methods is None:
+            return value
+        labels = [*methods, *value]
+        repeated = sorted({label for label in labels if labels.count(label) > 1})
+        if repeated:
+            raise ValueError(f"row labels must be unique across methods and filters: {repeated}")
+        if not labels:
             raise ValueError("need at least one of methods and filters")
-        return self
+        return value
+
+    @field_validator("filter_stations")
+    @classmethod
+    def _stations(cls, value: list[str], info: ValidationInfo) -> list[str]:
+        repeated = sorted({name for name in value if value.count(name) > 1})
+        if repeated:
+            raise ValueError(f"filter stations must be unique: {repeated}")
+        stations = info.data.get("stations")
+        names = [station.name for station in stations or ()]
+        unknown = [name for name in value if name not in names]
+        if stations is not None and unknown:
+            raise ValueError(f"{unknown} are not stations; stations: {names}")
+        return value
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator
 
 from attopt.experiments.config import Parameters
 from attopt.experiments.config.components import Station, TleOrbit, UtcTime
@@ -133,14 +133,14 @@ class ShusterQuaternion(Parameters):
     conjugate of scipy's), Pimienta-Penalver and Crassidis eq. 27 by default."""
 
     type: Literal["quaternion"] = Field("quaternion", description="Given quaternion.")
-    quaternion: list[float] = Field(
+    components: list[float] = Field(
         default_factory=lambda: list(EQ27_QUATERNION),
         min_length=4,
         max_length=4,
-        description="Shuster quaternion, scalar last (normalised).",
+        description="The Shuster quaternion's x, y, z, w (scalar last; normalised).",
     )
 
-    @field_validator("quaternion")
+    @field_validator("components")
     @classmethod
     def _nonzero(cls, value: list[float]) -> list[float]:
         if not all(math.isfinite(v) for v in value) or math.hypot(*value) == 0.0:
@@ -197,18 +197,22 @@ class GeoWorld(Parameters):
     )
     attitude: AttitudeProfile = Field(default_factory=AttitudeProfile, description="True attitude.")
 
-    @model_validator(mode="after")
-    def _consistent(self) -> GeoWorld:
-        if self.duration_s < 2 * self.step_s:
-            raise ValueError(
-                f"duration_s = {self.duration_s} must hold two epochs of step_s = {self.step_s}"
-            )
-        names = [station.name for station in self.stations]
+    @field_validator("step_s")
+    @classmethod
+    def _two_epochs(cls, value: float, info: ValidationInfo) -> float:
+        duration = info.data.get("duration_s")
+        if duration is not None and duration < 2 * value:
+            raise ValueError(f"duration_s = {duration} must hold two epochs of step_s")
+        return value
+
+    @field_validator("stations")
+    @classmethod
+    def _unique(cls, value: list[Station]) -> list[Station]:
+        names = [station.name for station in value]
         repeated = sorted({name for name in names if names.count(name) > 1})
         if repeated:
             raise ValueError(f"station names must be unique: {repeated}")
-        self.link()
-        return self
+        return value
 
     @property
     def station_names(self) -> list[str]:

@@ -152,7 +152,7 @@ def initial_attitude(profile: AttitudeProfile, satellite_eci_km: ArrayLike) -> R
     ``satellite_eci_km`` at the start (module docstring)."""
     initial = profile.initial
     if isinstance(initial, ShusterQuaternion):
-        return attitude_from_shuster_quaternion(initial.quaternion)
+        return attitude_from_shuster_quaternion(initial.components)
     nadir = -np.asarray(satellite_eci_km, dtype=float)
     yaw = Rotation.from_rotvec(np.radians(initial.yaw_deg) * BORESIGHT_BODY)
     return yaw * attitude_pointing(nadir)
