@@ -35,6 +35,8 @@ and ``P_n = 10 lg(k T_r R_s)``: :func:`geo_snr_db` is that same symbolic
 definition (numpy and CasADi), so attitude Jacobians come from CasADi AD
 (:func:`attopt.formulations.snr_model.predict_snr`) and SNRs of an epoch are an
 :class:`~attopt.formulations.snr_measurement.SnrMeasurement` (:func:`geo_snr_epoch`).
+:func:`geo_snr_db` raises for a station beyond the main lobe; :func:`main_lobe_snr_db`
+gives NaN there (a simulation's stations anywhere on the Earth).
 
 Frames: the attitude maps the frame of the positions (ECI for filters, ECEF
 for the LOS search) to the body frame; positions are in km.
