@@ -326,8 +326,8 @@ def check_detection() -> None:
 
 
 def check_restart() -> None:
-    """After a (false-alarm) restart the filter starts from [restart]'s sigmas, at most
-    max_restarts times."""
+    """After a (false-alarm) restart the filter starts from [restart]'s sigmas (the first
+    prior from its boresight sigma too), at most max_restarts times."""
     base = method(case("false_alarm"), "usque_detect")
     restarts = np.flatnonzero(base["detected"])
     assert restarts.size >= 2
@@ -338,6 +338,7 @@ def check_restart() -> None:
     assert wide["sigma_z_deg"][k] == pytest.approx(40.0, rel=0.02)
     tight = method(case("restart_boresight"), "usque_detect")
     assert tight["sigma_x_deg"][k] < 1e-5 < base["sigma_x_deg"][k]
+    assert tight["sigma_x_deg"][0] < 1e-5 < base["sigma_x_deg"][0]  # the first prior's too
     rate = method(case("restart_rate"), "usque_detect")
     assert rate["sigma_z_deg"].iloc[-1] > 1.001 * base["sigma_z_deg"].iloc[-1]
 

@@ -44,7 +44,8 @@ Prior.  The paper starts its filter with 5 deg per axis (``initial_sigma_deg``).
 attitude error is drawn with that sigma from the trial's child stream
 (:func:`attopt.experiments.simulation.child_rng`) and its boresight is replaced by
 ``cone``'s at the first epoch (:func:`attopt.solvers.geo.manoeuvre.boresight_prior`,
-yaw kept, yaw sigma ``initial_sigma_deg``): from the raw draw (up to 9 deg off) the
+yaw kept, yaw sigma ``initial_sigma_deg``, sigma across it ``[restart]``'s
+``boresight_sigma_deg``): from the raw draw (up to 9 deg off) the
 stations fall outside the 9 deg main lobe at the sigma points and USQUE
 never updates (measured: no update in the hour).  Restarts after a detection use
 ``[restart]`` (:func:`detection_options`).
@@ -164,7 +165,9 @@ class Restart(Parameters):
     (:class:`attopt.solvers.geo.manoeuvre.DetectionOptions`)."""
 
     boresight_sigma_deg: float = Field(
-        0.02, gt=0, description="Prior sigma across the boresight (the snapshot boresight's)."
+        0.02,
+        gt=0,
+        description="Prior sigma across the snapshot boresight (also the first prior's).",
     )
     yaw_sigma_deg: float = Field(20.0, gt=0, description="Prior sigma about the boresight.")
     rate_sigma_deg_h: float = Field(
@@ -300,7 +303,11 @@ def _filter_prior(
     """The paper's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
     sigma0 = np.radians(parameters.initial_sigma_deg)
     draw = Rotation.from_rotvec(sigma0 * rng.standard_normal(3)) * scenario.truth[0]
-    start = DetectionOptions(yaw_sigma=sigma0, bias_sigma=rate_model(parameters).initial_bias_sigma)
+    start = DetectionOptions(
+        boresight_sigma=np.radians(parameters.restart.boresight_sigma_deg),
+        yaw_sigma=sigma0,
+        bias_sigma=rate_model(parameters).initial_bias_sigma,
+    )
     return boresight_prior(draw, cone_start, np.zeros(3), start)
 
 
