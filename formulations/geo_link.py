@@ -10,12 +10,12 @@ The SNR at a ground station, in dB (Pimienta-Penalver and Crassidis eq. 7)::
   of a parabolic dish ``10 lg[eta (pi D / lambda)^2]`` (eq. 4; the "phi" printed
   in eq. 4 is pi).  The efficiency is ``eta = 0.55``: eq. 4's approximation
   ``6.9 A / lambda^2`` (``A = pi D^2 / 4``) is ``eta = 6.9 / (4 pi) = 0.549``.
-  Pimienta-Penalver and Crassidis give no ``theta_3dB``; attopt uses the textbook
-  half-power beamwidth of a parabolic dish, ``70 lambda / D`` degrees (1.13 deg for
-  Garuda-1), with Table 1's ``C = 10``, so the -3 dB point lies at 0.55
-  ``theta_3dB`` off the boresight.  The quadratic law is used over the
-  whole Earth disc seen from GEO (8.7 deg), as the paper does: the main-lobe
-  edge is put at :data:`LOBE_EDGE_DEG`.
+  Pimienta-Penalver and Crassidis give no ``theta_3dB``; by default attopt uses the
+  textbook half-power beamwidth of a parabolic dish, ``70 lambda / D`` degrees
+  (1.13 deg for Garuda-1; :attr:`GeoLink.beamwidth_deg` sets another), with Table 1's
+  ``C = 10``, so the -3 dB point lies at 0.55 ``theta_3dB`` off the boresight.  The
+  quadratic law is used over the whole Earth disc seen from GEO (8.7 deg), as the
+  paper does: the main-lobe edge is :attr:`GeoLink.lobe_edge_deg`, 9 deg by default.
 * ``theta_b`` is the angle between the boresight (body ``+z``,
   :data:`BORESIGHT_BODY`) and the line of sight from the satellite to the
   station (Pimienta-Penalver and Crassidis eq. 15), computed by
@@ -35,6 +35,8 @@ and ``P_n = 10 lg(k T_r R_s)``: :func:`geo_snr_db` is that same symbolic
 definition (numpy and CasADi), so attitude Jacobians come from CasADi AD
 (:func:`attopt.formulations.snr_model.predict_snr`) and SNRs of an epoch are an
 :class:`~attopt.formulations.snr_measurement.SnrMeasurement` (:func:`geo_snr_epoch`).
+:func:`geo_snr_db` raises for a station beyond the main lobe; :func:`main_lobe_snr_db`
+gives NaN there (a simulation's stations anywhere on the Earth).
 
 Frames: the attitude maps the frame of the positions (ECI for filters, ECEF
 for the LOS search) to the body frame; positions are in km.
@@ -55,7 +57,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import ParabolicPattern
 from attopt.formulations.link_budget import SPEED_OF_LIGHT_M_PER_S, noise_power_dbw
-from attopt.formulations.snr_model import snr_db
+from attopt.formulations.snr_model import observation_mask, snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.symbolic import NUMPY, ArrayNamespace, namespace_of
 
@@ -66,8 +68,6 @@ BORESIGHT_BODY = np.array([0.0, 0.0, 1.0])
 ``[0 0 1]_B``)."""
 HALF_POWER_BEAMWIDTH_DEG_PER_WAVELENGTH = 70.0
 """``theta_3dB = 70 lambda / D`` degrees, half-power beamwidth of a parabolic dish."""
-LOBE_EDGE_DEG = 9.0
-"""Main-lobe edge of the quadratic law: beyond the Earth's angular radius from GEO (8.7 deg)."""
 
 
 @dataclass(frozen=True)
@@ -92,13 +92,29 @@ class GeoLink:
     receiver_gain_dbi: float = 0.0
     """``G_r`` (not given by Pimienta-Penalver and Crassidis): an omnidirectional station
     antenna."""
+    beamwidth_deg: float | None = None
+    """``theta_3dB`` of eq. 5 in degrees; ``None``: the dish's ``70 lambda / D``."""
+    lobe_edge_deg: float = 9.0
+    """Main-lobe edge of the quadratic law: beyond the Earth's angular radius from GEO
+    (8.7 deg)."""
 
     def __post_init__(self) -> None:
-        values = [getattr(self, name) for name in self.__dataclass_fields__]
-        if not all(math.isfinite(v) for v in values) or min(values[:5]) <= 0:
+        positive = [
+            self.transmit_power_w,
+            self.dish_diameter_m,
+            self.size_factor_db,
+            self.data_rate_bps,
+            self.frequency_hz,
+            self.lobe_edge_deg,
+            *([] if self.beamwidth_deg is None else [self.beamwidth_deg]),
+        ]
+        values = [*positive, self.efficiency, self.receiver_temperature_k, self.receiver_gain_dbi]
+        if not all(math.isfinite(v) for v in values) or min(positive) <= 0:
             raise InvalidObservationError(f"RF parameters must be finite and positive: {self}")
         if not (0 < self.efficiency <= 1 and self.receiver_temperature_k > 0):
             raise InvalidObservationError(f"bad efficiency or receiver temperature: {self}")
+        if self.lobe_edge_deg >= 90.0:
+            raise InvalidObservationError(f"the main-lobe edge must be below 90 deg: {self}")
 
     @property
     def wavelength_m(self) -> float:
@@ -119,8 +135,13 @@ class GeoLink:
 
     @property
     def theta_3db_rad(self) -> float:
-        """Half-power beamwidth ``70 lambda / D`` degrees, in rad (module docstring)."""
-        degrees = HALF_POWER_BEAMWIDTH_DEG_PER_WAVELENGTH * self.wavelength_m / self.dish_diameter_m
+        """Half-power beamwidth (rad): :attr:`beamwidth_deg`, else ``70 lambda / D`` degrees
+        (module docstring)."""
+        degrees = self.beamwidth_deg
+        if degrees is None:
+            degrees = (
+                HALF_POWER_BEAMWIDTH_DEG_PER_WAVELENGTH * self.wavelength_m / self.dish_diameter_m
+            )
         return math.radians(degrees)
 
     @property
@@ -140,8 +161,8 @@ class GeoLink:
 
     @cached_property
     def pattern(self) -> ParabolicPattern:
-        """``G_t(theta_b)`` of eq. 5, valid to :data:`LOBE_EDGE_DEG`."""
-        edge = math.radians(LOBE_EDGE_DEG)
+        """``G_t(theta_b)`` of eq. 5, valid to :attr:`lobe_edge_deg`."""
+        edge = math.radians(self.lobe_edge_deg)
         drop = self.size_factor_db * (edge / self.theta_3db_rad) ** 2
         return ParabolicPattern(
             peak_gain_dbi=self.peak_gain_dbi,
@@ -217,6 +238,39 @@ def geo_snr_db(
     p0 = link.received_isotropic_dbw(distance, height, xp)
     boresight = BORESIGHT_BODY if xp is NUMPY else ca.DM(BORESIGHT_BODY)
     return snr_db(attitude_matrix, relative, boresight, p0, link.noise_dbw, link.pattern)
+
+
+def main_lobe_snr_db(
+    attitude_matrix: ArrayLike,
+    satellite_km: ArrayLike,
+    stations_km: ArrayLike,
+    link: GeoLink = GARUDA1,
+) -> Array:
+    """:func:`geo_snr_db` (numpy) at the stations inside the main lobe, NaN at the others.
+
+    Shapes: ``attitude_matrix`` ``(..., 3, 3)``, ``satellite_km`` ``(..., 3)``,
+    ``stations_km`` ``(..., m, 3)``; result ``(..., m)``.  With every station in the lobe
+    this is :func:`geo_snr_db` on the whole arrays; otherwise each attitude's stations in
+    the lobe are evaluated on their own.
+    """
+    matrix = np.asarray(attitude_matrix, dtype=float)
+    satellite = np.asarray(satellite_km, dtype=float)
+    stations = np.asarray(stations_km, dtype=float)
+    inside = observation_mask(
+        matrix, stations - satellite[..., None, :], BORESIGHT_BODY, link.pattern
+    )
+    if inside.all():
+        return geo_snr_db(matrix, satellite, stations, link)
+    lead = inside.shape[:-1]
+    matrix = np.broadcast_to(matrix, (*lead, 3, 3)).reshape(-1, 3, 3)
+    satellite = np.broadcast_to(satellite, (*lead, 3)).reshape(-1, 3)
+    stations = np.broadcast_to(stations, (*inside.shape, 3)).reshape(-1, inside.shape[-1], 3)
+    flat = inside.reshape(-1, inside.shape[-1])
+    snr = np.full(flat.shape, np.nan)
+    for k in np.flatnonzero(flat.any(axis=1)):
+        use = flat[k]
+        snr[k, use] = geo_snr_db(matrix[k], satellite[k], stations[k, use], link)
+    return snr.reshape(inside.shape)
 
 
 def station_terms(

@@ -16,7 +16,8 @@ from functools import cache
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.geo_snr_stations.scenario import SNR_SIGMA_DB, build_geo_snr_scenario
+from attopt.experiments.geo_snr_stations.parameters import GeoWorld
+from attopt.experiments.geo_snr_stations.scenario import build_geo_snr_scenario
 from attopt.formulations.attitude_measurement import EulerAngleMeasurement
 from attopt.formulations.conventions import euler321_from_attitude
 from attopt.formulations.geo_link import geo_snr_epoch
@@ -130,7 +131,7 @@ ADSB_UNTRUNCATED = _snr_case(threshold_db=-np.inf)
 
 @cache
 def _geo_scenario():
-    return build_geo_snr_scenario(3600.0, 600.0, manoeuvre=False)
+    return build_geo_snr_scenario(GeoWorld(step_s=600.0), manoeuvre=False)
 
 
 def _geo_draw(seed: int, noisy: bool) -> Drawn:
@@ -139,9 +140,9 @@ def _geo_draw(seed: int, noisy: bool) -> Drawn:
     heard = np.flatnonzero(scenario.heard[k])
     snr = scenario.true_snr_db[k, heard]
     if noisy:
-        snr = snr + SNR_SIGMA_DB * np.random.default_rng(seed).standard_normal(snr.shape)
+        snr = snr + scenario.snr_sigma_db * np.random.default_rng(seed).standard_normal(snr.shape)
     epoch = geo_snr_epoch(
-        snr, scenario.satellite_eci_km[k], scenario.stations_eci_km[k, heard], SNR_SIGMA_DB
+        snr, scenario.satellite_eci_km[k], scenario.stations_eci_km[k, heard], scenario.snr_sigma_db
     )
     return Drawn(Snapshot.of(SnrMeasurement(epoch)), scenario.truth[k])
 
@@ -155,7 +156,7 @@ def _geo_broken(seed: int) -> Snapshot:
         scenario.true_snr_db[k, heard],
         scenario.satellite_eci_km[k],
         scenario.stations_eci_km[k, heard],
-        SNR_SIGMA_DB,
+        scenario.snr_sigma_db,
     )
     return Snapshot.of(SnrMeasurement(epoch))
 

@@ -7,11 +7,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from attopt.experiments.geo_snr_stations.scenario import (
-    SNR_SIGMA_DB,
-    build_geo_snr_scenario,
-    stations_ecef_km,
-)
+from attopt.experiments.geo_snr_stations.parameters import TABLE2_STATIONS, GeoWorld
+from attopt.experiments.geo_snr_stations.scenario import build_geo_snr_scenario, stations_ecef_km
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.formulations.geo_geometry import belt_position, line_of_sight_errors
 from attopt.formulations.geo_link import GARUDA1, attitude_pointing, geo_snr_db, geo_snr_epoch
@@ -32,10 +29,12 @@ from attopt.solvers.geo.boresight import (
 )
 from attopt.solvers.geo.los import _belt_snr_function, locate_on_geo_belt
 
+SNR_SIGMA_DB = GeoWorld().receiver.snr_sigma_db
+
 
 @pytest.fixture(scope="module")
 def scenario():
-    return build_geo_snr_scenario(3600.0, 300.0, manoeuvre=True)
+    return build_geo_snr_scenario(GeoWorld(step_s=300.0), manoeuvre=True)
 
 
 def _snapshot(scenario, k, stations, snr=None) -> Snapshot:
@@ -184,7 +183,7 @@ def test_wrong_rf_parameters_bias_the_boresight(scenario):
 
 
 def test_belt_search_recovers_the_longitude_from_noise_free_snrs():
-    stations, up = stations_ecef_km()
+    stations, up = stations_ecef_km(TABLE2_STATIONS)
     satellite = belt_position(np.radians(123.0))
     attitude = attitude_pointing(-satellite)
     snr = geo_snr_db(attitude.as_matrix(), satellite, stations)
@@ -195,7 +194,7 @@ def test_belt_search_recovers_the_longitude_from_noise_free_snrs():
 
 
 def test_belt_jacobian_by_ad_matches_finite_differences():
-    stations, _ = stations_ecef_km()
+    stations, _ = stations_ecef_km(TABLE2_STATIONS)
     attitude = attitude_pointing(-belt_position(np.radians(123.0))).as_matrix()
     function = _belt_snr_function(GARUDA1, stations.shape[0])
     lon, step = np.radians(123.1), 1e-7
@@ -207,7 +206,7 @@ def test_belt_jacobian_by_ad_matches_finite_differences():
 
 
 def test_belt_window_without_visibility_is_unobservable():
-    stations, up = stations_ecef_km()
+    stations, up = stations_ecef_km(TABLE2_STATIONS)
     attitude = attitude_pointing(-belt_position(np.radians(123.0)))
     with pytest.raises(UnobservableError, match="GEO belt"):
         locate_on_geo_belt([30.0], stations[:1], up[:1], attitude, 0.1, window_deg=(-60, -50))

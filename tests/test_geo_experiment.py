@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.spatial.transform import Rotation
 
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.geo_snr_stations.experiment import (
@@ -18,16 +19,20 @@ from attopt.experiments.geo_snr_stations.experiment import (
     trial,
 )
 from attopt.experiments.geo_snr_stations.los_study import los_geometry_study
+from attopt.experiments.geo_snr_stations.parameters import TABLE2_STATIONS, GeoWorld
 from attopt.experiments.geo_snr_stations.report import report
-from attopt.experiments.geo_snr_stations.scenario import MANOEUVRE_START_S, STATIONS
+from attopt.experiments.geo_snr_stations.scenario import build_geo_snr_scenario
+from attopt.experiments.metrics import pointing_error
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import summarise
+from attopt.formulations.geo_link import attitude_pointing
 from attopt.solvers.geo.m2m4 import snr_table
 from tests.report_tables import row, table
 
 PARAMETERS = EXPERIMENT.parameters
 SETTING = {**PARAMETERS, **EXPERIMENT.quick_parameters, "manoeuvre": True}
 METHODS = {"cone", "lsq", "nlp", "usque", "usque_detect", "fg_batch"}
+MANOEUVRE_START_S = GeoWorld().attitude.manoeuvre.start_s
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +68,34 @@ def test_rows_are_complete_and_yaw_is_nan_everywhere(rows: pd.DataFrame) -> None
     ).all()
 
 
+def test_rows_store_the_estimated_and_true_attitudes(rows: pd.DataFrame) -> None:
+    """``q_true_*`` is the scenario's truth; a boresight method's ``q_est_*`` is the smallest
+    rotation carrying its boresight to body z (its yaw a convention) and gives back its
+    pointing error; a filter's gives back its yaw error."""
+    world = GeoWorld.model_validate({k: SETTING[k] for k in GeoWorld.model_fields})
+    scenario = build_geo_snr_scenario(world, manoeuvre=True)
+    z = np.array([0.0, 0.0, 1.0])
+    for method, frame in rows.groupby("method"):
+        estimate = Rotation.from_quat(frame[[f"q_est_{c}" for c in "xyzw"]].to_numpy())
+        true = frame[[f"q_true_{c}" for c in "xyzw"]].to_numpy()
+        np.testing.assert_array_equal(true, scenario.truth.as_quat())
+        truth = Rotation.from_quat(true)
+        boresight = estimate.inv().apply(z)
+        error = np.degrees(pointing_error(truth, boresight)[:, :2])
+        np.testing.assert_allclose(error, frame[["err_x_deg", "err_y_deg"]], atol=1e-9)
+        if method in ("cone", "lsq", "nlp"):
+            pointing = Rotation.concatenate([attitude_pointing(b) for b in boresight])
+            np.testing.assert_allclose((pointing * estimate.inv()).magnitude(), 0.0, atol=1e-12)
+        else:
+            yaw = np.degrees((estimate * truth.inv()).as_rotvec()[:, 2])
+            np.testing.assert_allclose(yaw, frame["yaw_err_deg"], atol=1e-9)
+    assert rows["nees"].notna().all()
+    filters = rows[rows["method"].isin(["usque", "usque_detect", "fg_batch"])]
+    assert (filters["n_stations"] == 3).all()
+    lsq = rows[rows["method"] == "lsq"]
+    np.testing.assert_array_equal(lsq["n_stations"], scenario.heard.sum(axis=1))
+
+
 def test_errors_match_their_bounds(rows: pd.DataFrame) -> None:
     by = dict(iter(rows.groupby("method")))
     # least squares and the NLP are efficient: RMS within 30 % of the CRB (measured 1.0)
@@ -88,8 +121,9 @@ def test_manoeuvre_detected_and_summarised(rows: pd.DataFrame) -> None:
 
 
 def test_report_tables_from_the_trials_rows(rows: pd.DataFrame, tmp_path) -> None:
-    """The report of one trial per manoeuvre setting: Table 3 beside the paper's, the bounds
-    table equal to the summary, the restarts, integrity without a NEES, the figure."""
+    """The report of one trial per manoeuvre setting: Table 3 beside the paper's, the
+    stations, the bounds table equal to the summary, the restarts, integrity with the rows'
+    NEES, the figure."""
     labelled = pd.concat(
         [
             trial({**SETTING, "manoeuvre": False}, np.random.SeedSequence(4)).assign(
@@ -133,17 +167,28 @@ def test_report_tables_from_the_trials_rows(rows: pd.DataFrame, tmp_path) -> Non
     assert row(detection, {"manoeuvre": "True"})["restarts at t (s)"] == restarts
     assert row(detection, {"manoeuvre": "False"})["restarts at t (s)"] == "none"
     integrity = table(text, "Integrity")
-    assert set(integrity["mean NEES"]) == {"n/a"}  # the rows carry no NEES
     assert set(integrity["valid"]) == {"1.000"}
+    means = labelled.groupby(["manoeuvre", "method"])["nees"].mean()
+    for (manoeuvre, method), mean in means.items():
+        cells = row(integrity, {"manoeuvre": str(manoeuvre), "method": method})
+        assert cells["mean NEES"] == f"{mean:.3g}"
+    # the boresight methods' two-axis NEES is consistent (mean 2; measured 1.8-2.5)
+    assert means.loc[:, ["cone", "lsq", "nlp"]].between(1.0, 4.0).all()
+    stations = table(text, "Stations")
+    assert stations["station"].tolist() == [s.name for s in TABLE2_STATIONS]
+    assert stations["filter station"].tolist() == [
+        str(s.name in SETTING["filter_stations"]) for s in TABLE2_STATIONS
+    ]
     assert (tmp_path / "usque_3sigma.png").stat().st_size > 10_000
 
 
 def test_los_study_recovers_the_lines_of_sight_as_the_noise_vanishes() -> None:
     """Figs. 2-3's study: the belt fit's line-of-sight errors scale with the SNR noise."""
-    quiet = los_geometry_study(123.0, np.random.default_rng(4), 2, sigma_db=1e-6)
+    quiet_world = GeoWorld(receiver={"snr_sigma_db": 1e-6})
+    quiet = los_geometry_study(123.0, np.random.default_rng(4), 2, world=quiet_world)
     noisy = los_geometry_study(123.0, np.random.default_rng(4), 2)
     assert [r.station for r in quiet] == [r.station for r in noisy]
-    assert {r.station for r in quiet} <= {s.name for s in STATIONS} and len(quiet) >= 3
+    assert {r.station for r in quiet} <= {s.name for s in TABLE2_STATIONS} and len(quiet) >= 3
     for q, n in zip(quiet, noisy, strict=True):
         assert q.joint_rms_deg < 1e-6 and q.single_rms_deg < 1e-5
         assert n.joint_rms_deg > 1e3 * q.joint_rms_deg

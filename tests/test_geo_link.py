@@ -12,7 +12,13 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_fisher import snr_attitude_jacobian
-from attopt.formulations.geo_link import GARUDA1, GeoLink, attitude_pointing, geo_snr_db
+from attopt.formulations.geo_link import (
+    GARUDA1,
+    GeoLink,
+    attitude_pointing,
+    geo_snr_db,
+    main_lobe_snr_db,
+)
 
 SATELLITE = np.array([42_164.0, 0.0, 0.0])
 BELOW = np.array([[6_378.0, 0.0, 0.0]])  # station directly below: d = h = 35,786 km
@@ -91,3 +97,46 @@ def test_bad_link_input_raises():
         GeoLink(transmit_power_w=-1.0)
     with pytest.raises(InvalidObservationError, match="main lobe"):
         geo_snr_db(attitude_pointing(SATELLITE).as_matrix(), SATELLITE, BELOW)
+
+
+def test_a_given_beamwidth_replaces_the_dishs_and_sets_the_roll_off_by_hand():
+    # theta_3dB = 3 deg, C = 10: 1 deg off the boresight the gain drops by 10 (1/3)^2 dB.
+    wide = GeoLink(beamwidth_deg=3.0)
+    assert wide.theta_3db_rad == pytest.approx(math.radians(3.0), rel=1e-15)
+    assert wide.peak_gain_dbi == GARUDA1.peak_gain_dbi  # the dish still sets G_max
+    nadir = attitude_pointing(-SATELLITE)
+    tilted = (Rotation.from_rotvec([math.radians(1.0), 0, 0]) * nadir).as_matrix()
+    on_axis = geo_snr_db(nadir.as_matrix(), SATELLITE, BELOW, wide)[0]
+    assert on_axis == pytest.approx(geo_snr_db(nadir.as_matrix(), SATELLITE, BELOW)[0], abs=1e-9)
+    drop = on_axis - geo_snr_db(tilted, SATELLITE, BELOW, wide)[0]
+    assert drop == pytest.approx(10.0 / 9.0, abs=1e-9)  # 1.111 dB
+    steep = GeoLink(beamwidth_deg=3.0, size_factor_db=12.0)
+    assert on_axis - geo_snr_db(tilted, SATELLITE, BELOW, steep)[0] == pytest.approx(12.0 / 9.0)
+
+
+def test_the_main_lobe_ends_at_its_edge_and_main_lobe_snr_is_nan_beyond_it():
+    narrow = GeoLink(lobe_edge_deg=2.0)
+    assert narrow.pattern.max_off_boresight_rad == pytest.approx(math.radians(2.0), rel=1e-9)
+    nadir = attitude_pointing(-SATELLITE).as_matrix()
+    angles = np.array([0.0, 0.1, 0.3])  # geocentric: 0, 1.0 and 3.0 deg off the boresight
+    stations = 6_378.0 * np.stack([np.cos(angles), np.sin(angles), np.zeros(3)], axis=1)
+    with pytest.raises(InvalidObservationError, match="main lobe"):
+        geo_snr_db(nadir, SATELLITE, stations, narrow)
+    snr = main_lobe_snr_db(nadir, SATELLITE, stations, narrow)
+    assert np.isnan(snr[2]) and np.isfinite(snr[:2]).all()
+    np.testing.assert_array_equal(snr[:2], geo_snr_db(nadir, SATELLITE, stations[:2], narrow))
+    # with every station in the lobe it is geo_snr_db itself, over leading axes too
+    both = np.stack([nadir, nadir])
+    np.testing.assert_array_equal(
+        main_lobe_snr_db(both, np.stack([SATELLITE] * 2), np.stack([stations] * 2)),
+        geo_snr_db(both, np.stack([SATELLITE] * 2), np.stack([stations] * 2)),
+    )
+    mixed = main_lobe_snr_db(both, np.stack([SATELLITE] * 2), np.stack([stations] * 2), narrow)
+    np.testing.assert_array_equal(mixed, np.stack([snr, snr]))
+
+
+def test_bad_beamwidth_or_lobe_edge_raises():
+    with pytest.raises(InvalidObservationError, match="finite and positive"):
+        GeoLink(beamwidth_deg=0.0)
+    with pytest.raises(InvalidObservationError, match="below 90 deg"):
+        GeoLink(lobe_edge_deg=90.0)

@@ -14,20 +14,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.geo_snr_stations.experiment import (
-    EXPERIMENT,
     FILTER_OPTIONS,
-    FILTER_STATIONS,
+    GeoSnrStationsParameters,
     assumed_rates,
     detection_window,
-    epoch_snapshot,
-    pointing_error,
     rate_model,
 )
-from attopt.experiments.geo_snr_stations.scenario import (
-    MANOEUVRE_START_S,
-    GeoSnrScenario,
-    build_geo_snr_scenario,
-)
+from attopt.experiments.geo_snr_stations.pointing import epoch_snapshot
+from attopt.experiments.geo_snr_stations.scenario import GeoSnrScenario, build_geo_snr_scenario
+from attopt.experiments.metrics import pointing_error
 from attopt.formulations.geo_link import BORESIGHT_BODY
 from attopt.formulations.passes import GyroRecord, Pass, epoch_snapshots
 from attopt.solvers.geo.boresight import GEO_CONE, estimated_boresight
@@ -42,15 +37,15 @@ from attopt.solvers.geo.manoeuvre import (
 MAX_DELAY_S = 120.0
 """Stated delay after the manoeuvre's start (it lasts 120 s)."""
 
-PARAMETERS = EXPERIMENT.parameters
+MANOEUVRE_START_S = GeoSnrStationsParameters().attitude.manoeuvre.start_s
 
 
 def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSnrScenario]:
-    scenario = build_geo_snr_scenario(3600.0, step_s, manoeuvre)
+    parameters = GeoSnrStationsParameters(step_s=step_s)
+    scenario = build_geo_snr_scenario(parameters, manoeuvre)
     rng = np.random.default_rng(seed)
     snr = scenario.simulate_snr(rng)
-    names = [s.name for s in scenario.stations]
-    stations = np.array([names.index(n) for n in FILTER_STATIONS])
+    stations = np.array([scenario.station_names.index(n) for n in parameters.filter_stations])
     used = np.full_like(snr, np.nan)
     used[:, stations] = snr[:, stations]
     measurements = [scenario.measurement(k, row) for k, row in enumerate(used)]
@@ -59,8 +54,7 @@ def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSn
         snapshot = epoch_snapshot(scenario, snr, k, stations)
         return estimated_boresight(GEO_CONE.solve_sequence([snapshot]))[0]
 
-    setting = {**PARAMETERS, "step_s": step_s}
-    model = rate_model(setting)
+    model = rate_model(parameters)
     start = Rotation.from_rotvec(np.radians(5.0) * rng.standard_normal(3)) * scenario.truth[0]
     prior = boresight_prior(
         start, boresight(0), np.zeros(3), DetectionOptions(yaw_sigma=np.radians(5.0))
@@ -73,7 +67,7 @@ def _run(manoeuvre: bool, seed: int, step_s: float) -> tuple[ManoeuvreRun, GeoSn
         prior,
     )
     run = detect_and_reinitialise(
-        pass_, boresight, DetectionOptions(window=detection_window(setting)), FILTER_OPTIONS
+        pass_, boresight, DetectionOptions(window=detection_window(parameters)), FILTER_OPTIONS
     )
     return run, scenario
 

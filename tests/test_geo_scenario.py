@@ -9,27 +9,26 @@ import pytest
 from astropy.coordinates import EarthLocation
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.geo_snr_stations.scenario import (
-    INITIAL_QUATERNION,
-    MANOEUVRE_ANGLE_DEG,
-    STATIONS,
-    TLE,
-    build_geo_snr_scenario,
-    initial_attitude,
-    stations_ecef_km,
+from attopt.experiments.geo_snr_stations.parameters import (
+    EQ27_QUATERNION,
+    GARUDA1_TLE,
+    TABLE2_STATIONS,
+    GeoWorld,
 )
+from attopt.experiments.geo_snr_stations.scenario import build_geo_snr_scenario, stations_ecef_km
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.conventions import attitude_from_shuster_quaternion
 from attopt.formulations.errors import InvalidObservationError
 
 
 @pytest.fixture(scope="module")
 def scenario():
-    return build_geo_snr_scenario(3600.0, 60.0)
+    return build_geo_snr_scenario(GeoWorld(step_s=60.0))
 
 
 @pytest.fixture(scope="module")
 def manoeuvring():
-    return build_geo_snr_scenario(3600.0, 60.0, manoeuvre=True)
+    return build_geo_snr_scenario(GeoWorld(step_s=60.0), manoeuvre=True)
 
 
 def _checksum(line: str) -> int:
@@ -43,7 +42,7 @@ def _nadir_angle_deg(scenario) -> np.ndarray:
 
 
 def test_tle_is_the_papers_with_valid_checksums(scenario):
-    assert all(len(line) == 69 and _checksum(line) == int(line[68]) for line in TLE)
+    assert all(len(line) == 69 and _checksum(line) == int(line[68]) for line in GARUDA1_TLE)
     radius = np.linalg.norm(scenario.satellite_ecef_km, axis=1)
     np.testing.assert_allclose(radius, 42_164.0, atol=5.0)
     longitude = np.degrees(
@@ -54,20 +53,24 @@ def test_tle_is_the_papers_with_valid_checksums(scenario):
 
 def test_eq27_quaternion_is_shuster_and_points_the_beam_at_nadir(scenario):
     assert _nadir_angle_deg(scenario)[0] < 0.01
-    scipy_reading = Rotation.from_quat(INITIAL_QUATERNION)  # the other convention is 3 deg off
+    scipy_reading = Rotation.from_quat(EQ27_QUATERNION)  # the other convention is 3 deg off
     nadir = -scenario.satellite_eci_km[0] / np.linalg.norm(scenario.satellite_eci_km[0])
     assert np.degrees(np.arccos(scipy_reading.inv().apply([0, 0, 1]) @ nadir)) > 2.0
-    assert scenario.truth[0].approx_equal(initial_attitude())
+    assert scenario.truth[0].approx_equal(attitude_from_shuster_quaternion(EQ27_QUATERNION))
 
 
 def test_stations_are_table2_on_wgs84():
-    position, up = stations_ecef_km()
+    position, up = stations_ecef_km(TABLE2_STATIONS)
     location = EarthLocation.from_geocentric(*(position.T * u.km))
     geodetic = location.to_geodetic("WGS84")
-    np.testing.assert_allclose(geodetic.lat.deg, [s.latitude_deg for s in STATIONS], atol=1e-9)
-    np.testing.assert_allclose(geodetic.lon.deg, [s.longitude_deg for s in STATIONS], atol=1e-9)
     np.testing.assert_allclose(
-        geodetic.height.to_value(u.m), [s.altitude_m for s in STATIONS], atol=1e-6
+        geodetic.lat.deg, [s.latitude_deg for s in TABLE2_STATIONS], atol=1e-9
+    )
+    np.testing.assert_allclose(
+        geodetic.lon.deg, [s.longitude_deg for s in TABLE2_STATIONS], atol=1e-9
+    )
+    np.testing.assert_allclose(
+        geodetic.height.to_value(u.m), [s.height_m for s in TABLE2_STATIONS], atol=1e-6
     )
     np.testing.assert_allclose(np.linalg.norm(up, axis=1), 1.0)
 
@@ -86,7 +89,9 @@ def test_manoeuvre_turns_25_degrees_at_30_minutes(scenario, manoeuvring):
     before = scenario.t < 1800.0
     relative = (manoeuvring.truth * scenario.truth.inv()).magnitude()
     np.testing.assert_allclose(relative[before], 0.0, atol=1e-12)
-    assert np.degrees(relative[-1]) == pytest.approx(MANOEUVRE_ANGLE_DEG, abs=0.5)
+    assert np.degrees(relative[-1]) == pytest.approx(
+        GeoWorld().attitude.manoeuvre.angle_deg, abs=0.5
+    )
     swing = np.abs(manoeuvring.true_snr_db[-1] - scenario.true_snr_db[-1])
     assert swing[manoeuvring.heard[-1]].max() > 1.0  # observable in dB
 
@@ -102,4 +107,4 @@ def test_simulated_snrs_are_seeded_and_feed_the_filter_interface(scenario):
     np.testing.assert_allclose(values[0], scenario.true_snr_db[k, scenario.heard[k]], atol=1e-9)
     assert jacobian.shape == (1, scenario.heard[k].sum(), 3)
     with pytest.raises(InvalidObservationError):
-        scenario.measurement(k, np.full(len(STATIONS), np.nan))
+        scenario.measurement(k, np.full(len(TABLE2_STATIONS), np.nan))

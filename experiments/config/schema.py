@@ -39,6 +39,7 @@ UNITS: dict[str, str] = {
     "_k": "K",
     "_kg_m2": "kg m^2",
     "_nms": "N m s",
+    "_w": "W",
 }
 """Name suffix -> unit, longest suffixes first (:func:`unit_of`)."""
 

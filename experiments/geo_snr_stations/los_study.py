@@ -1,13 +1,11 @@
 """Line-of-sight error against station geometry (Pimienta-Penalver and Crassidis Figs. 2-3).
 
 The satellite sits on the GEO belt (:func:`attopt.formulations.geo_geometry.belt_position`)
-with its beam at nadir and the attitude known; a station hears it when the
-noise-free SNR is at least
-:data:`~attopt.experiments.geo_snr_stations.scenario.DETECTION_THRESHOLD_DB`.
-Noisy SNR sets of the stations of
-:mod:`attopt.experiments.geo_snr_stations.scenario` (ECEF) are solved for the
-belt longitude by :func:`attopt.solvers.geo.los.locate_on_geo_belt`, all
-stations together and each alone.
+with its beam at nadir and the attitude known; a station of the world's ``[[stations]]``
+hears it when the noise-free SNR of the world's link is at least the receivers'
+``detection_threshold_db``.  Noisy SNR sets (the receivers' ``snr_sigma_db``) of the
+hearing stations (ECEF) are solved for the belt longitude by
+:func:`attopt.solvers.geo.los.locate_on_geo_belt`, all stations together and each alone.
 """
 
 from __future__ import annotations
@@ -17,14 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from attopt.experiments.environment.traffic import MEAN_RADIUS_KM as MEAN_EARTH_RADIUS_KM
-from attopt.experiments.geo_snr_stations.scenario import (
-    DETECTION_THRESHOLD_DB,
-    SNR_SIGMA_DB,
-    STATIONS,
-    stations_ecef_km,
-)
+from attopt.experiments.geo_snr_stations.parameters import GeoWorld
+from attopt.experiments.geo_snr_stations.scenario import stations_ecef_km
 from attopt.formulations.geo_geometry import belt_position, line_of_sight_errors
-from attopt.formulations.geo_link import GARUDA1, GeoLink, attitude_pointing, geo_snr_db
+from attopt.formulations.geo_link import attitude_pointing, main_lobe_snr_db
 from attopt.solvers.geo.los import locate_on_geo_belt
 
 
@@ -46,17 +40,19 @@ def los_geometry_study(
     satellite_longitude_deg: float,
     rng: np.random.Generator,
     n_trials: int = 50,
-    sigma_db: float = SNR_SIGMA_DB,
     window_deg: float = 0.5,
-    link: GeoLink = GARUDA1,
+    world: GeoWorld | None = None,
 ) -> list[LosStudyRow]:
     """LOS error vs station geometry: satellite on the belt at the given longitude, beam at
-    nadir, ``n_trials`` noisy SNR sets (module docstring)."""
-    stations, up = stations_ecef_km()
+    nadir, ``n_trials`` noisy SNR sets of ``world``'s stations, link and receivers (default:
+    the paper's; module docstring)."""
+    world = GeoWorld() if world is None else world
+    link, sigma_db = world.link(), world.receiver.snr_sigma_db
+    stations, up = stations_ecef_km(world.stations)
     satellite = belt_position(np.radians(satellite_longitude_deg))
     attitude = attitude_pointing(-satellite)
-    truth = geo_snr_db(attitude.as_matrix(), satellite, stations, link)
-    heard = np.flatnonzero(truth >= DETECTION_THRESHOLD_DB)
+    truth = main_lobe_snr_db(attitude.as_matrix(), satellite, stations, link)
+    heard = np.flatnonzero(truth >= world.receiver.detection_threshold_db)
     joint = np.empty((n_trials, heard.size))
     single = np.empty((n_trials, heard.size))
     window = (satellite_longitude_deg - window_deg, satellite_longitude_deg + window_deg)
@@ -75,7 +71,7 @@ def los_geometry_study(
     single_rms = np.degrees(np.sqrt(np.mean(single**2, axis=0)))
     return [
         LosStudyRow(
-            STATIONS[i].name,
+            world.stations[i].name,
             float(MEAN_EARTH_RADIUS_KM * central[j]),
             float(truth[i]),
             float(joint_rms[j]),
