@@ -211,7 +211,11 @@ class TabulatedPattern:
     symmetric pattern is a smooth function of ``s``, so the slope is zero on the
     boresight and finite everywhere.  numpy evaluates the same CasADi function,
     so both back-ends give identical values.  The main lobe is the table's
-    range, ``[0, angles_rad[-1]]``.
+    range, ``[0, angles_rad[-1]]``.  Beyond it (where the interpolant itself is
+    0) the gain continues along the tangent at the edge,
+    ``G(s_edge) + G'(s_edge) (s - s_edge)``: as the formula patterns do, it
+    stays continuous and differentiable for an estimator's trial attitudes that
+    move an observation just outside the lobe.
 
     Example::
 
@@ -243,10 +247,14 @@ class TabulatedPattern:
         object.__setattr__(self, "gains_dbi", tuple(gains.tolist()))
 
     @cached_property
+    def versines(self) -> NDArray[np.float64]:
+        """The table's angles as ``s = 1 - cos(alpha) = 2 sin^2(alpha / 2)``."""
+        return 2.0 * np.sin(0.5 * np.asarray(self.angles_rad)) ** 2
+
+    @cached_property
     def spline(self) -> ca.Function:
         """CasADi B-spline ``G(s)`` with ``s = 1 - cos(alpha)``."""
-        versine = 2.0 * np.sin(0.5 * np.asarray(self.angles_rad)) ** 2
-        return ca.interpolant("gain_table", "bspline", [versine], list(self.gains_dbi))
+        return ca.interpolant("gain_table", "bspline", [self.versines], list(self.gains_dbi))
 
     @property
     def peak_gain_dbi(self) -> float:
@@ -260,8 +268,18 @@ class TabulatedPattern:
     def min_cos(self) -> float:
         return math.cos(self.max_off_boresight_rad)
 
+    @cached_property
+    def edge(self) -> tuple[float, float]:
+        """``s_edge = 1 - cos(angles_rad[-1])`` and the slope ``dG/ds`` there (dB)."""
+        edge = float(self.versines[-1])
+        s = ca.SX.sym("s")
+        slope = ca.Function("slope", [s], [ca.jacobian(self.spline(s), s)])
+        return edge, float(slope(edge))
+
     def gain_dbi(self, cos_alpha: Any, versine: Any, xp: ArrayNamespace) -> Any:
-        return xp.apply(self.spline, versine)
+        edge, slope = self.edge
+        inside = -xp.fmax(-versine, -edge)
+        return xp.apply(self.spline, inside) + slope * xp.fmax(versine - edge, 0.0)
 
 
 @dataclass(frozen=True)
