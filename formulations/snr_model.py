@@ -413,11 +413,44 @@ def cramer_rao_bound(fisher: ArrayLike, rtol: float = 1e-10) -> Array:
     all observations come from one antenna, Liu et al. 2023 sec. 3.1), the others
     are those of the inverse on the observable subspace.
     """
-    f = np.asarray(fisher, dtype=float)
-    eigenvalues, vectors = np.linalg.eigh(0.5 * (f + np.swapaxes(f, -1, -2)))
-    null = eigenvalues <= rtol * eigenvalues[..., -1:]
+    eigenvalues, vectors, null = _null_space(fisher, rtol)
     inverse = np.where(null, 0.0, 1.0 / np.where(null, 1.0, eigenvalues))
     observable = np.einsum("...ik,...k,...jk->...ij", vectors, inverse, vectors)
     projector = np.einsum("...ik,...k,...jk->...ij", vectors, null.astype(float), vectors)
     unbounded = np.abs(projector) > _NULL_PROJECTOR_TOLERANCE
     return np.where(unbounded, np.copysign(np.inf, projector), observable)
+
+
+def unobservable_directions(
+    fisher: ArrayLike, rtol: float = 1e-10
+) -> tuple[NDArray[np.intp], Array]:
+    """The rotations the data cannot see: the dimension ``(...)`` of the unobservable
+    subspace of each Fisher information (the null space of :func:`cramer_rao_bound`) and,
+    where it is one-dimensional, its unit direction ``(..., 3)`` in the body frame (sign:
+    largest component positive; NaN elsewhere).
+
+    With every observation from one antenna it is that antenna's boresight (Liu et al. 2023
+    sec. 3.1): the body axes on which the bound is infinite are those the boresight has a
+    component on, while the direction itself says which rotation is unseen.
+
+    Example::
+
+        >>> import numpy as np
+        >>> count, direction = unobservable_directions(np.diag([2.0, 1.0, 0.0]))
+        >>> int(count), direction.tolist()
+        (1, [0.0, 0.0, 1.0])
+    """
+    _, vectors, null = _null_space(fisher, rtol)
+    count = null.sum(axis=-1)
+    first = np.take_along_axis(vectors, np.argmax(null, axis=-1)[..., None, None], axis=-1)[..., 0]
+    largest = np.take_along_axis(first, np.argmax(np.abs(first), axis=-1)[..., None], axis=-1)
+    direction = first * np.sign(largest)
+    return count, np.where((count == 1)[..., None], direction, np.nan)
+
+
+def _null_space(fisher: ArrayLike, rtol: float) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Eigenvalues (ascending), eigenvectors (columns) of the symmetrised ``fisher``, and
+    which eigenvalues are at most ``rtol`` times the largest (the unobservable subspace)."""
+    f = np.asarray(fisher, dtype=float)
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (f + np.swapaxes(f, -1, -2)))
+    return eigenvalues, vectors, eigenvalues <= rtol * eigenvalues[..., -1:]
