@@ -598,6 +598,7 @@ def test_bad_values_exit_2_naming_each(tmp_path):
         ("[traffic]\nroute_min_km = 5000.0\nroute_max_km = 4000.0\n", "route_min_km must be below"),
         ("[traffic]\nheight_min_km = 13.0\n", "height_min_km must not exceed height_max_km"),
         ('gyros = ["mems", {name = "mems"}]\n', "gyros need distinct names"),
+        ('[orbit]\ntype = "circular"\naltitude_km = 7000.0\n', "no Sun-synchronous orbit"),
         ("n_antennas = 3\n", "unknown key 'n_antennas'"),
     ],
 )

@@ -35,13 +35,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from astropy.time import Time
 from numpy.typing import NDArray
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.config.components import Antenna, CosinePowerGain, Orbit, TleOrbit
+from attopt.experiments.config.components import (
+    Antenna,
+    CosinePowerGain,
+    Orbit,
+    TleOrbit,
+    UtcTime,
+)
+from attopt.experiments.environment.orbit import check_window
 from attopt.experiments.environment.traffic import TrafficModel
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.link_budget import ADSB_FREQUENCY_HZ, LinkBudget
@@ -68,14 +74,6 @@ HELIX = CosinePowerGain(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)
 """Liu et al. 2023 eq. 63's helix with the main lobe ``G >= 4 dBi`` of sec. 5.1."""
 _TRAFFIC = TrafficModel()
 _LINK = LinkBudget()
-
-
-def _checked_time(value: str) -> str:
-    try:
-        Time(value, scale="utc")
-    except ValueError as error:
-        raise ValueError(f"not an ISO 8601 UTC time: {error}") from None
-    return value
 
 
 class AttitudeProfile(Parameters):
@@ -215,13 +213,13 @@ class ReceiverParameters(Parameters):
 class AdsbScenario(Parameters):
     """The simulated world and sensors of ``adsb-snr`` (module docstring)."""
 
-    orbit: Orbit = Field(
-        default_factory=lambda: TleOrbit(line1=DEFAULT_TLE[0], line2=DEFAULT_TLE[1]),
-        description="The satellite's orbit.",
-    )
-    start_utc: str = Field(DEFAULT_START_UTC, description="Start of the pass.")
+    start_utc: UtcTime = Field(DEFAULT_START_UTC, description="Start of the pass.")
     duration_s: float = Field(3600.0, gt=0, description="Length of the pass from the start.")
     step_s: float = Field(1.0, gt=0, description="Time between epochs.")
+    orbit: Orbit = Field(
+        default_factory=lambda: TleOrbit(line1=DEFAULT_TLE[0], line2=DEFAULT_TLE[1]),
+        description="The satellite's orbit (SGP4 must reach every epoch of the pass).",
+    )
     attitude: AttitudeProfile = Field(
         default_factory=AttitudeProfile, description="True attitude profile."
     )
@@ -239,10 +237,14 @@ class AdsbScenario(Parameters):
         default_factory=ReceiverParameters, description="The satellite's receiver."
     )
 
-    @field_validator("start_utc")
+    @field_validator("orbit")
     @classmethod
-    def _is_a_time(cls, value: str) -> str:
-        return _checked_time(value)
+    def _propagates_over_the_pass(cls, orbit: Orbit, info: ValidationInfo) -> Orbit:
+        if {"start_utc", "duration_s", "step_s"} <= info.data.keys():
+            check_window(
+                orbit, info.data["start_utc"], info.data["duration_s"], info.data["step_s"]
+            )
+        return orbit
 
     @property
     def n_antennas(self) -> int:

@@ -70,9 +70,7 @@ import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-import astropy.units as u
 import numpy as np
-from astropy.time import Time
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
@@ -81,6 +79,7 @@ from attopt.experiments.environment.orbit import (
     ecef_to_eci_matrices,
     propagate,
     satellite_from_tle,
+    window_times,
 )
 from attopt.experiments.environment.traffic import (
     WGS84_A_KM,
@@ -189,8 +188,7 @@ def build_adsb_geometry(scenario: AdsbScenario | None = None) -> AdsbGeometry:
 @functools.lru_cache(maxsize=4)
 def _build_adsb_geometry(key: str) -> AdsbGeometry:
     scenario = AdsbScenario.model_validate_json(key)
-    t = np.arange(0.0, scenario.duration_s, scenario.step_s)
-    times = Time(scenario.start_utc, scale="utc") + t * u.s
+    t, times = window_times(scenario.start_utc, scenario.duration_s, scenario.step_s)
     orbit = propagate(satellite_from_tle(*scenario.orbit.tle()), times)
     eci_to_orbit = orbit_frame_attitude(orbit.position_eci_km, orbit.velocity_eci_kms)
     traffic = scenario.traffic

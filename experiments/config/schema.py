@@ -37,6 +37,7 @@ UNITS: dict[str, str] = {
     "_dbw": "dBW",
     "_db": "dB",
     "_k": "K",
+    "_w": "W",
 }
 """Name suffix -> unit, longest suffixes first (:func:`unit_of`)."""
 
