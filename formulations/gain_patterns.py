@@ -19,11 +19,20 @@ of Liu et al. 2023 sec. 2 requires.
   (Pimienta-Penalver and Crassidis eq. 5).
 * :class:`TabulatedPattern`: measured gain in dBi against ``alpha``, smooth
   cubic B-spline in ``1 - cos(alpha)``.
+
+Antennas with different patterns: :class:`AntennaPatterns` holds one pattern
+per antenna and evaluates each observation with the pattern of the antenna
+that received it (an index per observation, an input of the compiled
+functions, so one function serves every assignment of observations to
+antennas).  :func:`shared_pattern` reduces patterns that are all equal to
+the one pattern, so an epoch whose antennas share a pattern takes exactly the
+single-pattern path.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, Protocol
@@ -202,7 +211,11 @@ class TabulatedPattern:
     symmetric pattern is a smooth function of ``s``, so the slope is zero on the
     boresight and finite everywhere.  numpy evaluates the same CasADi function,
     so both back-ends give identical values.  The main lobe is the table's
-    range, ``[0, angles_rad[-1]]``.
+    range, ``[0, angles_rad[-1]]``.  Beyond it (where the interpolant itself is
+    0) the gain continues along the tangent at the edge,
+    ``G(s_edge) + G'(s_edge) (s - s_edge)``: as the formula patterns do, it
+    stays continuous and differentiable for an estimator's trial attitudes that
+    move an observation just outside the lobe.
 
     Example::
 
@@ -234,10 +247,14 @@ class TabulatedPattern:
         object.__setattr__(self, "gains_dbi", tuple(gains.tolist()))
 
     @cached_property
+    def versines(self) -> NDArray[np.float64]:
+        """The table's angles as ``s = 1 - cos(alpha) = 2 sin^2(alpha / 2)``."""
+        return 2.0 * np.sin(0.5 * np.asarray(self.angles_rad)) ** 2
+
+    @cached_property
     def spline(self) -> ca.Function:
         """CasADi B-spline ``G(s)`` with ``s = 1 - cos(alpha)``."""
-        versine = 2.0 * np.sin(0.5 * np.asarray(self.angles_rad)) ** 2
-        return ca.interpolant("gain_table", "bspline", [versine], list(self.gains_dbi))
+        return ca.interpolant("gain_table", "bspline", [self.versines], list(self.gains_dbi))
 
     @property
     def peak_gain_dbi(self) -> float:
@@ -251,8 +268,94 @@ class TabulatedPattern:
     def min_cos(self) -> float:
         return math.cos(self.max_off_boresight_rad)
 
+    @cached_property
+    def edge(self) -> tuple[float, float]:
+        """``s_edge = 1 - cos(angles_rad[-1])`` and the slope ``dG/ds`` there (dB)."""
+        edge = float(self.versines[-1])
+        s = ca.SX.sym("s")
+        slope = ca.Function("slope", [s], [ca.jacobian(self.spline(s), s)])
+        return edge, float(slope(edge))
+
     def gain_dbi(self, cos_alpha: Any, versine: Any, xp: ArrayNamespace) -> Any:
-        return xp.apply(self.spline, versine)
+        edge, slope = self.edge
+        inside = -xp.fmax(-versine, -edge)
+        return xp.apply(self.spline, inside) + slope * xp.fmax(versine - edge, 0.0)
+
+
+@dataclass(frozen=True)
+class AntennaPatterns:
+    """One gain pattern per antenna: observation ``k`` has the gain of
+    ``patterns[antenna_k]``, the pattern of the antenna that received it.
+
+    :meth:`gain_dbi` evaluates every pattern on every observation (one
+    expression for any assignment of observations to antennas), each at the
+    observation's angle where the observation is that antenna's and on the
+    boresight (``cos alpha = 1``, ``versine = 0``, where every pattern is
+    finite and smooth) elsewhere, then selects: no pattern is evaluated
+    outside its domain (e.g. ``lg cos alpha`` of a cos^n pattern beyond 90 deg
+    for an observation of a wider antenna), in numpy or CasADi.  ``antenna`` is
+    an integer array (numpy) or a column of antenna indices (CasADi, as floats).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.formulations.gain_patterns import AntennaPatterns, ParabolicPattern
+        >>> from attopt.formulations.gain_patterns import SEED000_HELIX
+        >>> from attopt.formulations.symbolic import NUMPY
+        >>> dish = ParabolicPattern(20.0, np.radians(20.0), min_gain_dbi=10.0)
+        >>> both = AntennaPatterns((SEED000_HELIX, dish))
+        >>> antenna = np.array([0, 1])
+        >>> both.gain_dbi(np.ones(2), np.zeros(2), antenna, NUMPY).round(2).tolist()
+        [11.6, 20.0]
+        >>> np.degrees(both.max_off_boresight_rad(antenna)).round(1).tolist()
+        [41.7, 18.3]
+    """
+
+    patterns: tuple[GainPattern, ...]
+    """The pattern of antenna ``i`` at index ``i``."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "patterns", tuple(self.patterns))
+        _require(len(self.patterns) >= 1, "AntennaPatterns needs at least one pattern")
+
+    def __len__(self) -> int:
+        return len(self.patterns)
+
+    def gain_dbi(self, cos_alpha: Any, versine: Any, antenna: Any, xp: ArrayNamespace) -> Any:
+        """Gain (dBi) of each observation with its antenna's pattern (class docstring)."""
+        gain = None
+        for index, pattern in enumerate(self.patterns):
+            mine = antenna == index
+            cos_mine = xp.where(mine, cos_alpha, 1.0)
+            value = pattern.gain_dbi(cos_mine, xp.where(mine, versine, 0.0), xp)
+            gain = value if gain is None else xp.where(mine, value, gain)
+        return gain
+
+    def min_cos(self, antenna: ArrayLike) -> NDArray[np.float64]:
+        """``cos`` of the main-lobe edge of each observation's antenna (numpy)."""
+        return np.array([p.min_cos for p in self.patterns])[np.asarray(antenna, dtype=np.intp)]
+
+    def max_off_boresight_rad(self, antenna: ArrayLike) -> NDArray[np.float64]:
+        """Edge of the main lobe of each observation's antenna (rad, numpy)."""
+        edges = np.array([p.max_off_boresight_rad for p in self.patterns])
+        return edges[np.asarray(antenna, dtype=np.intp)]
+
+
+def shared_pattern(patterns: Sequence[GainPattern]) -> GainPattern | AntennaPatterns:
+    """The one pattern if every antenna has the same (equal by value), else
+    :class:`AntennaPatterns` of them.
+
+    Example::
+
+        >>> from attopt.formulations.gain_patterns import SEED000_HELIX, shared_pattern
+        >>> shared_pattern([SEED000_HELIX, SEED000_HELIX]) is SEED000_HELIX
+        True
+    """
+    patterns = tuple(patterns)
+    _require(len(patterns) >= 1, "at least one gain pattern is needed")
+    if all(p == patterns[0] for p in patterns[1:]):
+        return patterns[0]
+    return AntennaPatterns(patterns)
 
 
 SEED000_HELIX = CosinePowerPattern(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)

@@ -16,8 +16,12 @@ from functools import lru_cache
 import casadi as ca
 
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import GainPattern
-from attopt.formulations.snr_model import snr_db
+from attopt.formulations.snr_model import (
+    Pattern,
+    input_names,
+    pattern_snr_model,
+    symbolic_inputs,
+)
 
 
 def euler321_matrix(angles: ca.SX | ca.MX) -> ca.SX | ca.MX:
@@ -43,24 +47,25 @@ def euler321_matrix_function() -> ca.Function:
 
 
 @lru_cache(maxsize=64)
-def snr_euler_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
-    """``(z[3], los[m x 3], boresight[m x 3], p0[m], noise) -> (snr[m], d snr / d z [m x 3])``.
+def snr_euler_jacobian_function(pattern: Pattern, m: int) -> ca.Function:
+    """``(z[3], los[m x 3], boresight[m x 3], p0[m], noise[, antenna[m]]) ->
+    (snr[m], d snr / d z [m x 3])``.
 
     ``snr`` is eq. 13 at the attitude ``euler321_matrix(z)`` (eq. 18 without
-    noise); inputs are not checked (use :func:`attopt.formulations.snr_problem.epoch_issue`).
+    noise); the inputs after ``z`` are
+    :func:`attopt.formulations.snr_model.symbolic_inputs` (``antenna`` with one
+    pattern per antenna); they are not checked (use
+    :func:`attopt.formulations.snr_problem.epoch_issue`).
     """
     if m < 1:
         raise InvalidObservationError(f"need at least one observation, got m = {m}")
     z = ca.SX.sym("z", 3)
-    los = ca.SX.sym("los_orbit", m, 3)
-    bore = ca.SX.sym("boresight_body", m, 3)
-    p0 = ca.SX.sym("p0_dbw", m)
-    noise = ca.SX.sym("noise_dbw")
-    snr = snr_db(euler321_matrix(z), los, bore, p0, noise, pattern)
+    data = symbolic_inputs(pattern, m)
+    snr = pattern_snr_model(pattern)(euler321_matrix(z), *data)
     return ca.Function(
         "snr_euler_jacobian",
-        [z, los, bore, p0, noise],
+        [z, *data],
         [snr, ca.jacobian(snr, z)],
-        ["z", "los_orbit", "boresight_body", "p0_dbw", "noise_dbw"],
+        ["z", *input_names(pattern)],
         ["snr_db", "jac_z"],
     )

@@ -39,9 +39,9 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import GainPattern
 from attopt.formulations.measurement_model import SymbolicModel
 from attopt.formulations.snr_model import (
+    Pattern,
     observation_mask,
     pattern_snr_model,
     predict_snr,
@@ -53,11 +53,13 @@ from attopt.formulations.symbolic import CASADI
 
 
 @lru_cache(maxsize=16)
-def truncated_mean_model(pattern: GainPattern, sigma_db: float, threshold_db: float) -> Callable:
-    """``E[y | y >= tau] = f + sigma lambda((f - tau) / sigma)`` of :func:`snr_db` (symbolic)."""
+def truncated_mean_model(pattern: Pattern, sigma_db: float, threshold_db: float) -> Callable:
+    """``E[y | y >= tau] = f + sigma lambda((f - tau) / sigma)`` of :func:`snr_db` (symbolic;
+    the arguments of :func:`~attopt.formulations.snr_model.pattern_snr_model`)."""
+    snr_model = pattern_snr_model(pattern)
 
-    def truncated_snr(attitude: Any, los: Any, boresight: Any, p0: Any, noise: Any) -> Any:
-        f = snr_db(attitude, los, boresight, p0, noise, pattern)
+    def truncated_snr(attitude: Any, *data: Any) -> Any:
+        f = snr_model(attitude, *data)
         return f + sigma_db * inverse_mills_ratio((f - threshold_db) / sigma_db)
 
     return truncated_snr
@@ -113,12 +115,15 @@ class SnrMeasurement(AttitudeMeasurement):
     def _usable(self, matrices: Array) -> np.ndarray:
         epoch = self.epoch
         los, bore = epoch.unit_los[None], epoch.boresight_rows[None]
-        return observation_mask(matrices, los, bore, epoch.pattern).all(axis=0)
+        return observation_mask(matrices, los, bore, epoch.pattern, epoch.pattern_antenna).all(
+            axis=0
+        )
 
     def _snr(self, matrices: Array, usable: np.ndarray) -> Array:
         """Untruncated ``f`` ``(N, m)`` (numpy), NaN where not usable."""
         epoch = self.epoch
         values = np.full((matrices.shape[0], epoch.m), np.nan)
+        antenna = epoch.pattern_antenna
         values[:, usable] = snr_db(
             matrices,
             epoch.unit_los[None, usable],
@@ -126,17 +131,20 @@ class SnrMeasurement(AttitudeMeasurement):
             epoch.p0_dbw[usable],
             epoch.noise_dbw,
             epoch.pattern,
+            None if antenna is None else antenna[usable],
         )
         return values
 
     def symbolic(self) -> SymbolicModel:
         """:func:`~attopt.formulations.snr_model.snr_db` (or the truncated mean) of the epoch's
-        lines of sight, receiving antennas' boresights, ``10 lg P0`` and noise power."""
+        lines of sight, receiving antennas' boresights, ``10 lg P0`` and noise power (and,
+        when the antennas' patterns differ, the receiving antennas)."""
         epoch = self.epoch
         model = self._model or pattern_snr_model(epoch.pattern)
-        return SymbolicModel(
-            model, (epoch.unit_los, epoch.boresight_rows, epoch.p0_dbw, epoch.noise_dbw)
-        )
+        parameters = (epoch.unit_los, epoch.boresight_rows, epoch.p0_dbw, epoch.noise_dbw)
+        if epoch.pattern_antenna is not None:
+            parameters += (epoch.pattern_antenna.astype(float),)
+        return SymbolicModel(model, parameters)
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         matrices = attitude.as_matrix().reshape(-1, 3, 3)
@@ -156,6 +164,7 @@ class SnrMeasurement(AttitudeMeasurement):
             epoch.pattern,
             mask="valid",
             model=self._model,
+            antenna=None if epoch.pattern_antenna is None else epoch.pattern_antenna[None],
         )
         unusable = np.isnan(values).any(axis=0)  # for some attitude: NaN for all
         values[:, unusable] = np.nan

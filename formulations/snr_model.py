@@ -25,6 +25,13 @@ the rotation with modified Rodrigues parameters ``v / 4``
 attitude error vector to first order.  :func:`predict_snr` gives numpy values
 and the Jacobian with respect to that error, from which
 :func:`fisher_information` and :func:`cramer_rao_bound` follow (Liu et al. 2023 eq. 22).
+
+Antennas with different gain patterns: ``pattern`` may be an
+:class:`~attopt.formulations.gain_patterns.AntennaPatterns`, one pattern per antenna;
+then every function takes ``antenna``, the receiving antenna of each observation
+(numpy integers, or one more input of the compiled CasADi functions, after the
+noise power), and evaluates each observation with its antenna's pattern.  With one
+pattern ``antenna`` is not used and the functions are exactly the single-pattern ones.
 """
 
 from __future__ import annotations
@@ -44,10 +51,12 @@ from attopt.formulations.attitude_model import (
     increment_matrix,
 )
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.gain_patterns import AntennaPatterns, GainPattern
 from attopt.formulations.symbolic import NUMPY, namespace_of
 
 Array = NDArray[np.float64]
+Pattern = GainPattern | AntennaPatterns
+"""One gain pattern for every antenna, or one per antenna (module docstring)."""
 
 SNR_SIGMA_DB = 1.0
 """SNR measurement noise standard deviation (dB), Liu et al. 2023 sec. 5.1."""
@@ -102,13 +111,15 @@ def snr_db(
     boresight_body: Any,
     p0_dbw: Any,
     noise_dbw: Any,
-    pattern: GainPattern,
+    pattern: Pattern,
+    antenna: Any = None,
 ) -> Any:
     """Noise-free SNR (dB), ``G(alpha) + 10 lg P0 - 10 lg P_n`` (Liu et al. 2023 eqs. 4, 13).
 
     The single definition of the model for numpy and CasADi inputs (shapes as
-    in :func:`off_boresight`; ``p0_dbw`` and ``noise_dbw`` broadcast against the
-    per-observation shape).  numpy inputs are checked:
+    in :func:`off_boresight`; ``p0_dbw``, ``noise_dbw`` and ``antenna`` broadcast
+    against the per-observation shape; ``antenna`` only with an
+    :class:`~attopt.formulations.gain_patterns.AntennaPatterns`).  numpy inputs are checked:
     :class:`InvalidObservationError` if any line of sight or boresight is
     NaN/inf or zero, the attitude is not a rotation, a power is not finite, or
     an observation lies outside the pattern's main lobe
@@ -124,26 +135,36 @@ def snr_db(
     if xp is NUMPY:
         if not (np.all(np.isfinite(p0_dbw)) and np.all(np.isfinite(noise_dbw))):
             raise InvalidObservationError("isotropic or noise power is NaN/inf")
-        reasons = _invalid_reasons(attitude_matrix, los_orbit, boresight_body, cos_alpha, pattern)
+        reasons = _invalid_reasons(
+            attitude_matrix, los_orbit, boresight_body, cos_alpha, pattern, antenna
+        )
         _raise_if_invalid(reasons)
-    return pattern.gain_dbi(cos_alpha, versine, xp) + p0_dbw - noise_dbw
+    return _gain_dbi(pattern, cos_alpha, versine, antenna, xp) + p0_dbw - noise_dbw
+
+
+def _gain_dbi(pattern: Pattern, cos_alpha: Any, versine: Any, antenna: Any, xp: Any) -> Any:
+    if isinstance(pattern, AntennaPatterns):
+        return pattern.gain_dbi(cos_alpha, versine, antenna, xp)
+    return pattern.gain_dbi(cos_alpha, versine, xp)
 
 
 def observation_mask(
     attitude_matrix: ArrayLike,
     los_orbit: ArrayLike,
     boresight_body: ArrayLike,
-    pattern: GainPattern,
+    pattern: Pattern,
+    antenna: ArrayLike | None = None,
 ) -> NDArray[np.bool_]:
     """``(..., m)`` mask of observations :func:`snr_db` accepts (numpy, vectorised).
 
     False where the line of sight or boresight is NaN/inf or zero, the
-    attitude is not a finite rotation, or ``cos(alpha) < pattern.min_cos``.
+    attitude is not a finite rotation, or ``cos(alpha)`` is below the ``min_cos``
+    of the observation's pattern.
     """
     a, los, bore = _numpy_inputs(attitude_matrix, los_orbit, boresight_body)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_alpha, _ = off_boresight(a, los, bore)
-    reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern)
+    reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern, antenna)
     return ~np.logical_or.reduce([bad for _, bad in reasons])
 
 
@@ -166,7 +187,7 @@ def _numpy_inputs(
 
 
 def _invalid_reasons(
-    a: Array, los: Array, bore: Array, cos_alpha: Array, pattern: GainPattern
+    a: Array, los: Array, bore: Array, cos_alpha: Array, pattern: Pattern, antenna: Any = None
 ) -> list[tuple[str, NDArray[np.bool_]]]:
     with np.errstate(invalid="ignore"):
         orthogonality = np.abs(a @ np.swapaxes(a, -1, -2) - np.eye(3)).max(axis=(-2, -1))
@@ -179,13 +200,22 @@ def _invalid_reasons(
             "attitude is NaN/inf or not a rotation",
             ~is_rotation[..., None],
         ),
-        (
-            f"off-boresight angle beyond the main lobe "
-            f"({np.degrees(pattern.max_off_boresight_rad):.2f} deg)",
-            ~(cos_alpha >= pattern.min_cos),
-        ),
+        _beyond_lobe(cos_alpha, pattern, antenna),
     ]
     return [(reason, np.broadcast_to(bad, shape)) for reason, bad in reasons]
+
+
+def _beyond_lobe(cos_alpha: Array, pattern: Pattern, antenna: Any) -> tuple[str, NDArray[np.bool_]]:
+    if isinstance(pattern, AntennaPatterns):
+        return (
+            "off-boresight angle beyond the main lobe of the receiving antenna",
+            ~(cos_alpha >= pattern.min_cos(antenna)),
+        )
+    return (
+        f"off-boresight angle beyond the main lobe "
+        f"({np.degrees(pattern.max_off_boresight_rad):.2f} deg)",
+        ~(cos_alpha >= pattern.min_cos),
+    )
 
 
 def _finite_nonzero(vectors: Array) -> NDArray[np.bool_]:
@@ -201,28 +231,50 @@ def _raise_if_invalid(reasons: list[tuple[str, NDArray[np.bool_]]]) -> None:
             )
 
 
-def _symbolic_snr(pattern: GainPattern, m: int) -> tuple[list[ca.SX], ca.SX]:
+def symbolic_inputs(pattern: Pattern, m: int) -> list[ca.SX]:
+    """The symbols of the per-epoch inputs of the compiled SNR functions: lines of sight
+    ``m x 3``, boresight rows ``m x 3``, ``p0`` ``(m)``, noise power, and with an
+    :class:`~attopt.formulations.gain_patterns.AntennaPatterns` the receiving antenna
+    ``(m)``; :func:`input_names` names them."""
     if m < 1:
         raise InvalidObservationError(f"need at least one observation, got m = {m}")
     inputs = [
-        ca.SX.sym("v", 3),
-        ca.SX.sym("attitude_ref", 3, 3),
         ca.SX.sym("los_orbit", m, 3),
         ca.SX.sym("boresight_body", m, 3),
         ca.SX.sym("p0_dbw", m),
         ca.SX.sym("noise_dbw"),
     ]
-    v, attitude_ref, los, bore, p0, noise = inputs
-    return inputs, snr_db(increment_matrix(v) @ attitude_ref, los, bore, p0, noise, pattern)
+    if isinstance(pattern, AntennaPatterns):
+        inputs.append(ca.SX.sym("antenna", m))
+    return inputs
 
 
-_INPUT_NAMES = ["v", "attitude_ref", "los_orbit", "boresight_body", "p0_dbw", "noise_dbw"]
+def input_names(pattern: Pattern) -> list[str]:
+    """Names of :func:`symbolic_inputs`."""
+    names = ["los_orbit", "boresight_body", "p0_dbw", "noise_dbw"]
+    return [*names, "antenna"] if isinstance(pattern, AntennaPatterns) else names
+
+
+def _symbolic_snr(pattern: Pattern, m: int) -> tuple[list[ca.SX], ca.SX]:
+    v, attitude_ref = ca.SX.sym("v", 3), ca.SX.sym("attitude_ref", 3, 3)
+    data = symbolic_inputs(pattern, m)
+    snr = pattern_snr_model(pattern)(increment_matrix(v) @ attitude_ref, *data)
+    return [v, attitude_ref, *data], snr
 
 
 @lru_cache(maxsize=16)
-def pattern_snr_model(pattern: GainPattern) -> Callable[..., Any]:
+def pattern_snr_model(pattern: Pattern) -> Callable[..., Any]:
     """:func:`snr_db` with ``pattern`` bound, a model for :func:`attitude_model_function`
-    (arguments: attitude, lines of sight, boresights, ``p0``, noise power)."""
+    (arguments: attitude, lines of sight, boresights, ``p0``, noise power, and with an
+    :class:`~attopt.formulations.gain_patterns.AntennaPatterns` the receiving antennas)."""
+    if isinstance(pattern, AntennaPatterns):
+
+        def antenna_snr_model(
+            attitude: Any, los: Any, boresight: Any, p0: Any, noise: Any, antenna: Any
+        ) -> Any:
+            return snr_db(attitude, los, boresight, p0, noise, pattern, antenna)
+
+        return antenna_snr_model
 
     def snr_model(attitude: Any, los: Any, boresight: Any, p0: Any, noise: Any) -> Any:
         return snr_db(attitude, los, boresight, p0, noise, pattern)
@@ -231,24 +283,27 @@ def pattern_snr_model(pattern: GainPattern) -> Callable[..., Any]:
 
 
 @lru_cache(maxsize=64)
-def snr_function(pattern: GainPattern, m: int) -> ca.Function:
-    """``(v[3], A_ref[3x3], los[m x 3], boresight[m x 3], p0[m], noise) -> snr[m]``.
+def snr_function(pattern: Pattern, m: int) -> ca.Function:
+    """``(v[3], A_ref[3x3], los[m x 3], boresight[m x 3], p0[m], noise[, antenna[m]]) ->
+    snr[m]``.
 
     CasADi function of :func:`snr_db` at the attitude ``C(v) A_ref``
-    (:func:`increment_matrix`); boresight row ``i`` is the antenna that
-    received observation ``i``.  Inputs are not checked (use
+    (:func:`increment_matrix`); boresight row ``i`` (and ``antenna`` entry ``i``)
+    is the antenna that received observation ``i``.  Inputs are not checked (use
     :func:`observation_mask`).
     """
     inputs, snr = _symbolic_snr(pattern, m)
-    return ca.Function("snr", inputs, [snr], _INPUT_NAMES, ["snr_db"])
+    names = ["v", "attitude_ref", *input_names(pattern)]
+    return ca.Function("snr", inputs, [snr], names, ["snr_db"])
 
 
 @lru_cache(maxsize=64)
-def snr_jacobian_function(pattern: GainPattern, m: int) -> ca.Function:
+def snr_jacobian_function(pattern: Pattern, m: int) -> ca.Function:
     """As :func:`snr_function`, returning ``(snr[m], d snr / d v [m x 3])`` by CasADi AD."""
     inputs, snr = _symbolic_snr(pattern, m)
     jacobian = ca.jacobian(snr, inputs[0])
-    return ca.Function("snr_jacobian", inputs, [snr, jacobian], _INPUT_NAMES, ["snr_db", "jac_v"])
+    names = ["v", "attitude_ref", *input_names(pattern)]
+    return ca.Function("snr_jacobian", inputs, [snr, jacobian], names, ["snr_db", "jac_v"])
 
 
 def predict_snr(
@@ -257,9 +312,10 @@ def predict_snr(
     boresight_body: ArrayLike,
     p0_dbw: ArrayLike,
     noise_dbw: ArrayLike,
-    pattern: GainPattern,
+    pattern: Pattern,
     mask: ArrayLike | str | None = None,
     model: Callable[..., Any] | None = None,
+    antenna: ArrayLike | None = None,
 ) -> tuple[Array, Array]:
     """Predicted SNR ``(..., m)`` and its Jacobian ``(..., m, 3)`` (dB/rad), numpy.
 
@@ -275,13 +331,18 @@ def predict_snr(
     valid ones (:func:`observation_mask`) and leaves the rest NaN.
     ``model`` replaces :func:`snr_db` (same arguments, pattern bound) by a
     function of it, e.g. the truncated mean of :mod:`attopt.formulations.snr_measurement`.
+    ``antenna`` (broadcasting against ``(..., m)``) is each observation's receiving
+    antenna, needed with an :class:`~attopt.formulations.gain_patterns.AntennaPatterns`.
     """
     a, los, bore = _numpy_inputs(attitude.as_matrix(), los_orbit, boresight_body)
     offset = np.asarray(p0_dbw, dtype=float) - np.asarray(noise_dbw, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_alpha, _ = off_boresight(a, los, bore)
     shape = np.broadcast_shapes(np.shape(cos_alpha), offset.shape)
-    reasons = _invalid_reasons(a, los, bore, np.broadcast_to(cos_alpha, shape), pattern)
+    per_antenna = isinstance(pattern, AntennaPatterns)
+    if per_antenna:
+        antenna = np.broadcast_to(np.asarray(antenna, dtype=np.intp), shape)
+    reasons = _invalid_reasons(a, los, bore, np.broadcast_to(cos_alpha, shape), pattern, antenna)
     reasons.append(
         ("isotropic or noise power is NaN/inf", ~np.isfinite(np.broadcast_to(offset, shape)))
     )
@@ -304,15 +365,18 @@ def predict_snr(
     los_filler = filler @ a  # A^T b: along the boresight
     los = np.where(use_k, np.broadcast_to(los, (*shape, 3)).reshape(rows, 3), los_filler)
     offset = np.where(use, np.broadcast_to(offset, shape), 0.0).reshape(rows)
+    shapes = ((1, 3), (1, 3), (1, 1), (1, 1))
+    extra = (antenna.reshape(rows),) if per_antenna else ()
     snr, jac = evaluate_at_attitudes(
         attitude_model_function(
-            model or pattern_snr_model(pattern), ((1, 3), (1, 3), (1, 1), (1, 1))
+            model or pattern_snr_model(pattern), shapes + ((1, 1),) * len(extra)
         ),
         a,
         los,
         bore,
         offset,
         0.0,
+        *extra,
     )
     snr = snr.reshape(shape)
     jac = jac.reshape(*shape, 3)
@@ -349,11 +413,44 @@ def cramer_rao_bound(fisher: ArrayLike, rtol: float = 1e-10) -> Array:
     all observations come from one antenna, Liu et al. 2023 sec. 3.1), the others
     are those of the inverse on the observable subspace.
     """
-    f = np.asarray(fisher, dtype=float)
-    eigenvalues, vectors = np.linalg.eigh(0.5 * (f + np.swapaxes(f, -1, -2)))
-    null = eigenvalues <= rtol * eigenvalues[..., -1:]
+    eigenvalues, vectors, null = _null_space(fisher, rtol)
     inverse = np.where(null, 0.0, 1.0 / np.where(null, 1.0, eigenvalues))
     observable = np.einsum("...ik,...k,...jk->...ij", vectors, inverse, vectors)
     projector = np.einsum("...ik,...k,...jk->...ij", vectors, null.astype(float), vectors)
     unbounded = np.abs(projector) > _NULL_PROJECTOR_TOLERANCE
     return np.where(unbounded, np.copysign(np.inf, projector), observable)
+
+
+def unobservable_directions(
+    fisher: ArrayLike, rtol: float = 1e-10
+) -> tuple[NDArray[np.intp], Array]:
+    """The rotations the data cannot see: the dimension ``(...)`` of the unobservable
+    subspace of each Fisher information (the null space of :func:`cramer_rao_bound`) and,
+    where it is one-dimensional, its unit direction ``(..., 3)`` in the body frame (sign:
+    largest component positive; NaN elsewhere).
+
+    With every observation from one antenna it is that antenna's boresight (Liu et al. 2023
+    sec. 3.1): the body axes on which the bound is infinite are those the boresight has a
+    component on, while the direction itself says which rotation is unseen.
+
+    Example::
+
+        >>> import numpy as np
+        >>> count, direction = unobservable_directions(np.diag([2.0, 1.0, 0.0]))
+        >>> int(count), direction.tolist()
+        (1, [0.0, 0.0, 1.0])
+    """
+    _, vectors, null = _null_space(fisher, rtol)
+    count = null.sum(axis=-1)
+    first = np.take_along_axis(vectors, np.argmax(null, axis=-1)[..., None, None], axis=-1)[..., 0]
+    largest = np.take_along_axis(first, np.argmax(np.abs(first), axis=-1)[..., None], axis=-1)
+    direction = first * np.sign(largest)
+    return count, np.where((count == 1)[..., None], direction, np.nan)
+
+
+def _null_space(fisher: ArrayLike, rtol: float) -> tuple[Array, Array, NDArray[np.bool_]]:
+    """Eigenvalues (ascending), eigenvectors (columns) of the symmetrised ``fisher``, and
+    which eigenvalues are at most ``rtol`` times the largest (the unobservable subspace)."""
+    f = np.asarray(fisher, dtype=float)
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (f + np.swapaxes(f, -1, -2)))
+    return eigenvalues, vectors, eigenvalues <= rtol * eigenvalues[..., -1:]

@@ -5,8 +5,9 @@ Liu et al. 2023 eq. 4), the unit line of sight ``l_k`` in the orbit frame (satel
 to aircraft, :func:`attopt.formulations.snr_model.line_of_sight`), the index of the
 antenna that received it, the isotropic power ``10 lg P0_k`` (dBW, eq. 3) and
 the noise power ``10 lg P_n`` (dBW, eq. 2).  The antennas' boresights in the
-body frame and the gain pattern are inputs too.  The unknown is the attitude
-``A = C_o^B`` (orbit -> body, ``docs/conventions.md``).
+body frame and the gain pattern are inputs too: one pattern for every antenna,
+or one per antenna (:class:`~attopt.formulations.gain_patterns.AntennaPatterns`).
+The unknown is the attitude ``A = C_o^B`` (orbit -> body, ``docs/conventions.md``).
 
 Batches are plain sequences of :class:`SnrEpoch` (epochs differ in ``m``); the
 NLP solver pads each epoch to a bucket size itself
@@ -44,6 +45,7 @@ Policy on bad input (mirrors :mod:`attopt.formulations.vector_observations`):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -51,7 +53,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from attopt.formulations.errors import AttoptError, InvalidObservationError, UnobservableError
-from attopt.formulations.gain_patterns import GainPattern
+from attopt.formulations.gain_patterns import AntennaPatterns, GainPattern, shared_pattern
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snr_model import SNR_SIGMA_DB
 
@@ -83,7 +85,11 @@ class SnrEpoch:
         boresights_body: ``(n_antennas, 3)`` antenna boresights in the body frame.
         p0_dbw: ``(m,)`` isotropic received power ``10 lg P0`` (dBW, eq. 3).
         noise_dbw: noise power ``10 lg(k_B T B)`` (dBW, eq. 2).
-        pattern: the receive gain pattern (main lobe only).
+        pattern: the receive gain pattern (main lobe only): one for every antenna, or
+            one per antenna (a sequence of ``n_antennas`` patterns or an
+            :class:`~attopt.formulations.gain_patterns.AntennaPatterns`); patterns that
+            are all equal are stored as that one pattern, so such an epoch is
+            evaluated exactly as one with a single pattern.
         sigma_db: SNR standard deviation(s), scalar or ``(m,)`` (eq. 22's ``sigma_ij``).
         threshold_db: reception threshold; measured SNRs below it are rejected.
         transmitter: ``(m,)`` identifier of each observation's transmitter (the
@@ -111,7 +117,7 @@ class SnrEpoch:
     boresights_body: NDArray[np.float64]
     p0_dbw: NDArray[np.float64]
     noise_dbw: float
-    pattern: GainPattern = field(repr=False)
+    pattern: GainPattern | AntennaPatterns | Sequence[GainPattern] = field(repr=False)
     sigma_db: NDArray[np.float64] | float = SNR_SIGMA_DB
     threshold_db: float = RECEPTION_THRESHOLD_DB
     transmitter: NDArray[np.intp] | None = None
@@ -162,6 +168,7 @@ class SnrEpoch:
         ):
             object.__setattr__(self, name, value)
         object.__setattr__(self, "noise_dbw", noise)
+        self._set_pattern(bores.shape[0])
         object.__setattr__(self, "threshold_db", threshold)
         if self.transmitter is not None:
             ids = np.asarray(self.transmitter)
@@ -171,6 +178,18 @@ class SnrEpoch:
                 )
             object.__setattr__(self, "transmitter", _readonly(ids, np.intp))
 
+    def _set_pattern(self, n_antennas: int) -> None:
+        pattern = self.pattern
+        if isinstance(pattern, AntennaPatterns):
+            pattern = pattern.patterns
+        if isinstance(pattern, Sequence):
+            if len(pattern) != n_antennas:
+                raise InvalidObservationError(
+                    f"pattern must be one gain pattern or one per antenna ({n_antennas}), "
+                    f"got {len(pattern)}"
+                )
+            object.__setattr__(self, "pattern", shared_pattern(pattern))
+
     @classmethod
     def from_ranges(
         cls,
@@ -179,7 +198,7 @@ class SnrEpoch:
         antenna: ArrayLike,
         boresights_body: ArrayLike,
         range_m: ArrayLike,
-        pattern: GainPattern,
+        pattern: GainPattern | AntennaPatterns | Sequence[GainPattern],
         link_budget: LinkBudget | None = None,
         **kwargs: float | ArrayLike,
     ) -> SnrEpoch:
@@ -204,6 +223,18 @@ class SnrEpoch:
     @property
     def n_antennas(self) -> int:
         return int(self.boresights_body.shape[0])
+
+    def pattern_of(self, antenna: int) -> GainPattern:
+        """The gain pattern of antenna ``antenna``."""
+        if isinstance(self.pattern, AntennaPatterns):
+            return self.pattern.patterns[antenna]
+        return self.pattern
+
+    @property
+    def pattern_antenna(self) -> NDArray[np.intp] | None:
+        """``(m,)`` receiving antenna of each observation when the antennas' patterns differ
+        (the index that chooses each observation's pattern in the model), else ``None``."""
+        return self.antenna if isinstance(self.pattern, AntennaPatterns) else None
 
     @cached_property
     def counts(self) -> NDArray[np.intp]:

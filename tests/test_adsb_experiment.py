@@ -11,6 +11,7 @@ import pytest
 from attopt.experiments.adsb_snr.experiment import (
     EXPERIMENT,
     NO_GYRO,
+    AdsbSnrParameters,
     epoch_statistics,
     noise_free_pass,
     simulate_pass,
@@ -67,8 +68,8 @@ def test_summary_has_the_issue_columns_for_every_method(sweep):
 
 def test_nlp_and_nlse_agree_epoch_by_epoch(sweep):
     rows = sweep.rows[sweep.rows["valid"]]
-    nlp = rows[rows["method"] == "nlp"].set_index("t")
-    nlse = rows[rows["method"] == "nlse"].set_index("t")
+    nlp = rows[rows["method"] == "nlp"].set_index("t_s")
+    nlse = rows[rows["method"] == "nlse"].set_index("t_s")
     assert len(nlp) == len(nlse) == int(SHORT["duration_s"])
     for axis in "xyz":
         # Both minimise eq. 19; LM stops on its loss tolerance within ~1e-6 deg of IPOPT.
@@ -141,7 +142,7 @@ def test_report_tables_recompute_from_the_rows(sweep):
 def test_wrong_minima_are_checked_on_every_20th_epoch(sweep):
     rows = _single_frame(sweep.rows)
     checked = rows.dropna(subset=["wrong_minimum"])
-    assert set(checked["t"]) == set(np.arange(0.0, SHORT["duration_s"], 20.0))
+    assert set(checked["t_s"]) == set(np.arange(0.0, SHORT["duration_s"], 20.0))
     assert set(checked["wrong_minimum"]) <= {0.0, 1.0}
     summary = _single_frame(sweep.summary).set_index("method")
     assert (summary["wrong_minimum_checked"] == 6).all()
@@ -180,10 +181,7 @@ def test_crb_at_the_truth_matches_the_solvers_covariance_formula(objective, pref
     # The experiment's bounds and the solvers' covariances share one definition
     # (eq. 22; formulations/snr_truncation.py for the truncated model, whose tests
     # check it against scipy's truncnorm).
-    setting = _setting()
-    scenario = noise_free_pass(
-        setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
-    )
+    scenario = noise_free_pass(AdsbSnrParameters.model_validate(_setting()))
     noisy = simulate_pass(scenario, np.random.default_rng(1), 1.0, 6.0)
     columns = epoch_statistics(scenario, noisy, 1.0, 6.0)
     for k in (0, 37, 119):
@@ -210,7 +208,7 @@ def test_summary_columns_survive_a_method_without_valid_epochs(sweep):
 
 
 def _filter_rms(rows: pd.DataFrame, method: str, gyro: str, start_s: float) -> float:
-    chosen = rows[(rows["method"] == method) & (rows["gyro"] == gyro) & (rows["t"] >= start_s)]
+    chosen = rows[(rows["method"] == method) & (rows["gyro"] == gyro) & (rows["t_s"] >= start_s)]
     return float(np.sqrt(sum((chosen[f"err_{a}_deg"] ** 2).mean() for a in "xyz")))
 
 
@@ -219,7 +217,7 @@ def test_filter_rows_are_valid_and_consistent_for_every_gyro(sweep):
     for (method, gyro), group in rows.groupby(["method", "gyro"]):
         assert len(group) == int(SHORT["duration_s"]), (method, gyro)
         assert group["valid"].all(), (method, gyro)
-        settled = group[group["t"] >= 60.0]
+        settled = group[group["t_s"] >= 60.0]
         # 60 epochs of a 3-dof NEES; generous band (errors are correlated in time)
         assert 0.5 < settled["nees"].mean() < 8.0, (method, gyro)
         assert np.isfinite(settled["bias_err_x_deg_h"]).all()
@@ -258,7 +256,7 @@ def test_factor_graph_rows_beat_the_filters_and_carry_the_posterior_bound(sweep,
     per_method = rows.groupby("method")["pbound_x_deg"].apply(lambda b: b.to_numpy())
     for method in per_method.index:
         np.testing.assert_array_equal(per_method[method], per_method["fg_batch"])
-    settled = rows[(rows["method"] == "fg_batch") & (rows["t"] >= 60.0)]
+    settled = rows[(rows["method"] == "fg_batch") & (rows["t_s"] >= 60.0)]
     ratio = _filter_rms(settled, "fg_batch", gyro, 60.0) / np.sqrt(
         sum((settled[f"pbound_{a}_deg"] ** 2).mean() for a in "xyz")
     )
@@ -275,7 +273,7 @@ def test_power_offsets_modelled_by_the_smoother():
         "methods": [],
         "filters": ["fg_batch", "fg_batch_offsets"],
         "gyros": ["mems"],
-        "power_offset_sigma_db": 2.0,
+        "traffic": {"power_offset_sigma_db": 2.0},
     }
     rows = EXPERIMENT.trial(EXPERIMENT.grid(setting)[0], np.random.SeedSequence(3))
     assert rows["valid"].all()

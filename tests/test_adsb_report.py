@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from attopt.experiments.adsb_snr.experiment import EXPERIMENT
 from attopt.experiments.adsb_snr.report import (
     BURN_IN_S,
     burn_in,
@@ -38,7 +39,7 @@ def _frame(method: str, gyro: str, trial: int, error: np.ndarray, **extra) -> pd
         "trial_index": trial,
         "method": method,
         "gyro": gyro,
-        "t": np.arange(N_EPOCHS, dtype=float),
+        "t_s": np.arange(N_EPOCHS, dtype=float),
         "valid": True,
         "reason": "",
         "runtime_s": extra.pop("runtime_s", 1.0),
@@ -75,7 +76,7 @@ def _rows(filters=FILTERS, trials: int = 2, snr_scale: float = 0.4, nees: float 
 
 
 def _context(rows: pd.DataFrame, out: Path, **parameters) -> ReportContext:
-    base = {
+    base = EXPERIMENT.parameters | {
         "duration_s": float(N_EPOCHS),
         "step_s": 1.0,
         "filters": FILTERS,
@@ -148,7 +149,7 @@ def test_run_averaged_nees_against_its_interval(tmp_path, nees):
 def test_burn_in_is_at_most_half_the_pass(tmp_path):
     rows = _rows()
     assert burn_in(_context(rows, tmp_path)) == BURN_IN_S
-    short = rows[rows["t"] < 120.0]
+    short = rows[rows["t_s"] < 120.0]
     context = _context(short, tmp_path, duration_s=120.0)
     assert burn_in(context) == 60.0
     text = filter_section(context)

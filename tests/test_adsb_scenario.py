@@ -12,20 +12,17 @@ from astropy.time import Time
 from sgp4.api import Satrec
 from sgp4.io import verify_checksum
 
+from attopt.experiments.adsb_snr.parameters import BETA_OPT_DEG, DEFAULT_TLE, AdsbScenario
 from attopt.experiments.adsb_snr.scenario import (
-    BETA_OPT_DEG,
-    BORESIGHTS_BODY,
-    TLE_EPOCH_UTC,
     AdsbGeometry,
     above_limb,
     build_adsb_geometry,
     observation_table,
-    satellite_tle,
     visible_counts,
     visible_observations,
 )
+from attopt.experiments.environment.orbit import circular_orbit_tle
 from attopt.experiments.environment.traffic import (
-    MEAN_RADIUS_KM,
     Traffic,
     angle_from_origin,
     geodetic_normal,
@@ -35,6 +32,7 @@ from attopt.experiments.environment.traffic import (
 from attopt.formulations.conventions import euler321_from_attitude
 
 MAIN_LOBE_DEG = 41.67  # cos^6(a) = 10**0.4 / 14.4598: G >= 4 dBi (Liu et al. 2023 eq. 63)
+TLE_EPOCH_UTC = "2025-06-01T00:00:00"
 SIDEREAL_NODE_RATE_DEG_DAY = 0.9856473598  # 360 deg per tropical year
 
 
@@ -54,7 +52,8 @@ def _geodetic(ecef_km: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_tle_is_valid_and_has_the_documented_elements() -> None:
-    line1, line2 = satellite_tle()
+    line1, line2 = DEFAULT_TLE
+    assert DEFAULT_TLE == circular_orbit_tle(TLE_EPOCH_UTC, 99999, 600.0, 97.8, 226.31)
     verify_checksum(line1, line2)
     satellite = Satrec.twoline2rv(line1, line2)
     assert np.degrees(satellite.inclo) == pytest.approx(97.8)
@@ -62,7 +61,7 @@ def test_tle_is_valid_and_has_the_documented_elements() -> None:
 
 
 def test_orbit_has_600_km_altitude_and_97_8_deg_inclination(geometry: AdsbGeometry) -> None:
-    satellite = Satrec.twoline2rv(*satellite_tle())
+    satellite = Satrec.twoline2rv(*DEFAULT_TLE)
     jd = satellite.jdsatepoch + np.linspace(0.0, 1.0, 200)
     _, position, velocity = satellite.sgp4_array(jd, np.full_like(jd, satellite.jdsatepochF))
     h = np.cross(position, velocity)
@@ -77,7 +76,7 @@ def test_orbit_has_600_km_altitude_and_97_8_deg_inclination(geometry: AdsbGeomet
 
 
 def test_orbit_is_sun_synchronous_with_ltan_2230() -> None:
-    satellite = Satrec.twoline2rv(*satellite_tle())
+    satellite = Satrec.twoline2rv(*DEFAULT_TLE)
     days = np.arange(0.0, 4.0, 10.0 / 1440.0)
     jd = satellite.jdsatepoch + days
     _, position, velocity = satellite.sgp4_array(jd, np.full_like(jd, satellite.jdsatepochF))
@@ -93,14 +92,15 @@ def test_orbit_is_sun_synchronous_with_ltan_2230() -> None:
 # --- attitude and antennas ---------------------------------------------------------------
 
 
-def test_boresights_are_unit_symmetric_and_tilted_beta_opt() -> None:
-    np.testing.assert_allclose(np.linalg.norm(BORESIGHTS_BODY, axis=-1), 1.0)
-    off_nadir = np.degrees(np.arccos(BORESIGHTS_BODY @ [0.0, 0.0, 1.0]))
+def test_boresights_are_unit_symmetric_and_tilted_beta_opt(geometry: AdsbGeometry) -> None:
+    boresights = geometry.boresights_body
+    assert boresights.shape == (2, 3)
+    np.testing.assert_allclose(np.linalg.norm(boresights, axis=-1), 1.0)
+    off_nadir = np.degrees(np.arccos(boresights @ [0.0, 0.0, 1.0]))
     np.testing.assert_allclose(off_nadir, BETA_OPT_DEG)
-    np.testing.assert_allclose(BORESIGHTS_BODY[1], BORESIGHTS_BODY[0] * [1.0, -1.0, 1.0])
-    assert np.degrees(np.arccos(BORESIGHTS_BODY[0] @ BORESIGHTS_BODY[1])) == pytest.approx(
-        2.0 * BETA_OPT_DEG
-    )
+    np.testing.assert_allclose(boresights[1], boresights[0] * [1.0, -1.0, 1.0])
+    assert np.degrees(np.arccos(boresights[0] @ boresights[1])) == pytest.approx(2.0 * BETA_OPT_DEG)
+    assert boresights[0, 1] > 0  # antenna 1 towards +y body (Liu et al. 2023 Fig. 7)
 
 
 def test_true_attitude_wanders_a_few_degrees(geometry: AdsbGeometry) -> None:
@@ -176,7 +176,7 @@ def test_traffic_is_reproducible_from_the_seed() -> None:
     for field in dataclasses.fields(Traffic):
         np.testing.assert_array_equal(getattr(first, field.name), getattr(second, field.name))
     assert not np.array_equal(first.start_angle_rad, other.start_angle_rad)
-    assert build_adsb_geometry() is build_adsb_geometry(3600, 1.0, 10_000, 0)
+    assert build_adsb_geometry() is build_adsb_geometry(AdsbScenario())
 
 
 # --- visibility --------------------------------------------------------------------------
@@ -212,7 +212,7 @@ def test_pipeline_rejects_aircraft_beyond_the_limb(geometry: AdsbGeometry) -> No
         height_km=np.full(2, 10.0),
         speed_mps=np.zeros(2),
     )
-    assert central_deg[1] * np.pi / 180.0 * MEAN_RADIUS_KM < 3500.0
+    assert np.radians(central_deg[1]) < geometry.prefilter_rad
     probe = dataclasses.replace(geometry, traffic=hovering)
     observations = visible_observations(probe, 0, 60.0)
     np.testing.assert_array_equal(observations.antennas[0].aircraft, [0])
@@ -233,7 +233,7 @@ def test_lines_of_sight_are_unit_and_point_to_the_aircraft(geometry: AdsbGeometr
     )
     body = geometry.truth[table.epoch_index].apply(table.los_orbit)
     np.testing.assert_allclose(
-        table.cos_off_boresight, np.sum(body * BORESIGHTS_BODY[table.antenna], axis=-1)
+        table.cos_off_boresight, np.sum(body * geometry.boresights_body[table.antenna], axis=-1)
     )
     assert np.all(table.cos_off_boresight >= np.cos(np.radians(MAIN_LOBE_DEG)))
     assert 590e3 < table.range_m.min() and table.range_m.max() < 3.3e6
@@ -246,7 +246,8 @@ def test_prefilter_drops_no_visible_aircraft(geometry: AdsbGeometry) -> None:
         aircraft_ecef = positions_ecef_km(geometry.traffic, geometry.t[k])
         los = aircraft_ecef - geometry.position_ecef_km[k]
         los /= np.linalg.norm(los, axis=-1, keepdims=True)
-        cos_off = geometry.truth[k].apply(los @ geometry.ecef_to_orbit[k].T) @ BORESIGHTS_BODY.T
+        body = geometry.truth[k].apply(los @ geometry.ecef_to_orbit[k].T)
+        cos_off = body @ geometry.boresights_body.T
         visible = above_limb(geometry.position_ecef_km[k], aircraft_ecef)[:, None]
         visible = visible & (cos_off >= np.cos(np.radians(MAIN_LOBE_DEG)))
         for antenna in range(2):

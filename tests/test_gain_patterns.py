@@ -95,6 +95,31 @@ def test_tabulated_spline_passes_through_the_table_and_approximates_the_pattern(
     assert TABULATED.peak_gain_dbi == pytest.approx(SEED000_HELIX.peak_gain_dbi)
 
 
+def test_tabulated_gain_continues_along_its_tangent_beyond_the_table():
+    """Beyond the table's edge (where the interpolant is 0) the gain is G(s_e) + G'(s_e)
+    (s - s_e), s = 1 - cos(alpha): continuous with a continuous slope, for trial attitudes of
+    an estimator that move an observation just outside the lobe; inside, the spline itself."""
+    edge, slope = TABULATED.edge
+    inside = np.linspace(0.0, edge, 50)
+    np.testing.assert_array_equal(
+        TABULATED.gain_dbi(1.0 - inside, inside, NUMPY),
+        TABULATED.spline.map(50)(inside.reshape(1, -1)).full().ravel(),
+    )
+    at_edge = float(TABULATED.spline(edge))
+    beyond = edge + np.array([1e-4, 0.01, 0.1])
+    np.testing.assert_allclose(
+        TABULATED.gain_dbi(1.0 - beyond, beyond, NUMPY), at_edge + slope * (beyond - edge)
+    )
+    h = 1e-7  # one-sided differences on either side of the edge agree with the slope
+    below = (at_edge - float(TABULATED.spline(edge - h))) / h
+    above = (TABULATED.gain_dbi(1.0 - edge - h, edge + h, NUMPY) - at_edge) / h
+    assert slope < 0 and below == pytest.approx(slope, rel=1e-5)
+    assert above == pytest.approx(slope, rel=1e-9)
+    # the helix the table samples falls by about the same slope there (dB per unit s)
+    helix = (10.0 * 6.0 / math.log(10.0)) / -(1.0 - edge)
+    assert slope == pytest.approx(helix, rel=0.05)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     name=st.sampled_from(sorted(PATTERNS)),

@@ -24,6 +24,7 @@ from attopt.formulations.snr_model import (
     snr_db,
     snr_function,
     snr_jacobian_function,
+    unobservable_directions,
 )
 from tests.strategies import attitudes
 from tests.test_gain_patterns import PATTERNS
@@ -259,6 +260,19 @@ def test_crb_is_infinite_about_the_boresight_of_a_single_antenna():
     assert crb[0, 0] == np.inf and crb[2, 2] == np.inf
     assert np.isfinite(crb[1, 1])
     assert np.sign(crb[0, 2]) == np.sign(ANTENNAS[0, 0] * ANTENNAS[0, 2])
+
+
+def test_unobservable_direction_of_a_single_antenna_is_its_boresight():
+    fisher, crb = _crb_for(ANTENNAS[:1])
+    count, direction = unobservable_directions(fisher)
+    assert count == 1
+    np.testing.assert_allclose(abs(direction @ ANTENNAS[0]), 1.0, atol=1e-9)
+    # the bound is infinite exactly on the body axes the boresight has a component on
+    np.testing.assert_array_equal(np.isinf(np.diag(crb)), np.abs(direction) > 1e-9)
+    count, direction = unobservable_directions(_crb_for(ANTENNAS)[0])
+    assert count == 0 and np.isnan(direction).all()
+    count, direction = unobservable_directions(np.zeros((2, 3, 3)))
+    assert count.tolist() == [3, 3] and np.isnan(direction).all()
 
 
 def test_crb_is_finite_with_two_antennas_and_equals_the_inverse():

@@ -1,25 +1,29 @@
 """Experiment ``adsb-snr``: the SNR attitude solvers over Liu et al. 2023's one-hour pass.
 
 Scenario (Liu et al. 2023 sec. 5.1): :mod:`attopt.experiments.adsb_snr.scenario` gives the
-orbit, the true attitude, the two tilted helices and a modelled global aircraft
-population (``n_aircraft`` great-circle flights of ``traffic_seed``).  The
-geometry and the noise-free SNRs are deterministic scenario inputs, computed
-once per process and parameter set (:func:`noise_free_pass`); a trial's seed
-drives only the SNR noise.
+orbit, the true attitude, the antennas and a modelled global aircraft
+population for the parameters of :class:`AdsbSnrParameters` (tables of
+:mod:`attopt.experiments.adsb_snr.parameters`: ``[orbit]``, ``[attitude]``,
+``[[antennas]]``, ``[traffic]``, ``[receiver]``; the defaults are the paper's
+two tilted helices on a 600 km Sun-synchronous orbit).  The geometry and the
+noise-free SNRs are deterministic scenario inputs, computed once per process
+and scenario (:func:`noise_free_pass`); a trial's seed drives only the SNR
+noise, the transmitters' power offsets and the gyros.
 
 One trial, epoch by epoch at ``step_s`` over ``duration_s``:
 
 1. *Visible*: the aircraft above the limb inside an antenna's main lobe at the
-   TRUE attitude, up to the pattern's own limit
-   (``SEED000_HELIX.max_off_boresight_rad``, ``G >= 4 dBi``, sec. 5.1).
+   TRUE attitude, up to that antenna's pattern's own limit (for Liu et al.
+   2023's helix ``G >= 4 dBi``, sec. 5.1).
 2. *True SNR*: ``G(alpha) + 10 lg P0 - 10 lg P_n`` (eqs. 1-4, 13) at the true
-   attitude, ``P0`` from :class:`~attopt.formulations.link_budget.LinkBudget` at the
-   slant range.
-3. *Measured*: true + ``snr_sigma_db`` x N(0, 1), one draw per visible
+   attitude with the receiving antenna's pattern, ``P0`` from the
+   :class:`~attopt.formulations.link_budget.LinkBudget` of ``[traffic]`` and
+   ``[receiver]`` at the slant range.
+3. *Measured*: true + ``receiver.snr_sigma_db`` x N(0, 1), one draw per visible
    (epoch, antenna, aircraft) row from ``numpy.random.default_rng(seed)`` in one
    call, rows in the observation table's order (epoch, then antenna 1 before
-   antenna 2, then aircraft id).
-4. *Received*: rows with measured SNR >= ``threshold_db`` (sec. 5.1,
+   antenna 2 and so on, then aircraft id).
+4. *Received*: rows with measured SNR >= ``receiver.threshold_db`` (sec. 5.1,
    ``P_SNR^req = 6 dB``); the receiver decodes only those.  This is a selection
    on the noise: near the threshold only positive noise survives, so the kept
    measurements are biased upward and the Gaussian likelihood of eq. 19
@@ -39,16 +43,30 @@ One trial, epoch by epoch at ``step_s`` over ``duration_s``:
    :class:`~attopt.formulations.snr_problem.SnrEpoch` each), warm-started from the previous
    valid estimate as a flight estimator would be (the first epoch has no
    prior: the one-step methods start from the two-step solution, or a
-   multi-start, :mod:`attopt.solvers.snr.initialisation`).
+   multi-start, :mod:`attopt.solvers.snr.initialisation`).  The two-step method
+   uses antennas with at least ``deterministic_min_per_antenna`` messages
+   (Liu et al. 2023 sec. 3.3: 3).
 
-Rows, per method and epoch: ``t``, ``n_visible`` (before the threshold),
-``n_obs``, ``n_obs_antenna1``, ``n_obs_antenna2``, ``snr_bias_db``; the
-body-frame error ``err_{x,y,z}_deg`` (rotation vector of
-``A_est A_true^T``, ``docs/conventions.md``); ``bound_{x,y,z}_deg``, the square
-root of the diagonal of the Cramer-Rao bound ``(J^T C J)^-1`` (eq. 22) at the
-TRUE attitude with the received observations (conditional on which were
-received; inf where unobservable); ``sigma_{x,y,z}_deg`` and ``nees`` from the
-method's own covariance; 3-2-1 Euler-angle differences
+Rows, per method and epoch: ``t_s`` (seconds from the start), ``n_visible``
+(before the threshold), ``n_obs`` and ``n_obs_antenna{i}`` for each configured
+antenna ``i = 1 .. n`` (their sum), ``snr_bias_db`` (mean over all received
+messages); the body-frame error ``err_{x,y,z}_deg`` (rotation vector of
+``A_est A_true^T``, ``docs/conventions.md``); ``q_est_{x,y,z,w}`` and
+``q_true_{x,y,z,w}``, the estimated and true orbit -> body attitudes
+(scalar-last, :func:`attopt.experiments.metrics.attitude_columns`);
+``bound_{x,y,z}_deg``, the square root of the diagonal of the Cramer-Rao bound
+``(J^T C J)^-1`` (eq. 22) at the TRUE attitude with the received observations
+(conditional on which were received), NaN on every body axis that an
+unobservable rotation moves (``docs/conventions.md``); ``n_unobservable``, the
+dimension of that unobservable rotation space (0 when the bound is finite),
+and ``unobservable_{x,y,z}``, its unit direction in the body frame when it is
+one-dimensional (NaN otherwise): with every message from one antenna it is
+that antenna's boresight, the rotation a symmetric gain pattern cannot see
+(Liu et al. 2023 sec. 3.1).  A boresight that is not a body axis makes the
+bound NaN on two or three body axes, and the direction columns say which
+single rotation it is; the bound's finite axes are exact.
+``sigma_{x,y,z}_deg`` and ``nees`` come from the method's own covariance (NaN on
+the axes it cannot see); 3-2-1 Euler-angle differences
 ``euler_{yaw,pitch,roll}_err_deg`` wrapped to [-180, 180) (what Liu et al. 2023
 Table 2 tabulates); ``loss`` (the method's own objective: eq. 19 weighted by
 ``C``, for ``nlp_truncated`` the truncated negative log-likelihood,
@@ -82,7 +100,7 @@ of the pass time), ``crlb_ratio`` and ``crlb_ratio_10plus`` (RMS error over
 RMS of ``sqrt(CRB)``, over valid rows with a finite bound, all of them and
 those with at least 10 received observations), ``crlb_ratio_truncated`` (the
 same against ``bound_truncated_*``), ``n_unbounded`` (valid rows left out for
-a non-finite bound) and ``wrong_minimum_fraction`` with
+a bound that is not finite) and ``wrong_minimum_fraction`` with
 ``wrong_minimum_checked``.
 """
 
@@ -98,7 +116,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from pydantic import Field
+from pydantic import Field, model_validator
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.filters import (
@@ -106,20 +124,17 @@ from attopt.experiments.adsb_snr.filters import (
     PAPER_FILTER,
     PAPER_SOURCE,
     SNR_MODELS,
-    check_parameters,
     filter_labels,
     filter_rows,
+    gyro_label,
 )
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
-from attopt.experiments.adsb_snr.scenario import (
-    BORESIGHTS_BODY,
-    build_adsb_geometry,
-    observation_chunks,
-)
-from attopt.experiments.config import Parameters
+from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_chunks
+from attopt.experiments.config.components import Gyro, gyro_model
 from attopt.experiments.estimators import label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
-from attopt.experiments.metrics import error_columns
+from attopt.experiments.metrics import attitude_columns, error_columns
 from attopt.experiments.reporting.statistics import (
     bounded_valid_rows,
     rms_ratio_by_group,
@@ -127,25 +142,22 @@ from attopt.experiments.reporting.statistics import (
     valid_mask,
 )
 from attopt.experiments.simulation import INITIAL_ATTITUDE_SIGMA_DEG, child_rng
-from attopt.formulations.gain_patterns import SEED000_HELIX
-from attopt.formulations.gyro import GYRO_MODELS
+from attopt.formulations.gain_patterns import AntennaPatterns, GainPattern, shared_pattern
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
-from attopt.formulations.snr_model import cramer_rao_bound, predict_snr
+from attopt.formulations.snr_model import cramer_rao_bound, predict_snr, unobservable_directions
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.registry import estimator
-from attopt.solvers.results import AXES, Track
+from attopt.solvers.results import AXES, Track, observable_sigma
 from attopt.solvers.smoother import OFFSET_PRIOR_SIGMA_DB
+from attopt.solvers.snr.deterministic import SEED000_MIN_PER_ANTENNA
 from attopt.solvers.snr.driver import SnrSolver, snr_epoch
 from attopt.solvers.snr.initialisation import StartSource
 from attopt.solvers.snr.padding import bucket_size
 
-PATTERN = SEED000_HELIX
-"""The helix of Liu et al. 2023 eq. 63, main lobe ``G >= 4 dBi``."""
-LINK_BUDGET = LinkBudget()
 NO_GYRO = "none"
 """``gyro`` column of the single-frame rows."""
 OFFSET_STREAM = 100
@@ -162,21 +174,10 @@ def method_labels() -> dict[str, str]:
     return registered_labels("snapshot", SnrMeasurement)
 
 
-class AdsbSnrParameters(Parameters):
-    """Parameters of ``adsb-snr`` (Liu et al. 2023 sec. 5.1)."""
+class AdsbSnrParameters(AdsbScenario):
+    """Parameters of ``adsb-snr`` (Liu et al. 2023 sec. 5.1): the scenario's tables
+    (:class:`~attopt.experiments.adsb_snr.parameters.AdsbScenario`) and the estimators."""
 
-    duration_s: float = Field(3600.0, gt=0, description="Length of the pass from the start.")
-    step_s: float = Field(1.0, gt=0, description="Time between epochs.")
-    n_aircraft: int = Field(10_000, ge=1, description="Number of modelled flights.")
-    traffic_seed: int = Field(0, ge=0, description="Seed of the modelled traffic.")
-    snr_sigma_db: float = Field(1.0, gt=0, description="SNR measurement noise sigma.")
-    power_offset_sigma_db: float = Field(
-        0.0, ge=0, description="Sigma of each transmitter's power offset from the nominal."
-    )
-    offset_prior_sigma_db: float = Field(
-        OFFSET_PRIOR_SIGMA_DB, gt=0, description="Prior sigma of the estimated power offsets."
-    )
-    threshold_db: float = Field(6.0, description="Reception threshold of the measured SNR.")
     wrong_minimum_every: int = Field(
         20, ge=1, description="Every k-th solved epoch is re-solved from the truth."
     )
@@ -184,12 +185,18 @@ class AdsbSnrParameters(Parameters):
         default_factory=lambda: ["deterministic", "nlse", "nlp", "nlp_truncated"],
         description="Single-frame SNR solvers (registry names).",
     )
+    deterministic_min_per_antenna: int = Field(
+        SEED000_MIN_PER_ANTENNA,
+        ge=2,
+        description="Messages an antenna needs to enter the two-step method.",
+    )
     filters: list[label_field(filter_labels, "filters")] = Field(
         default_factory=lambda: list(DEFAULT_FILTERS),
         description="Filters and smoothers (row labels).",
     )
-    gyros: list[Literal[tuple(GYRO_MODELS)]] = Field(
-        default_factory=lambda: ["seed000", "mems"], description="Gyro model presets."
+    gyros: list[Gyro] = Field(
+        default_factory=lambda: ["seed000", "mems"],
+        description="Gyros, each a preset name or a table of its numbers.",
     )
     initial_sigma_deg: float = Field(
         INITIAL_ATTITUDE_SIGMA_DEG, gt=0, description="Per-axis sigma of the filters' prior."
@@ -200,21 +207,29 @@ class AdsbSnrParameters(Parameters):
     filter_snr_model: Literal[SNR_MODELS] = Field(
         "truncated", description="SNR likelihood of the SNR filters."
     )
+    offset_prior_sigma_db: float = Field(
+        OFFSET_PRIOR_SIGMA_DB, gt=0, description="Prior sigma of the estimated power offsets."
+    )
+
+    @model_validator(mode="after")
+    def _gyros_of_one_pass(self) -> AdsbSnrParameters:
+        labels = [gyro_label(g) for g in self.gyros]
+        if len(set(labels)) < len(labels):
+            raise ValueError(f"gyros need distinct names (row labels), got {labels}")
+        rates = {gyro_model(g).rate_hz for g in self.gyros}
+        if len(rates) > 1:
+            raise ValueError(f"every gyro of a pass must have the same rate, got {sorted(rates)}")
+        return self
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:
-    """One setting: Liu et al. 2023 sec. 5.1's noise and threshold; methods compared inside a
-    trial.
+    """One setting, the validated parameters as a document; methods compared inside a trial.
 
     Raises:
         ValueError: a method or filter the registry does not have (the message lists the
-            registered ones), or another bad parameter.
+            registered ones), or another bad parameter (pydantic's ValidationError).
     """
-    resolve(parameters["methods"], method_labels(), "methods")
-    if parameters["wrong_minimum_every"] < 1:
-        raise ValueError("wrong_minimum_every must be at least 1")
-    check_parameters(parameters)
-    return [dict(parameters)]
+    return [AdsbSnrParameters.model_validate(dict(parameters)).model_dump(mode="json")]
 
 
 @dataclass(frozen=True)
@@ -236,44 +251,60 @@ class NoiseFreePass:
     """SNR at the true attitude (eq. 13), ``(M,)``."""
     jacobian: NDArray[np.float64]
     """``d SNR / d delta`` at the true attitude (dB/rad, body-frame error), ``(M, 3)``."""
+    boresights_body: NDArray[np.float64]
+    """Unit antenna boresights, body frame, ``(n_antennas, 3)``."""
+    pattern: GainPattern | AntennaPatterns
+    """The antennas' gain pattern (one, or one per antenna)."""
+    link_budget: LinkBudget
 
     @property
     def n_epochs(self) -> int:
         return int(self.t.size)
 
+    @property
+    def n_antennas(self) -> int:
+        return int(self.boresights_body.shape[0])
 
-def noise_free_pass(
-    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int
-) -> NoiseFreePass:
+
+def antenna_pattern(scenario: AdsbScenario) -> GainPattern | AntennaPatterns:
+    """The antennas' gain patterns: the one pattern when they are all equal, else one per
+    antenna (:func:`~attopt.formulations.gain_patterns.shared_pattern`)."""
+    return shared_pattern([antenna.gain.pattern() for antenna in scenario.antennas])
+
+
+def noise_free_pass(scenario: AdsbScenario) -> NoiseFreePass:
     """The scenario's visible rows and true SNRs (cached per process; module docstring, 1-2)."""
-    return _noise_free_pass(float(duration_s), float(step_s), int(n_aircraft), int(traffic_seed))
+    return _noise_free_pass(scenario.key())
 
 
 @functools.lru_cache(maxsize=2)
-def _noise_free_pass(
-    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int
-) -> NoiseFreePass:
-    geometry = build_adsb_geometry(duration_s, step_s, n_aircraft, traffic_seed)
+def _noise_free_pass(key: str) -> NoiseFreePass:
+    scenario = AdsbScenario.model_validate_json(key)
+    geometry = build_adsb_geometry(scenario)
+    pattern = antenna_pattern(scenario)
+    link = scenario.link_budget
     parts: dict[str, list[np.ndarray]] = {
         k: [] for k in ("epoch", "antenna", "aircraft", "los", "p0")
     }
     snr_parts, jac_parts = [], []
-    for table in observation_chunks(geometry, np.degrees(PATTERN.max_off_boresight_rad)):
-        p0 = LINK_BUDGET.isotropic_power_dbw(table.range_m)
+    for table in observation_chunks(geometry):
+        p0 = link.isotropic_power_dbw(table.range_m)
+        per_antenna = isinstance(pattern, AntennaPatterns)
         snr, jac = predict_snr(  # one observation per stacked attitude
             geometry.truth[table.epoch_index],
             table.los_orbit[:, None, :],
-            BORESIGHTS_BODY[table.antenna][:, None, :],
+            geometry.boresights_body[table.antenna][:, None, :],
             p0[:, None],
-            LINK_BUDGET.noise_power_dbw,
-            PATTERN,
+            link.noise_power_dbw,
+            pattern,
+            antenna=table.antenna[:, None] if per_antenna else None,
         )
-        for key, value in zip(
+        for key_, value in zip(
             parts,
             (table.epoch_index, table.antenna, table.aircraft, table.los_orbit, p0),
             strict=True,
         ):
-            parts[key].append(value)
+            parts[key_].append(value)
         snr_parts.append(snr[:, 0])
         jac_parts.append(jac[:, 0, :])
     return NoiseFreePass(
@@ -286,6 +317,9 @@ def _noise_free_pass(
         p0_dbw=np.concatenate(parts["p0"]),
         true_snr_db=np.concatenate(snr_parts),
         jacobian=np.concatenate(jac_parts),
+        boresights_body=geometry.boresights_body,
+        pattern=pattern,
+        link_budget=link,
     )
 
 
@@ -335,10 +369,10 @@ def simulate_pass(
             snr_db=measured[take],
             los_orbit=scenario.los_orbit[take],
             antenna=scenario.antenna[take],
-            boresights_body=BORESIGHTS_BODY,
+            boresights_body=scenario.boresights_body,
             p0_dbw=scenario.p0_dbw[take],
-            noise_dbw=LINK_BUDGET.noise_power_dbw,
-            pattern=PATTERN,
+            noise_dbw=scenario.link_budget.noise_power_dbw,
+            pattern=scenario.pattern,
             sigma_db=sigma_db,
             threshold_db=threshold_db,
             transmitter=scenario.aircraft[take],
@@ -350,29 +384,44 @@ def simulate_pass(
 
 def _per_epoch_sum(values: np.ndarray, epoch: np.ndarray, n_epochs: int) -> np.ndarray:
     """Sum of ``values`` ``(K, ...)`` per epoch -> ``(n_epochs, ...)``."""
-    flat = values.reshape(values.shape[0], -1)
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
     sums = [
         np.bincount(epoch, weights=flat[:, j], minlength=n_epochs) for j in range(flat.shape[1])
     ]
     return np.stack(sums, axis=-1).reshape(n_epochs, *values.shape[1:])
 
 
+def antenna_count_columns(n_antennas: int) -> list[str]:
+    """``n_obs_antenna1 .. n_obs_antenna{n}``: received messages per antenna and epoch."""
+    return [f"n_obs_antenna{i}" for i in range(1, n_antennas + 1)]
+
+
 def epoch_statistics(
     scenario: NoiseFreePass, noisy: NoisyPass, sigma_db: float, threshold_db: float
 ) -> dict[str, np.ndarray]:
-    """Per-epoch columns shared by every method: time, counts, selection bias, CRBs at the truth.
+    """Per-epoch columns shared by every method: time, counts, selection bias, CRBs at the
+    truth and the rotation the received messages cannot see (module docstring).
 
     ``bound_*`` is eq. 22 with the received observations (the Gaussian model of
     eq. 19); ``bound_truncated_*`` weights each received observation by
     :func:`~attopt.formulations.snr_truncation.truncated_information_factor` at its
     true SNR, the Fisher information of the threshold-truncated measurement it
     actually is (given which were received): the bound for every method here.
+    Both are NaN on the body axes an unobservable rotation moves
+    (:func:`~attopt.solvers.results.observable_sigma` of the infinite variances of
+    :func:`~attopt.formulations.snr_model.cramer_rao_bound`); the weights are positive,
+    so both have the unobservable rotations of ``bound_*``
+    (:func:`~attopt.formulations.snr_model.unobservable_directions`).
     """
     n = scenario.n_epochs
     kept = noisy.received
     epoch = scenario.epoch_index[kept]
     counts = np.stack(
-        [np.bincount(epoch[scenario.antenna[kept] == a], minlength=n) for a in (0, 1)], axis=1
+        [
+            np.bincount(epoch[scenario.antenna[kept] == a], minlength=n)
+            for a in range(scenario.n_antennas)
+        ],
+        axis=1,
     )
     n_obs = counts.sum(axis=1)
     jac = scenario.jacobian[kept]
@@ -388,17 +437,20 @@ def epoch_statistics(
     with np.errstate(invalid="ignore", divide="ignore"):
         bias = bias_sum / n_obs
     columns = {
-        "t": scenario.t,
+        "t_s": scenario.t,
         "n_visible": np.bincount(scenario.epoch_index, minlength=n),
         "n_obs": n_obs,
-        "n_obs_antenna1": counts[:, 0],
-        "n_obs_antenna2": counts[:, 1],
+        **dict(zip(antenna_count_columns(scenario.n_antennas), counts.T, strict=True)),
         "snr_bias_db": bias,
     }
     for label, fisher in fishers.items():
-        bound = np.degrees(np.sqrt(np.diagonal(cramer_rao_bound(fisher), axis1=1, axis2=2)))
+        bound = np.degrees(observable_sigma(cramer_rao_bound(fisher)))
         for axis, column in zip(AXES, bound.T, strict=True):
             columns[f"{label}_{axis}_deg"] = column
+    n_unobservable, direction = unobservable_directions(fishers["bound"])
+    columns["n_unobservable"] = n_unobservable
+    for axis, column in zip(AXES, direction.T, strict=True):
+        columns[f"unobservable_{axis}"] = column
     return columns
 
 
@@ -469,6 +521,7 @@ def _method_rows(
             "gyro": NO_GYRO,
             **common,
             **error_columns(solution, truth),
+            **attitude_columns(solution.quaternion, truth),
             "loss": solution.loss,
             "wrong_minimum": wrong,
             "loss_from_truth": loss_from_truth,
@@ -480,34 +533,37 @@ def _method_rows(
     return frame, solution
 
 
+def method_estimators(parameters: AdsbSnrParameters) -> dict[str, SnapshotEstimator]:
+    """Row label -> configured estimator of each of ``methods`` (the two-step method's
+    ``deterministic_min_per_antenna``)."""
+    options = {"deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}}
+    return {
+        label: estimator(name, **options.get(name, {}))
+        for label, name in resolve(parameters.methods, method_labels(), "methods").items()
+    }
+
+
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One noisy pass solved by every method in ``setting["methods"]`` and every
     filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_snr.filters`)."""
-    scenario = noise_free_pass(
-        setting["duration_s"], setting["step_s"], setting["n_aircraft"], setting["traffic_seed"]
-    )
-    sigma = setting["snr_sigma_db"]
-    offsets = power_offsets(scenario, seed, setting["power_offset_sigma_db"])
-    noisy = simulate_pass(
-        scenario, np.random.default_rng(seed), sigma, setting["threshold_db"], offsets
-    )
-    common = epoch_statistics(scenario, noisy, sigma, setting["threshold_db"])
+    parameters = AdsbSnrParameters.model_validate(setting)
+    scenario = noise_free_pass(parameters)
+    receiver = parameters.receiver
+    sigma, threshold = receiver.snr_sigma_db, receiver.threshold_db
+    offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
+    noisy = simulate_pass(scenario, np.random.default_rng(seed), sigma, threshold, offsets)
+    common = epoch_statistics(scenario, noisy, sigma, threshold)
     snapshots = snr_snapshots(noisy.epochs)
     frames, solutions = [], {}
-    for label, name in resolve(setting["methods"], method_labels(), "methods").items():
+    for label, solver in method_estimators(parameters).items():
         frame, solutions[label] = _method_rows(
-            label,
-            estimator(name),
-            snapshots,
-            scenario.truth,
-            common,
-            setting["wrong_minimum_every"],
+            label, solver, snapshots, scenario.truth, common, parameters.wrong_minimum_every
         )
         frames.append(frame)
     nlse = solutions.get(PAPER_SOURCE)
-    if nlse is None and PAPER_FILTER in setting["filters"]:
+    if nlse is None and PAPER_FILTER in parameters.filters:
         nlse = estimator(PAPER_SOURCE).solve_sequence(snapshots)
-    frames += filter_rows(setting, seed, noisy.epochs, nlse, common, scenario.truth)
+    frames += filter_rows(parameters, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 
 

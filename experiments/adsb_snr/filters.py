@@ -1,9 +1,11 @@
 """Gyro-aided filter rows of the ``adsb-snr`` experiment.
 
 On the same measured SNRs as the single-frame methods, with a simulated
-rate-integrating gyro (:mod:`attopt.formulations.gyro`, 10 Hz) per entry of the
-``gyros`` parameter (``seed000``: Liu et al. 2023 sec. 5.1 read literally;
-``mems``: a MEMS-class unit), the pass estimators of the registry that accept
+rate-integrating gyro (:mod:`attopt.formulations.gyro`) per entry of the
+``gyros`` parameter (a preset, ``seed000``: Liu et al. 2023 sec. 5.1 read
+literally, 10 Hz; ``mems``: a MEMS-class unit; or a table of a gyro's numbers,
+:class:`attopt.experiments.config.components.GyroNumbers`, labelled by its
+``name``; all of one rate), the pass estimators of the registry that accept
 SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimators`:
 
 * ``mekf_paper``: Liu et al. 2023's MEKF (secs. 4.2-4.5, registry ``mekf``): the
@@ -25,9 +27,9 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
   from ``fg_online``'s estimates (or from ``rts_snr``'s when ``fg_online`` is
   not asked for; ``runtime_s`` includes that start); ``fg_batch_offsets``:
   ``fg_batch`` with one power-offset variable per aircraft (prior
-  ``offset_prior_sigma_db``), for data simulated with ``power_offset_sigma_db
-  > 0``.  Not in the default list: its cost grows with the number of aircraft
-  in view at once (``docs/smoother.md``).
+  ``offset_prior_sigma_db``), for data simulated with
+  ``traffic.power_offset_sigma_db > 0``.  Not in the default list: its cost
+  grows with the number of aircraft in view at once (``docs/smoother.md``).
 
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
 smoother is asked for: the posterior Cramer-Rao bound of the pass
@@ -46,15 +48,18 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, true_attitude
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
+from attopt.experiments.adsb_snr.scenario import build_adsb_geometry
+from attopt.experiments.config.components import GyroNumbers, gyro_model
 from attopt.experiments.estimators import FACTOR_GRAPH, registered_labels, resolve
 from attopt.experiments.metrics import (
+    attitude_columns,
     error_columns,
     gyro_columns,
     in_orbit_frame,
@@ -70,13 +75,15 @@ from attopt.experiments.simulation import (
 )
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, EulerAngleMeasurement
 from attopt.formulations.conventions import euler321_from_attitude, orbit_frame_attitude
-from attopt.formulations.gyro import GYRO_MODELS
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.pipeline import Run, run_estimators
 from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
+
+if TYPE_CHECKING:
+    from attopt.experiments.adsb_snr.experiment import AdsbSnrParameters
 
 SNR_SUFFIX = "_snr"
 PAPER_FILTER = "mekf_paper"
@@ -101,35 +108,34 @@ def filter_labels() -> dict[str, str]:
     return {PAPER_FILTER: "mekf", **registered_labels("pass", SnrMeasurement, filter_label)}
 
 
-def filter_estimators(setting: Mapping[str, Any]) -> dict[str, Estimator]:
-    """Row label -> configured estimator of each of ``setting["filters"]`` (the offsets'
-    prior of ``fg_batch_offsets`` from ``offset_prior_sigma_db``)."""
-    options = {"fg_batch_offsets": {"offset_sigma": setting["offset_prior_sigma_db"]}}
+def filter_estimators(filters: list[str], offset_prior_sigma_db: float) -> dict[str, Estimator]:
+    """Row label -> configured estimator of each of ``filters`` (the offsets' prior of
+    ``fg_batch_offsets`` from ``offset_prior_sigma_db``)."""
+    options = {"fg_batch_offsets": {"offset_sigma": offset_prior_sigma_db}}
     return {
         label: estimator(name, **options.get(name, {}))
-        for label, name in resolve(setting["filters"], filter_labels(), "filters").items()
+        for label, name in resolve(filters, filter_labels(), "filters").items()
     }
 
 
-def check_parameters(parameters: Mapping[str, Any]) -> None:
-    """Raise ValueError on filters the registry does not have (naming the registered ones),
-    unknown gyro models or SNR models."""
-    resolve(parameters["filters"], filter_labels(), "filters")
-    gyros = sorted(set(parameters["gyros"]) - set(GYRO_MODELS))
-    if gyros:
-        raise ValueError(f"unknown gyros {gyros}; known: {sorted(GYRO_MODELS)}")
-    if parameters["filter_snr_model"] not in SNR_MODELS:
-        raise ValueError(f"filter_snr_model must be one of {SNR_MODELS}")
+def gyro_label(gyro: str | GyroNumbers | Mapping[str, Any]) -> str:
+    """The ``gyro`` column of a ``gyros`` entry: the preset's name or the table's ``name``."""
+    if isinstance(gyro, str):
+        return gyro
+    return gyro_model(dict(gyro) if isinstance(gyro, Mapping) else gyro).name
+
+
+def adsb_gyro_truth(scenario: AdsbScenario, rate_hz: float) -> GyroTruth:
+    """The scenario's truth at the gyro rate (cached per process)."""
+    return _adsb_gyro_truth(scenario.key(), float(rate_hz))
 
 
 @functools.lru_cache(maxsize=2)
-def adsb_gyro_truth(
-    duration_s: float, step_s: float, n_aircraft: int, traffic_seed: int, rate_hz: float
-) -> GyroTruth:
-    """The scenario's truth at the gyro rate (cached per process)."""
-    geometry = build_adsb_geometry(duration_s, step_s, n_aircraft, traffic_seed)
+def _adsb_gyro_truth(key: str, rate_hz: float) -> GyroTruth:
+    scenario = AdsbScenario.model_validate_json(key)
+    geometry = build_adsb_geometry(scenario)
     frames = orbit_frame_attitude(geometry.position_eci_km, geometry.velocity_eci_kms)
-    return gyro_truth(geometry.t, frames, true_attitude, rate_hz)
+    return gyro_truth(geometry.t, frames, scenario.attitude.attitude, rate_hz)
 
 
 def paper_measurements(solution: Track, sigma_deg: float) -> list[AttitudeMeasurement | None]:
@@ -164,6 +170,7 @@ def _rows(
             "gyro": gyro,
             **common,
             **error_columns(track, true_attitude_orbit),
+            **attitude_columns(track.quaternion, true_attitude_orbit),
             **gyro_columns(run.track, simulated),
             "loss": track.loss,
             "wrong_minimum": np.nan,
@@ -175,34 +182,27 @@ def _rows(
 
 
 def filter_rows(
-    setting: Mapping[str, Any],
+    parameters: AdsbSnrParameters,
     seed: np.random.SeedSequence,
     epochs: list[SnrEpoch],
     nlse: Track | None,
     common: Mapping[str, np.ndarray],
     true_attitude_orbit: Rotation,
 ) -> list[pd.DataFrame]:
-    """Rows of every requested filter for every gyro model (module docstring)."""
-    methods = filter_estimators(setting)
+    """Rows of every requested filter for every gyro (module docstring; the parameters'
+    gyros are validated to share one rate)."""
+    methods = filter_estimators(parameters.filters, parameters.offset_prior_sigma_db)
     if not methods:
         return []
     paper_filter = methods.pop(PAPER_FILTER, None)
-    truth = adsb_gyro_truth(
-        setting["duration_s"],
-        setting["step_s"],
-        setting["n_aircraft"],
-        setting["traffic_seed"],
-        GYRO_MODELS[setting["gyros"][0]].rate_hz,
-    )
-    snr = snr_measurements(epochs, setting["filter_snr_model"])
-    paper = paper_measurements(nlse, setting["paper_sigma_deg"]) if nlse is not None else None
+    models = [gyro_model(gyro) for gyro in parameters.gyros]
+    truth = adsb_gyro_truth(parameters, models[0].rate_hz)
+    snr = snr_measurements(epochs, parameters.filter_snr_model)
+    paper = paper_measurements(nlse, parameters.paper_sigma_deg) if nlse is not None else None
     frames = []
-    for index, gyro in enumerate(setting["gyros"]):
-        model = GYRO_MODELS[gyro]
-        if model.rate_hz != GYRO_MODELS[setting["gyros"][0]].rate_hz:
-            raise ValueError("every gyro of a setting must have the same rate")
+    for index, (gyro, model) in enumerate(zip(parameters.gyros, models, strict=True)):
         rng = child_rng(seed, 1 + index)
-        inputs = simulate_filter_inputs(truth, model, rng, setting["initial_sigma_deg"])
+        inputs = simulate_filter_inputs(truth, model, rng, parameters.initial_sigma_deg)
         simulated = inputs.gyro_pass(truth, snr)
         runs: dict[str, Run] = {}
         if paper_filter is not None:
@@ -213,7 +213,9 @@ def filter_rows(
         runs |= run_estimators(simulated.pass_, methods)
         wanted = {e.name for e in methods.values()}
         bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
-        for label in setting["filters"]:
-            frame = _rows(label, gyro, runs[label], simulated, common, true_attitude_orbit)
+        for label in parameters.filters:
+            frame = _rows(
+                label, gyro_label(gyro), runs[label], simulated, common, true_attitude_orbit
+            )
             frames.append(frame.assign(**bound))
     return frames

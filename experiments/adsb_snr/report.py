@@ -10,6 +10,7 @@ tables compare and why they differ from the paper: ``docs/results.md``,
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import matplotlib.pyplot as plt
@@ -17,6 +18,7 @@ import matplotlib.ticker as ticker
 import numpy as np
 import pandas as pd
 
+from attopt.experiments.adsb_snr.filters import gyro_label
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.reporting.figures import (
     error_figure,
@@ -53,6 +55,8 @@ from attopt.experiments.reporting.tables import (
 )
 
 PACKAGE = "attopt.experiments.adsb_snr"
+EPOCH_KEYS = ("trial_index", "t_s")
+"""A row's epoch: its trial and time."""
 NO_GYRO = "none"
 TABLE2_AXES = (("yaw", "z"), ("pitch", "y"), ("roll", "x"))
 """Table 2's column order: psi, theta, phi = yaw, pitch, roll."""
@@ -86,6 +90,11 @@ SMOOTHERS = ("fg_online", "fg_batch", "fg_batch_offsets", "rts_snr", "mekf_snr")
 
 
 # ------------------------------------------------------------------ rows ---
+
+
+def gyro_labels(ctx: ReportContext) -> list[str]:
+    """The ``gyro`` labels of the configured ``gyros``, in order."""
+    return [gyro_label(g) for g in ctx.parameters.get("gyros", [])]
 
 
 def _single_frame(rows: pd.DataFrame) -> pd.DataFrame:
@@ -124,18 +133,18 @@ def _passes(rows: pd.DataFrame) -> pd.Series:
 
 def burn_in(ctx: ReportContext) -> float:
     """:data:`BURN_IN_S`, or half the pass when the pass is shorter than twice that."""
-    t = ctx.rows["t"]
+    t = ctx.rows["t_s"]
     length = float(t.max() - t.min()) + float(ctx.parameters.get("step_s", 0.0))
     return min(BURN_IN_S, 0.5 * length)
 
 
 def settled_from(ctx: ReportContext) -> float:
     """The time from which filter epochs count as settled (first epoch + :func:`burn_in`)."""
-    return float(ctx.rows["t"].min()) + burn_in(ctx)
+    return float(ctx.rows["t_s"].min()) + burn_in(ctx)
 
 
 def _settled(rows: pd.DataFrame, start: float) -> pd.DataFrame:
-    return rows[valid_mask(rows) & (rows["t"] >= start).to_numpy()]
+    return rows[valid_mask(rows) & (rows["t_s"] >= start).to_numpy()]
 
 
 def _angles(key: str, values: Sequence[float]) -> dict[str, float]:
@@ -253,7 +262,7 @@ def runtime_section(ctx: ReportContext, methods: list[str]) -> str:
 def efficiency_section(ctx: ReportContext, methods: list[str]) -> str:
     """RMS over both bounds with standard errors on the epochs with many observations."""
     rows = _single_frame(ctx.rows)
-    reference = _valid(_select(rows, "nlp")).set_index(["trial_index", "t"])
+    reference = _valid(_select(rows, "nlp")).set_index(["trial_index", "t_s"])
     table = []
     for method in methods:
         chosen = bounded_valid_rows(_select(rows, method))
@@ -269,7 +278,7 @@ def efficiency_section(ctx: ReportContext, methods: list[str]) -> str:
             "largest difference from nlp (deg)": np.nan,
         }
         if len(reference) and method != "nlp":
-            own = _valid(_select(rows, method)).set_index(["trial_index", "t"])
+            own = _valid(_select(rows, method)).set_index(["trial_index", "t_s"])
             both = own.index.intersection(reference.index)
             gap = sum(
                 (own.loc[both, f"err_{a}_deg"] - reference.loc[both, f"err_{a}_deg"]) ** 2
@@ -287,10 +296,18 @@ def efficiency_section(ctx: ReportContext, methods: list[str]) -> str:
     return section("Efficiency", caption, markdown_table(pd.DataFrame(table), formats, ".3f"))
 
 
+def antenna_columns(rows: pd.DataFrame) -> list[str]:
+    """The rows' ``n_obs_antenna{i}`` columns, in antenna order (one per configured antenna)."""
+    found = [c for c in rows.columns if re.fullmatch(r"n_obs_antenna\d+", c)]
+    return sorted(found, key=lambda c: int(c.removeprefix("n_obs_antenna")))
+
+
 def observations_section(ctx: ReportContext) -> str:
-    """The received-message counts per epoch (Fig. 8) and the reception threshold's bias."""
+    """The received-message counts per epoch (Fig. 8), the reception threshold's bias and the
+    epochs whose messages leave a rotation unobservable."""
     epochs = _epochs(_single_frame(ctx.rows))
-    sparser = epochs[["n_obs_antenna1", "n_obs_antenna2"]].min(axis=1)
+    per_antenna = antenna_columns(epochs)
+    sparser = epochs[per_antenna].min(axis=1)
     stated = paper_values(PACKAGE)["observations"]
     label = paper_label(PACKAGE, "observations")
 
@@ -306,19 +323,25 @@ def observations_section(ctx: ReportContext) -> str:
             "fewest on one antenna": [sparser.min()],
             f"fewest on one antenna ({label})": [stated["min_per_antenna"]],
             "epochs with fewer than 3 on one antenna": [float(np.mean(sparser < 3))],
+            "epochs with an unobservable rotation": [float(np.mean(epochs["n_unobservable"] > 0))],
             "mean SNR bias of the received (dB)": [
                 np.average(epochs["snr_bias_db"].fillna(0.0), weights=epochs["n_obs"])
             ],
         }
     )
-    p = ctx.parameters
+    traffic, receiver = ctx.parameters["traffic"], ctx.parameters["receiver"]
     caption = (
-        f"Per epoch of all trials: aircraft in the antennas' main lobes ({p['n_aircraft']} "
-        f"modelled flights, traffic seed {p['traffic_seed']}) and messages whose measured SNR "
-        f"reaches the {p['threshold_db']:g} dB threshold; the mean measured minus true SNR of "
-        "the received messages (0 without the threshold's selection)." + made_by(ctx.command)
+        f"Per epoch of all trials: aircraft in the main lobes of the {len(per_antenna)} "
+        f"antenna(s) ({traffic['n_aircraft']} modelled flights, traffic seed {traffic['seed']}) "
+        f"and messages whose measured SNR reaches the {receiver['threshold_db']:g} dB "
+        "threshold; the mean measured minus true SNR of the received messages (0 without the "
+        "threshold's selection); epochs whose received messages leave a rotation unobservable "
+        "(all of them on one antenna or on antennas with parallel boresights: the bound is NaN "
+        "on the axes it moves, `unobservable_{x,y,z}` in the rows give its direction)."
+        + made_by(ctx.command)
     )
-    table = markdown_table(table, {"epochs with fewer than 3 on one antenna": ".4f"}, ".3f")
+    shares = ("epochs with fewer than 3 on one antenna", "epochs with an unobservable rotation")
+    table = markdown_table(table, dict.fromkeys(shares, ".4f"), ".3f")
     return section("Received observations (Liu et al. 2023 Fig. 8)", caption, table)
 
 
@@ -344,7 +367,7 @@ def observation_bins(ctx: ReportContext, methods: list[str]) -> pd.DataFrame:
         )
         mean_abs = chosen[[f"err_{a}_deg" for a in AXES]].abs().mean(axis=1)
         out[f"mean_abs_deg_{method}"] = mean_abs.groupby(by).mean()
-    return out
+    return out[out.index >= 0]  # an empty table takes the index of what is assigned to it
 
 
 def bins_section(ctx: ReportContext, methods: list[str]) -> str:
@@ -470,7 +493,7 @@ def input_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str]) -> s
     ]
     for gyro in gyros:
         mekf = _settled(_select(rows, PAPER_FILTER, gyro), start)
-        ours, reference = paired(mekf, nlse)
+        ours, reference = paired(mekf, nlse, EPOCH_KEYS)
         sigma = mekf[SIGMA].mean().to_numpy()
         lines.append(
             {"row": f"{PAPER_FILTER}, gyro {gyro}"}
@@ -525,7 +548,9 @@ def comparison_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str])
         ]
     for gyro, method, every in groups:
         chosen = _settled(every, start)
-        ours, reference = paired(chosen, _settled(_select(rows, PAPER_FILTER, gyro), start))
+        ours, reference = paired(
+            chosen, _settled(_select(rows, PAPER_FILTER, gyro), start), EPOCH_KEYS
+        )
         filtered = gyro != NO_GYRO
         runtime = _passes(every)
         counts = ("n_gated", "n_unpredictable", "n_used")
@@ -576,7 +601,7 @@ def nees_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str]) -> st
     lines = []
     for method in CONSISTENCY_FILTERS:
         for gyro in gyros:
-            averaged = run_averaged_nees(_settled(_select(rows, method, gyro), start))
+            averaged = run_averaged_nees(_settled(_select(rows, method, gyro), start), "t_s")
             if len(averaged):
                 lines.append(
                     {
@@ -610,7 +635,7 @@ def smoother_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str]) -
             chosen = _settled(_select(rows, method, gyro), start)
             if not len(chosen):
                 continue
-            ours, reference = paired(chosen, paper)
+            ours, reference = paired(chosen, paper, EPOCH_KEYS)
             total, bound = total_rms(chosen), total_rms(chosen, "pbound")
             lines.append(
                 {
@@ -630,7 +655,7 @@ def smoother_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str]) -
         f"Total RMS over the valid epochs at t >= {start:g} s; bound: RMS over the same epochs "
         "of the posterior Cramer-Rao bound of the whole pass (every received SNR, offsets not "
         "modelled); transmitter power offsets in the data: "
-        f"{ctx.parameters.get('power_offset_sigma_db', 0.0):g} dB (sigma); runtime: mean pass "
+        f"{ctx.parameters['traffic']['power_offset_sigma_db']:g} dB (sigma); runtime: mean pass "
         "time, fg_batch's including the pass it starts from." + made_by(ctx.command)
     )
     formats = {"RMS / bound": ".2f", "mean NEES (3)": ".2f", "runtime (s)": ".1f"}
@@ -643,7 +668,7 @@ def filter_section(ctx: ReportContext) -> str:
     rows = _filter_rows(ctx.rows)
     if not len(rows):
         return ""
-    gyros = _ordered(ctx.parameters.get("gyros", []), rows, "gyro")
+    gyros = _ordered(gyro_labels(ctx), rows, "gyro")
     paper_gyros = [g for g in gyros if len(_select(rows, PAPER_FILTER, g))]
     parts = [
         paper_filter_section(ctx, rows, paper_gyros) if paper_gyros else "",
@@ -666,26 +691,31 @@ def filter_section(ctx: ReportContext) -> str:
 def _observations_figure(ctx: ReportContext) -> str:
     epochs = first_trial(_epochs(_single_frame(ctx.rows)))
     figure, ax = plt.subplots(figsize=(9, 4))
-    for column, colour, label in (
-        ("n_obs_antenna1", "r", "antenna 1 (received)"),
-        ("n_obs_antenna2", "g", "antenna 2 (received)"),
-        ("n_obs", "b", "total (received)"),
-        ("n_visible", "0.6", "total in main lobes"),
-    ):
-        ax.plot(epochs["t"], epochs[column], color=colour, lw=0.7, label=label)
+    per_antenna = antenna_columns(epochs)
+    lines = [
+        (column, f"C{i + 1}", f"antenna {i + 1} (received)") for i, column in enumerate(per_antenna)
+    ]
+    lines += [("n_obs", "C0", "total (received)"), ("n_visible", "0.6", "total in main lobes")]
+    for column, colour, label in lines:
+        ax.plot(epochs["t_s"], epochs[column], color=colour, lw=0.7, label=label)
     ax.set(yscale="log", xlabel="t (s)", ylabel="observations per epoch")
-    ax.set_title(f"Observations (SNR >= {ctx.parameters['threshold_db']:g} dB), first trial")
+    threshold = ctx.parameters["receiver"]["threshold_db"]
+    ax.set_title(f"Observations (SNR >= {threshold:g} dB), first trial")
     ax.legend(fontsize=8)
     ax.grid(True, which="both", lw=0.3)
     return save_figure(figure, ctx.out_dir, "observations.png")
 
 
-def _error_vs_observations_figure(ctx: ReportContext, methods: list[str]) -> str:
+def _error_vs_observations_figure(ctx: ReportContext, methods: list[str]) -> str | None:
+    """Fig. 10's analogue, or None without a bin of :data:`MIN_BIN_EPOCHS` bounded epochs
+    (e.g. one antenna: no finite bound)."""
     rows = _single_frame(ctx.rows)
     epochs = _epochs(rows)
     epochs = epochs[finite_bound(epochs)]
     counts = observation_bin(epochs["n_obs"]).value_counts()
     filled = set(counts.index[(counts.index >= 0) & (counts >= MIN_BIN_EPOCHS)])
+    if not filled:
+        return None
     figure, axes = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True)
     for ax, axis in zip(axes, AXES, strict=True):
         for method, style in zip(methods, ("o-", "s--", "^:", "v-."), strict=False):
@@ -728,15 +758,18 @@ def figures(ctx: ReportContext, methods: list[str]) -> list[str]:
     single = first_trial(_single_frame(ctx.rows))
     for method in methods:
         figure = error_figure(
-            {method: single[single["method"] == method]}, f"{method}: body-axis error, first trial"
+            {method: single[single["method"] == method]},
+            f"{method}: body-axis error, first trial",
+            time="t_s",
         )
         names.append(save_figure(figure, ctx.out_dir, f"error_{method}.png"))
-    if methods:
-        names.append(_error_vs_observations_figure(ctx, methods))
+    accuracy = _error_vs_observations_figure(ctx, methods) if methods else None
+    if accuracy is not None:
+        names.append(accuracy)
     rows = _filter_rows(ctx.rows)
     start = settled_from(ctx)
-    burn = [(float(ctx.rows["t"].min()), start, "burn-in")]
-    for gyro in _ordered(ctx.parameters.get("gyros", []), rows, "gyro") if len(rows) else []:
+    burn = [(float(ctx.rows["t_s"].min()), start, "burn-in")]
+    for gyro in _ordered(gyro_labels(ctx), rows, "gyro") if len(rows) else []:
         first = first_trial(rows[rows["gyro"] == gyro])
         drawn = {
             m: _valid(_select(first, m))
@@ -745,7 +778,7 @@ def figures(ctx: ReportContext, methods: list[str]) -> list[str]:
         }
         if drawn:
             title = f"gyro {gyro}: body-axis error, first trial (y fitted to t >= {start:g} s)"
-            figure = error_figure(drawn, title, spans=burn, fit_from=start)
+            figure = error_figure(drawn, title, time="t_s", spans=burn, fit_from=start)
             names.append(save_figure(figure, ctx.out_dir, f"filter_errors_{gyro}.png"))
         if SNR_FILTER in drawn:
             figure = error_figure(
@@ -755,6 +788,7 @@ def figures(ctx: ReportContext, methods: list[str]) -> list[str]:
                 sigmas=[f"bias_sigma_{a}_deg_h" for a in AXES],
                 unit="deg/h",
                 names=[f"bias {a}" for a in AXES],
+                time="t_s",
                 spans=burn,
                 fit_from=start,
             )

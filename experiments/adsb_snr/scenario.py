@@ -1,51 +1,67 @@
 """Geometry of the ``adsb-snr`` scenario (Liu et al. 2023 sec. 5.1).
 
-A satellite in a 600 km, 97.8 deg Sun-synchronous orbit carries two helical
-ADS-B antennas on its nadir face and sees a global population of airborne
-aircraft for one hour at 1 Hz.  This module gives the geometry only: satellite
-and aircraft positions, satellite-to-aircraft lines of sight in the orbit frame,
-slant ranges, off-boresight angles and the true attitude.  The SNR model and
-its 6 dB threshold are applied by the caller.
+A satellite carries ADS-B antennas and sees a global population of airborne
+aircraft over a pass.  This module gives the geometry only: satellite and
+aircraft positions, satellite-to-aircraft lines of sight in the orbit frame,
+slant ranges, off-boresight angles and the true attitude, for the set-up of an
+:class:`~attopt.experiments.adsb_snr.parameters.AdsbScenario` (orbit, start,
+duration and step, attitude profile, antennas, traffic).  The SNR model and the
+reception threshold are applied by the caller.
 
-Orbit.  The TLE of :func:`satellite_tle` is generated with ``sgp4``
+The defaults (:mod:`attopt.experiments.adsb_snr.parameters`) are Liu et al. 2023's:
+
+Orbit.  A 600 km, 97.8 deg Sun-synchronous orbit, propagated with
+:mod:`attopt.experiments.environment.orbit` from a TLE generated with ``sgp4``
 (``Satrec.sgp4init`` then ``sgp4.exporter.export_tle``, so its checksums are
-sgp4's) from the mean elements below and propagated with
-:mod:`attopt.experiments.environment.orbit`: epoch :data:`TLE_EPOCH_UTC`, mean motion
-of a circular orbit with semi-major axis 600 km above the (WGS72) equator,
+sgp4's) from mean elements: epoch 2025-06-01 00:00 UTC, mean motion of a
+circular orbit with semi-major axis 600 km above the (WGS72) equator,
 inclination 97.8 deg, eccentricity 1e-4, argument of perigee and mean anomaly 0
 (at the ascending node at epoch), no drag.  The right ascension of the
 ascending node, 226.31 deg, is the Sun's right ascension at epoch (68.81 deg,
 astropy ``get_sun``) plus 157.5 deg, i.e. a local time of the ascending node of
 22:30 (descending over the day side at 10:30), and the J2 node drift,
-0.9856 deg/day, keeps it there.  :data:`START_UTC` is 25 h 41 min after the
-TLE epoch, chosen by scanning starts at 1 min steps over two days (10 s
-sampling, seed-0 traffic) for the hour whose sparsest epoch holds the most
-aircraft in an antenna's main lobe (``G >= 4 dBi``: ``14.4598 cos^6(alpha) >=
-10^0.4``, ``alpha <= 41.67 deg``, Liu et al. 2023 eq. 63).  The ascending pass starts
-over Brazil, runs north off the east coast of North America, over Greenland
-and the Arctic, and descends over eastern Siberia and East Asia to Borneo.
+0.9856 deg/day, keeps it there.  The pass starts 25 h 41 min after the TLE
+epoch (2025-06-02 01:41 UTC), chosen by scanning starts at 1 min steps over two
+days (10 s sampling, seed-0 traffic) for the hour whose sparsest epoch holds the
+most aircraft in an antenna's main lobe (``G >= 4 dBi``: ``14.4598 cos^6(alpha)
+>= 10^0.4``, ``alpha <= 41.67 deg``, Liu et al. 2023 eq. 63).  The ascending pass
+starts over Brazil, runs north off the east coast of North America, over
+Greenland and the Arctic, and descends over eastern Siberia and East Asia to
+Borneo.
 
 Attitude.  Nominally Earth pointing (body = orbit frame), the true orbit ->
-body attitude wanders by a few degrees; 3-2-1 Euler angles of Liu et al. 2023 eq. 8,
-``t`` in seconds from the start::
+body attitude wanders by a few degrees; 3-2-1 Euler angles of Liu et al. 2023
+eq. 8, ``t`` in seconds from the start
+(:class:`~attopt.experiments.adsb_snr.parameters.AttitudeProfile`)::
 
     yaw(t)   = 4 deg * cos(2 pi t / 1700)
     pitch(t) = 3 deg * sin(2 pi t / 2300)
     roll(t)  = 5 deg * sin(2 pi t / 1100 + pi / 3)
 
-Antennas.  Both boresights are tilted by ``beta_opt = 50.77 deg`` (Liu et al. 2023
-eq. 64) from nadir (+z body), antenna 1 towards +y and antenna 2 towards -y
-body, i.e. cross-track and symmetric about the orbit plane as in Liu et al. 2023
-Fig. 7.  Cross-track tilting makes the two main lobes cover the two sides of
-the ground track: the widest surveillance swath, and two boresights 101.5 deg
-apart for a well-conditioned three-axis solution.
+Antennas.  Two helices whose boresights are tilted by ``beta_opt = 50.77 deg``
+(Liu et al. 2023 eq. 64) from nadir (+z body), antenna 1 towards +y and antenna
+2 towards -y body, i.e. cross-track and symmetric about the orbit plane as in
+Liu et al. 2023 Fig. 7.  Cross-track tilting makes the two main lobes cover the
+two sides of the ground track: the widest surveillance swath, and two
+boresights 101.5 deg apart for a well-conditioned three-axis solution.  Any
+number of antennas may be configured, each with its boresight and gain pattern.
 
 Visibility.  An aircraft is visible at an epoch when the straight segment from
 the satellite to it does not cross the WGS84 ellipsoid (no refraction, terrain
-or atmosphere) and, for an antenna, when its off-boresight angle is at most the
+or atmosphere) and, for an antenna, when its off-boresight angle lies in that
+antenna's main lobe (``cos alpha >= min_cos`` of its pattern), or within a
 caller's ``max_off_boresight_deg``.  Lines of sight point from the satellite to
-the aircraft, so ``cos(alpha) = l . b`` (Liu et al. 2023 eqs. 5-7) is positive in the
-main lobe; Liu et al. 2023 eq. 9 prints the opposite difference.
+the aircraft, so ``cos(alpha) = l . b`` (Liu et al. 2023 eqs. 5-7) is positive in
+the main lobe; Liu et al. 2023 eq. 9 prints the opposite difference.
+
+Pre-filter.  Before the limb test an epoch chunk examines only the aircraft
+whose geodetic normal is within the horizon angle of the sub-satellite
+normal: ``arccos(b / r_sat) + arccos(b / (a + h_max))`` (``a``, ``b`` the
+WGS84 semi-axes, ``r_sat`` the largest geocentric distance of the satellite
+over the pass, ``h_max`` the top of the aircraft height band), the horizon of
+the sphere of radius ``b`` inside the ellipsoid, plus :data:`PREFILTER_MARGIN_RAD`
+for the difference between geodetic and geocentric directions; no aircraft
+above the limb lies beyond it.
 """
 
 from __future__ import annotations
@@ -54,20 +70,18 @@ import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-import astropy.units as u
 import numpy as np
-from astropy.time import Time
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.environment.orbit import (
-    circular_orbit_tle,
     ecef_to_eci_matrices,
     propagate,
     satellite_from_tle,
+    window_times,
 )
 from attopt.experiments.environment.traffic import (
-    MEAN_RADIUS_KM,
     WGS84_A_KM,
     WGS84_F,
     Traffic,
@@ -76,43 +90,11 @@ from attopt.experiments.environment.traffic import (
     positions_ecef_km,
     sample_traffic,
 )
-from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
+from attopt.formulations.conventions import orbit_frame_attitude
 
-TLE_EPOCH_UTC = "2025-06-01T00:00:00"
-SATELLITE_NUMBER = 99999
-ALTITUDE_KM = 600.0
-"""Semi-major axis minus sgp4's WGS72 equatorial radius."""
-INCLINATION_DEG = 97.8
-ECCENTRICITY = 1.0e-4
-RAAN_DEG = 226.31
-ARGUMENT_OF_PERIGEE_DEG = 0.0
-MEAN_ANOMALY_DEG = 0.0
-
-START_UTC = "2025-06-02T01:41:00"
-"""Start of the hour (UTC), 25 h 41 min after the TLE epoch."""
-
-YAW_AMPLITUDE_DEG = 4.0
-YAW_PERIOD_S = 1700.0
-PITCH_AMPLITUDE_DEG = 3.0
-PITCH_PERIOD_S = 2300.0
-ROLL_AMPLITUDE_DEG = 5.0
-ROLL_PERIOD_S = 1100.0
-ROLL_PHASE_RAD = np.pi / 3.0
-
-BETA_OPT_DEG = 50.77
-"""Optimal antenna tilt from nadir (Liu et al. 2023 eq. 64)."""
-BORESIGHTS_BODY = np.array(
-    [
-        [0.0, np.sin(np.radians(BETA_OPT_DEG)), np.cos(np.radians(BETA_OPT_DEG))],
-        [0.0, -np.sin(np.radians(BETA_OPT_DEG)), np.cos(np.radians(BETA_OPT_DEG))],
-    ]
-)
-"""Unit boresights of antennas 1 and 2 in the body frame, ``(2, 3)``."""
-
-PREFILTER_GROUND_KM = 3500.0
-"""Ground distance from the sub-satellite point beyond which aircraft are not
-examined: the horizon of a 600 km satellite for a target at 9-12 km is about
-3,100 km away."""
+PREFILTER_MARGIN_RAD = 0.01
+"""Added to the horizon angle of the pre-filter: geodetic and geocentric directions differ
+by up to 0.0034 rad (0.19 deg) at the satellite and at the aircraft."""
 EPOCH_CHUNK = 60
 """Epochs processed together (one pre-filter per chunk)."""
 
@@ -141,6 +123,16 @@ class AdsbGeometry:
     """True attitude, orbit frame -> body frame, ``N`` rotations."""
     traffic: Traffic
     """The aircraft; aircraft ids are row indices."""
+    boresights_body: NDArray[np.float64]
+    """Unit antenna boresights in the body frame, ``(n_antennas, 3)``."""
+    min_cos: NDArray[np.float64]
+    """``cos`` of each antenna's main-lobe edge (its gain pattern's), ``(n_antennas,)``."""
+    prefilter_rad: float
+    """Horizon angle of the pre-filter (module docstring)."""
+
+    @property
+    def n_antennas(self) -> int:
+        return int(self.boresights_body.shape[0])
 
 
 @dataclass(frozen=True)
@@ -183,57 +175,50 @@ class Observations:
     antennas: tuple[ObservationTable, ...]
 
 
-def satellite_tle() -> tuple[str, str]:
-    """The scenario's two-line element set, generated by sgp4 from the module elements."""
-    return circular_orbit_tle(
-        TLE_EPOCH_UTC,
-        SATELLITE_NUMBER,
-        ALTITUDE_KM,
-        INCLINATION_DEG,
-        RAAN_DEG,
-        ECCENTRICITY,
-        ARGUMENT_OF_PERIGEE_DEG,
-        MEAN_ANOMALY_DEG,
-    )
-
-
-def true_attitude(t: NDArray[np.float64]) -> Rotation:
-    """The orbit -> body attitude profile of the module docstring at times ``t`` (s)."""
-    yaw = YAW_AMPLITUDE_DEG * np.cos(2.0 * np.pi * t / YAW_PERIOD_S)
-    pitch = PITCH_AMPLITUDE_DEG * np.sin(2.0 * np.pi * t / PITCH_PERIOD_S)
-    roll = ROLL_AMPLITUDE_DEG * np.sin(2.0 * np.pi * t / ROLL_PERIOD_S + ROLL_PHASE_RAD)
-    return attitude_from_euler321(np.radians(yaw), np.radians(pitch), np.radians(roll))
-
-
-def build_adsb_geometry(
-    duration_s: float = 3600.0, step_s: float = 1.0, n_aircraft: int = 10_000, seed: int = 0
-) -> AdsbGeometry:
-    """Geometry at ``t = 0, step_s, ...`` below ``duration_s`` (cached per process).
+def build_adsb_geometry(scenario: AdsbScenario | None = None) -> AdsbGeometry:
+    """Geometry of ``scenario`` (default: Liu et al. 2023's) at ``t = 0, step_s, ...`` below
+    ``duration_s`` (cached per process).
 
     The aircraft are :func:`attopt.experiments.environment.traffic.sample_traffic` of
-    ``numpy.random.default_rng(seed)``.
+    ``numpy.random.default_rng(traffic.seed)``.
     """
-    return _build_adsb_geometry(float(duration_s), float(step_s), int(n_aircraft), int(seed))
+    return _build_adsb_geometry((scenario or AdsbScenario()).key())
 
 
 @functools.lru_cache(maxsize=4)
-def _build_adsb_geometry(
-    duration_s: float, step_s: float, n_aircraft: int, seed: int
-) -> AdsbGeometry:
-    t = np.arange(0.0, duration_s, step_s)
-    times = Time(START_UTC, scale="utc") + t * u.s
-    orbit = propagate(satellite_from_tle(*satellite_tle()), times)
+def _build_adsb_geometry(key: str) -> AdsbGeometry:
+    scenario = AdsbScenario.model_validate_json(key)
+    t, times = window_times(scenario.start_utc, scenario.duration_s, scenario.step_s)
+    orbit = propagate(satellite_from_tle(*scenario.orbit.tle()), times)
     eci_to_orbit = orbit_frame_attitude(orbit.position_eci_km, orbit.velocity_eci_kms)
+    traffic = scenario.traffic
     return AdsbGeometry(
         t=t,
-        start_utc=START_UTC,
+        start_utc=scenario.start_utc,
         position_ecef_km=orbit.position_ecef_km,
         position_eci_km=orbit.position_eci_km,
         velocity_eci_kms=orbit.velocity_eci_kms,
         subsatellite_normal=geodetic_normal(orbit.latitude_deg, orbit.longitude_deg),
         ecef_to_orbit=eci_to_orbit.as_matrix() @ ecef_to_eci_matrices(times),
-        truth=true_attitude(t),
-        traffic=sample_traffic(n_aircraft, np.random.default_rng(seed)),
+        truth=scenario.attitude.attitude(t),
+        traffic=sample_traffic(
+            traffic.n_aircraft, np.random.default_rng(traffic.seed), traffic.model()
+        ),
+        boresights_body=scenario.boresights_body,
+        min_cos=np.array([antenna.gain.pattern().min_cos for antenna in scenario.antennas]),
+        prefilter_rad=horizon_angle_rad(orbit.position_ecef_km, traffic.height_max_km),
+    )
+
+
+def horizon_angle_rad(satellite_ecef_km: ArrayLike, max_height_km: float) -> float:
+    """Largest central angle between the satellite and an aircraft it can see over the pass,
+    plus :data:`PREFILTER_MARGIN_RAD` (module docstring)."""
+    polar_km = WGS84_A_KM * (1.0 - WGS84_F)
+    r_satellite = float(np.max(np.linalg.norm(np.asarray(satellite_ecef_km), axis=-1)))
+    return float(
+        np.arccos(polar_km / r_satellite)
+        + np.arccos(polar_km / (WGS84_A_KM + max_height_km))
+        + PREFILTER_MARGIN_RAD
     )
 
 
@@ -253,24 +238,34 @@ def above_limb(observer_ecef_km: ArrayLike, target_ecef_km: ArrayLike) -> NDArra
 
 
 def observation_chunks(
-    geometry: AdsbGeometry, max_off_boresight_deg: float, epochs: ArrayLike | None = None
+    geometry: AdsbGeometry,
+    max_off_boresight_deg: float | None = None,
+    epochs: ArrayLike | None = None,
 ) -> Iterator[ObservationTable]:
     """Visible aircraft per antenna at ``epochs`` (default all), in tables of
-    :data:`EPOCH_CHUNK` consecutive entries of ``epochs``."""
+    :data:`EPOCH_CHUNK` consecutive entries of ``epochs``; in each antenna's main lobe, or
+    within ``max_off_boresight_deg`` of every boresight."""
     index = (
         np.arange(geometry.t.size)
         if epochs is None
         else np.atleast_1d(np.asarray(epochs, dtype=np.intp))
     )
-    cos_max = np.cos(np.radians(max_off_boresight_deg))
+    cos_min = (
+        geometry.min_cos
+        if max_off_boresight_deg is None
+        else np.full(geometry.n_antennas, np.cos(np.radians(max_off_boresight_deg)))
+    )
     for chunk in np.array_split(index, -(-index.size // EPOCH_CHUNK)):
-        yield _observe(geometry, chunk, cos_max)
+        yield _observe(geometry, chunk, cos_min)
 
 
 def observation_table(
-    geometry: AdsbGeometry, max_off_boresight_deg: float, epochs: ArrayLike | None = None
+    geometry: AdsbGeometry,
+    max_off_boresight_deg: float | None = None,
+    epochs: ArrayLike | None = None,
 ) -> ObservationTable:
-    """Visible aircraft per antenna at ``epochs`` (default all) as one long table.
+    """Visible aircraft per antenna at ``epochs`` (default all) as one long table (cones as
+    in :func:`observation_chunks`).
 
     The whole hour in the 41.67 deg main lobe is about 1.9 million rows (160 MB);
     :func:`observation_chunks` streams it instead.
@@ -285,26 +280,31 @@ def observation_table(
 
 
 def visible_observations(
-    geometry: AdsbGeometry, epoch_index: int, max_off_boresight_deg: float
+    geometry: AdsbGeometry, epoch_index: int, max_off_boresight_deg: float | None = None
 ) -> Observations:
     """Visible aircraft of each antenna at one epoch."""
     table = observation_table(geometry, max_off_boresight_deg, [epoch_index])
     return Observations(
         epoch_index=int(epoch_index),
-        antennas=tuple(table.take(table.antenna == a) for a in range(len(BORESIGHTS_BODY))),
+        antennas=tuple(table.take(table.antenna == a) for a in range(geometry.n_antennas)),
     )
 
 
-def visible_counts(geometry: AdsbGeometry, max_off_boresight_deg: float) -> NDArray[np.intp]:
-    """Number of aircraft visible in each antenna's cone, ``(N, 2)`` (Liu et al. 2023 Fig. 8)."""
-    n_antennas = len(BORESIGHTS_BODY)
+def visible_counts(
+    geometry: AdsbGeometry, max_off_boresight_deg: float | None = None
+) -> NDArray[np.intp]:
+    """Number of aircraft visible in each antenna's cone, ``(N, n_antennas)`` (Liu et al.
+    2023 Fig. 8)."""
+    n_antennas = geometry.n_antennas
     counts = np.zeros(geometry.t.size * n_antennas, dtype=np.intp)
     for table in observation_chunks(geometry, max_off_boresight_deg):
         counts += np.bincount(table.epoch_index * n_antennas + table.antenna, minlength=counts.size)
     return counts.reshape(geometry.t.size, n_antennas)
 
 
-def _observe(geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_max: float) -> ObservationTable:
+def _observe(
+    geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_min: NDArray[np.float64]
+) -> ObservationTable:
     """Rows for a chunk of epochs; aircraft far from every sub-satellite point are skipped."""
     epoch, aircraft = (
         grid.ravel() for grid in np.meshgrid(epochs, _candidates(geometry, epochs), indexing="ij")
@@ -316,8 +316,8 @@ def _observe(geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_max: float) -
     los_ecef = aircraft_ecef - satellite_ecef[above]
     range_km = np.linalg.norm(los_ecef, axis=-1)
     los_orbit = np.einsum("pij,pj->pi", geometry.ecef_to_orbit[epoch], los_ecef / range_km[:, None])
-    cos_off = geometry.truth[epoch].apply(los_orbit) @ BORESIGHTS_BODY.T
-    pair, antenna = np.nonzero(cos_off >= cos_max)
+    cos_off = geometry.truth[epoch].apply(los_orbit) @ geometry.boresights_body.T
+    pair, antenna = np.nonzero(cos_off >= cos_min)
     order = np.lexsort((aircraft[pair], antenna, epoch[pair]))
     pair, antenna = pair[order], antenna[order]
     return ObservationTable(
@@ -332,7 +332,8 @@ def _observe(geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_max: float) -
 
 
 def _candidates(geometry: AdsbGeometry, epochs: NDArray[np.intp]) -> NDArray[np.intp]:
-    """Aircraft that may be within :data:`PREFILTER_GROUND_KM` of a sub-satellite point.
+    """Aircraft that may be above the limb (:attr:`AdsbGeometry.prefilter_rad` from a
+    sub-satellite point).
 
     Tested once at the chunk's middle epoch with the radius widened by how far
     the sub-satellite point and the fastest aircraft move within the chunk.
@@ -344,7 +345,7 @@ def _candidates(geometry: AdsbGeometry, epochs: NDArray[np.intp]) -> NDArray[np.
     )
     time_spread = np.max(np.abs(geometry.t[epochs] - geometry.t[middle]))
     radius = (
-        PREFILTER_GROUND_KM / MEAN_RADIUS_KM
+        geometry.prefilter_rad
         + satellite_spread
         + geometry.traffic.angular_rate_rad_s.max() * time_spread
     )

@@ -65,10 +65,10 @@ class ConsistencyRow:
 def consistency(rows: pd.DataFrame, burn_in_s: float = BURN_IN_S) -> list[ConsistencyRow]:
     """Per gyro and filter: the statistics of the module docstring."""
     out = []
-    rows = rows[rows["t"] >= burn_in_s]
+    rows = rows[rows["t_s"] >= burn_in_s]
     for (gyro, method), group in rows.groupby(["gyro", "method"], sort=True):
         m = group["trial_index"].nunique()
-        per_epoch = group.groupby("t")[["nees", "nees_full"]].mean()
+        per_epoch = group.groupby("t_s")[["nees", "nees_full"]].mean()
         low, high = chi2.ppf([0.025, 0.975], 3 * m) / m
         full_low, full_high = chi2.ppf([0.025, 0.975], 6 * m) / m
         inside = per_epoch["nees"].between(low, high).mean()

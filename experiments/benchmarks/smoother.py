@@ -47,8 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from attopt.experiments.adsb_snr.experiment import EXPERIMENT, noise_free_pass, simulate_pass
+from attopt.experiments.adsb_snr.experiment import noise_free_pass, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.simulation import child_rng, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
@@ -98,15 +99,16 @@ def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
 def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
     """One pass of ``duration_s`` (module docstring)."""
     start = time.perf_counter()
-    scenario = noise_free_pass(duration_s, 1.0, EXPERIMENT.parameters["n_aircraft"], 0)
-    truth = adsb_gyro_truth(duration_s, 1.0, EXPERIMENT.parameters["n_aircraft"], 0, 10.0)
+    parameters = AdsbScenario(duration_s=duration_s)
+    scenario = noise_free_pass(parameters)
+    truth = adsb_gyro_truth(parameters, 10.0)
     build = time.perf_counter() - start
     root = np.random.SeedSequence(seed)
     noisy = simulate_pass(
         scenario,
         np.random.default_rng(root),
-        EXPERIMENT.parameters["snr_sigma_db"],
-        EXPERIMENT.parameters["threshold_db"],
+        parameters.receiver.snr_sigma_db,
+        parameters.receiver.threshold_db,
     )
     model = GYRO_MODELS[gyro]
     inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))

@@ -22,11 +22,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from attopt.experiments.adsb_snr.scenario import (
-    BORESIGHTS_BODY,
-    build_adsb_geometry,
-    observation_table,
-)
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
+from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_table
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import AttoptError
 from attopt.formulations.gain_patterns import SEED000_HELIX
@@ -57,8 +54,9 @@ class BenchRow:
 
 def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
     """Scenario epochs with ``OBSERVATIONS`` received messages each, and their true attitudes."""
-    geometry = build_adsb_geometry(duration_s=float(n_epochs))
+    geometry = build_adsb_geometry(AdsbScenario(duration_s=float(n_epochs)))
     table = observation_table(geometry, np.degrees(SEED000_HELIX.max_off_boresight_rad))
+    boresights = geometry.boresights_body
     rng = np.random.default_rng(seed)
     budget = LinkBudget()
     epochs, truths = [], []
@@ -69,7 +67,7 @@ def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
         snr, _ = predict_snr(
             truth,
             rows.los_orbit,
-            BORESIGHTS_BODY[rows.antenna],
+            boresights[rows.antenna],
             p0,
             budget.noise_power_dbw,
             SEED000_HELIX,
@@ -84,7 +82,7 @@ def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
                 snr[pick],
                 rows.los_orbit[pick],
                 rows.antenna[pick],
-                BORESIGHTS_BODY,
+                boresights,
                 rows.range_m[pick],
                 SEED000_HELIX,
                 budget,

@@ -8,6 +8,7 @@ the WGS84 geodetic coordinates.  Positions are in km, velocities in km/s.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import astropy.units as u
 import numpy as np
@@ -17,6 +18,9 @@ from numpy.typing import NDArray
 from sgp4.api import SGP4_ERRORS, WGS72, Satrec
 from sgp4.earth_gravity import wgs72
 from sgp4.exporter import export_tle
+
+if TYPE_CHECKING:
+    from attopt.experiments.config.components import CircularOrbit, TleOrbit
 
 
 @dataclass(frozen=True)
@@ -136,3 +140,22 @@ def ecef_to_eci_matrices(times: Time) -> NDArray[np.float64]:
     itrs = ITRS(CartesianRepresentation(axes.T * u.km), obstime=obstime)
     columns = itrs.transform_to(GCRS(obstime=obstime)).cartesian.xyz.to_value(u.km)
     return np.moveaxis(columns.reshape(3, 3, n), -1, 0)
+
+
+def window_times(
+    start_utc: str, duration_s: float, step_s: float
+) -> tuple[NDArray[np.float64], Time]:
+    """The epochs ``t = 0, step_s, ...`` below ``duration_s`` (s) and as UTC times."""
+    t = np.arange(0.0, duration_s, step_s)
+    return t, Time(start_utc, scale="utc") + t * u.s
+
+
+def check_window(
+    orbit: TleOrbit | CircularOrbit, start_utc: str, duration_s: float, step_s: float
+) -> None:
+    """Raise ValueError if SGP4 cannot propagate ``orbit`` to every epoch of the window
+    (e.g. the satellite has decayed by then)."""
+    try:
+        sgp4_teme(satellite_from_tle(*orbit.tle()), window_times(start_utc, duration_s, step_s)[1])
+    except RuntimeError as error:
+        raise ValueError(f"{error}: the window is out of this orbit's reach") from None

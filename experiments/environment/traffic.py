@@ -4,28 +4,32 @@ Liu et al. 2023 sec. 5.1 feeds its simulation with one hour of real global fligh
 (VariFlight).  No package ships such a snapshot, so this module synthesises a
 population with the same geography from the airports of :mod:`airportsdata`.
 
+The numbers below are the defaults of :class:`TrafficModel`, which the
+experiment's ``[traffic]`` table sets.
+
 Airports.  ``airportsdata`` gives coordinates but no airport type or size.  We
 keep the airports with an IATA code and an alphabetic four-letter ICAO code
 (about 7,600; this drops private strips known only by local identifiers) and
-give each a size proxy ``w = 1``, times :data:`INTERNATIONAL_FACTOR` if its name
-contains "International" and times :data:`METROPOLITAN_FACTOR` if it serves one
+give each a size proxy ``w = 1``, times ``international_weight`` (5) if its name
+contains "International" and times ``metropolitan_weight`` (20) if it serves one
 of the IATA multi-airport metropolitan areas (``airportsdata.load_iata_macs``:
 about 90 airports of London, New York, Tokyo, Beijing, Sao Paulo, ...).
 
 Routes.  Origin and destination are drawn independently with probability
 proportional to ``w`` and the pair is kept with probability
-``f(d) = exp(-(d - 500 km) / 2000 km)`` if the great-circle distance is
-``500 km <= d <= 10,000 km`` (rejected otherwise): a gravity model favouring
-short- and medium-haul routes (median route about 2,100 km).  Dense airport
-regions gain from the distance preference, so with 10,000 aircraft about 33 %
-fly over North America, 26 % over Europe and 15 % over East Asia, and almost
-none over the South Pacific.
+``f(d) = exp(-(d - d_min) / d_scale)`` if the great-circle distance is
+``d_min <= d <= d_max`` (rejected otherwise; 500 km, 2,000 km and 10,000 km): a
+gravity model favouring short- and medium-haul routes (median route about
+2,100 km).  Dense airport regions gain from the distance preference, so with
+10,000 aircraft about 33 % fly over North America, 26 % over Europe and 15 %
+over East Asia, and almost none over the South Pacific.
 
 Motion.  Routes are great circles on the sphere of geodetic normals
 ``n = (cos lat cos lon, cos lat sin lon, sin lat)`` (WGS84 latitude and
 longitude treated as spherical coordinates).  Each aircraft cruises at a
-geodetic height uniform in 9-12 km with a ground speed uniform in 220-260 m/s,
-and at ``t = 0`` has flown a uniform random fraction of its route.  It turns
+geodetic height uniform in a band (9-12 km) with a ground speed uniform in a
+band (220-260 m/s), and at ``t = 0`` has flown a uniform random fraction of its
+route.  It turns
 through the angle ``v t / (R1 + h)`` per time ``t`` (``R1`` the mean Earth
 radius), so its WGS84 (ECEF) speed differs from ``v`` by less than 0.6 %.  On
 arrival it flies straight back along the same route (no turnaround time; climb
@@ -54,17 +58,28 @@ WGS84_F = erfa.eform(erfa.WGS84)[1]
 MEAN_RADIUS_KM = WGS84_A_KM * (1.0 - WGS84_F / 3.0)
 """Mean Earth radius ``R1 = (2a + b) / 3`` (km)."""
 
-INTERNATIONAL_FACTOR = 5.0
-METROPOLITAN_FACTOR = 20.0
-MIN_ROUTE_KM = 500.0
-MAX_ROUTE_KM = 10_000.0
-ROUTE_SCALE_KM = 2000.0
-"""Scale of the exponential distance preference ``f(d)``."""
-HEIGHT_RANGE_KM = (9.0, 12.0)
-SPEED_RANGE_MPS = (220.0, 260.0)
-
 _ICAO_CODE = re.compile(r"[A-Z]{4}")
 _ROUTE_BATCH = 50_000
+
+
+@dataclass(frozen=True)
+class TrafficModel:
+    """The numbers of the traffic model (module docstring)."""
+
+    international_weight: float = 5.0
+    """Factor of the size proxy of an airport named "International"."""
+    metropolitan_weight: float = 20.0
+    """Factor of the size proxy of an airport of an IATA metropolitan area."""
+    min_route_km: float = 500.0
+    """Shortest great-circle route ``d_min``."""
+    max_route_km: float = 10_000.0
+    """Longest great-circle route ``d_max``."""
+    route_scale_km: float = 2000.0
+    """Scale ``d_scale`` of the exponential distance preference ``f(d)``."""
+    height_range_km: tuple[float, float] = (9.0, 12.0)
+    """Band of the geodetic cruise heights (uniform)."""
+    speed_range_m_s: tuple[float, float] = (220.0, 260.0)
+    """Band of the ground speeds (uniform)."""
 
 
 @dataclass(frozen=True)
@@ -114,9 +129,9 @@ class Traffic:
         return self.speed_mps / (1000.0 * (MEAN_RADIUS_KM + self.height_km))
 
 
-@functools.lru_cache(maxsize=1)
-def load_airports() -> Airports:
-    """Airports with IATA and four-letter ICAO codes and their size proxy."""
+@functools.lru_cache(maxsize=4)
+def load_airports(international_weight: float = 5.0, metropolitan_weight: float = 20.0) -> Airports:
+    """Airports with IATA and four-letter ICAO codes and their size proxy (module docstring)."""
     records = [
         record
         for record in airportsdata.load("IATA").values()
@@ -127,8 +142,8 @@ def load_airports() -> Airports:
     }
     international = np.array(["international" in r["name"].lower() for r in records])
     in_metropolis = np.array([r["iata"] in metropolitan for r in records])
-    weight = np.where(international, INTERNATIONAL_FACTOR, 1.0) * np.where(
-        in_metropolis, METROPOLITAN_FACTOR, 1.0
+    weight = np.where(international, international_weight, 1.0) * np.where(
+        in_metropolis, metropolitan_weight, 1.0
     )
     return Airports(
         iata=np.array([r["iata"] for r in records]),
@@ -144,10 +159,14 @@ def geodetic_normal(latitude_deg: ArrayLike, longitude_deg: ArrayLike) -> NDArra
     return np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
 
 
-def sample_traffic(n_aircraft: int, rng: np.random.Generator) -> Traffic:
-    """Draw ``n_aircraft`` aircraft as in the module docstring (Liu et al. 2023 sec. 5.1)."""
-    airports = load_airports()
-    origin, destination = _sample_routes(airports, n_aircraft, rng)
+def sample_traffic(
+    n_aircraft: int, rng: np.random.Generator, model: TrafficModel | None = None
+) -> Traffic:
+    """Draw ``n_aircraft`` aircraft of ``model`` (default :class:`TrafficModel`) as in the
+    module docstring (Liu et al. 2023 sec. 5.1)."""
+    model = TrafficModel() if model is None else model
+    airports = load_airports(model.international_weight, model.metropolitan_weight)
+    origin, destination = _sample_routes(airports, n_aircraft, rng, model)
     n_origin = airports.normal[origin]
     n_destination = airports.normal[destination]
     cos_angle = np.sum(n_origin * n_destination, axis=-1)
@@ -161,13 +180,13 @@ def sample_traffic(n_aircraft: int, rng: np.random.Generator) -> Traffic:
         route_tangent=tangent,
         route_angle_rad=route_angle,
         start_angle_rad=route_angle * rng.random(n_aircraft),
-        height_km=rng.uniform(*HEIGHT_RANGE_KM, n_aircraft),
-        speed_mps=rng.uniform(*SPEED_RANGE_MPS, n_aircraft),
+        height_km=rng.uniform(*model.height_range_km, n_aircraft),
+        speed_mps=rng.uniform(*model.speed_range_m_s, n_aircraft),
     )
 
 
 def _sample_routes(
-    airports: Airports, n_routes: int, rng: np.random.Generator
+    airports: Airports, n_routes: int, rng: np.random.Generator, model: TrafficModel
 ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Origin and destination indices by rejection sampling of the gravity model."""
     probability = airports.weight / airports.weight.sum()
@@ -179,10 +198,11 @@ def _sample_routes(
         destination = rng.choice(probability.size, _ROUTE_BATCH, p=probability)
         cos_angle = np.sum(airports.normal[origin] * airports.normal[destination], axis=-1)
         distance_km = MEAN_RADIUS_KM * np.arccos(np.clip(cos_angle, -1.0, 1.0))
+        preference = np.exp(-(distance_km - model.min_route_km) / model.route_scale_km)
         keep = (
-            (distance_km >= MIN_ROUTE_KM)
-            & (distance_km <= MAX_ROUTE_KM)
-            & (rng.random(_ROUTE_BATCH) < np.exp(-(distance_km - MIN_ROUTE_KM) / ROUTE_SCALE_KM))
+            (distance_km >= model.min_route_km)
+            & (distance_km <= model.max_route_km)
+            & (rng.random(_ROUTE_BATCH) < preference)
         )
         origins.append(origin[keep])
         destinations.append(destination[keep])

@@ -184,8 +184,9 @@ def nees_interval(
     return float(chi2.ppf(tail, dof) / trials), float(chi2.ppf(1.0 - tail, dof) / trials)
 
 
-def run_averaged_nees(rows: pd.DataFrame) -> pd.Series:
-    """Per epoch ``t``, the NEES averaged over the trials (epochs present in all of them)."""
+def run_averaged_nees(rows: pd.DataFrame, time: str = "t") -> pd.Series:
+    """Per epoch (column ``time``), the NEES averaged over the trials (epochs present in all
+    of them)."""
     trials = rows["trial_index"].nunique()
-    by_epoch = rows.groupby("t")["nees"]
+    by_epoch = rows.groupby(time)["nees"]
     return by_epoch.mean()[by_epoch.count() == trials]

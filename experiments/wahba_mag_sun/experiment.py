@@ -63,6 +63,7 @@ from attopt.experiments.config.components import (
     UtcTime,
     gyro_model,
 )
+from attopt.experiments.environment.orbit import check_window
 from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
@@ -92,7 +93,6 @@ from attopt.experiments.wahba_mag_sun.report import report
 from attopt.experiments.wahba_mag_sun.scenario import (
     VectorGeometry,
     build_geometry,
-    check_window,
     interval_labels,
     simulate_measurements,
     true_attitude,

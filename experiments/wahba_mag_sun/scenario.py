@@ -42,14 +42,12 @@ import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import astropy.units as u
 import numpy as np
-from astropy.time import Time
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.environment.geomagnetic import geomagnetic_field_eci
-from attopt.experiments.environment.orbit import propagate, satellite_from_tle, sgp4_teme
+from attopt.experiments.environment.orbit import propagate, satellite_from_tle, window_times
 from attopt.experiments.environment.shadow import in_cylindrical_shadow
 from attopt.experiments.environment.sun import sun_direction_eci
 from attopt.formulations.conventions import attitude_from_euler321, orbit_frame_attitude
@@ -107,25 +105,6 @@ def true_attitude(t: NDArray[np.float64], profile: AttitudeProfile) -> Rotation:
     return attitude_from_euler321(np.radians(yaw), np.radians(pitch), np.radians(roll))
 
 
-def window_times(
-    start_utc: str, duration_s: float, step_s: float
-) -> tuple[NDArray[np.float64], Time]:
-    """The epochs ``t = 0, step_s, ...`` below ``duration_s`` (s) and as UTC times."""
-    t = np.arange(0.0, duration_s, step_s)
-    return t, Time(start_utc, scale="utc") + t * u.s
-
-
-def check_window(
-    orbit: TleOrbit | CircularOrbit, start_utc: str, duration_s: float, step_s: float
-) -> None:
-    """Raise ValueError if SGP4 cannot propagate ``orbit`` to every epoch of the window
-    (e.g. the satellite has decayed by then)."""
-    try:
-        sgp4_teme(satellite_from_tle(*orbit.tle()), window_times(start_utc, duration_s, step_s)[1])
-    except RuntimeError as error:
-        raise ValueError(f"{error}: the window is out of this orbit's reach") from None
-
-
 @functools.lru_cache(maxsize=8)
 def build_geometry(
     orbit: TleOrbit | CircularOrbit,
@@ -135,7 +114,7 @@ def build_geometry(
     attitude: AttitudeProfile,
 ) -> VectorGeometry:
     """Geometry of ``orbit`` with the true ``attitude`` at the epochs of
-    :func:`window_times` (cached per process)."""
+    :func:`~attopt.experiments.environment.orbit.window_times` (cached per process)."""
     t, times = window_times(start_utc, duration_s, step_s)
     states = propagate(satellite_from_tle(*orbit.tle()), times)
     sun_eci = sun_direction_eci(times, states.position_eci_km)

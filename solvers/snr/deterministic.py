@@ -92,7 +92,7 @@ def _antenna_boresight(
 ) -> tuple[BoresightEstimate, int]:
     rows = problem.antenna == antenna
     gain = problem.snr_db[rows] - problem.p0_dbw[rows] + problem.noise_dbw  # Liu et al. 2023 eq. 4
-    cos_alpha, dcos_dgain, clamped = cos_from_gain(problem.pattern, gain)
+    cos_alpha, dcos_dgain, clamped = cos_from_gain(problem.pattern_of(antenna), gain)
     sigma_cos = np.abs(dcos_dgain) * problem.sigma_db[rows]
     prior_direction = prior.inv().apply(problem.unit_boresights[antenna])
     estimate = estimate_boresight(problem.unit_los[rows], cos_alpha, sigma_cos, prior_direction)

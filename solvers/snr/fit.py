@@ -103,7 +103,7 @@ def model_at(problem: SnrEpoch, attitude: Rotation) -> tuple[Array, Array]:
     a = attitude.as_matrix()
     padded = pad_epoch(problem, a)
     snr, jac = snr_jacobian_function(problem.pattern, padded.size)(
-        np.zeros(3), a, padded.los, padded.boresight, padded.p0, padded.noise
+        np.zeros(3), a, *padded.model_inputs
     )
     return snr.full().ravel()[: problem.m], jac.full()[: problem.m]
 
@@ -117,7 +117,7 @@ class Fit:
             truncated negative log-likelihood (see the module docstring).
         covariance: ``(3, 3)`` inverse Fisher information of the objective's
             model (eq. 22, or eq. 22 of the truncated measurements), rad^2, body frame.
-        outside_lobe: observations beyond the pattern's main lobe at the attitude.
+        outside_lobe: observations beyond their pattern's main lobe at the attitude.
     """
 
     loss: float
@@ -130,7 +130,11 @@ def fit_at(problem: SnrEpoch, attitude: Rotation, objective: Objective = "least_
     predicted, jac = model_at(problem, attitude)
     # On a validated epoch observation_mask is False only beyond the main lobe.
     in_lobe = observation_mask(
-        attitude.as_matrix(), problem.unit_los, problem.boresight_rows, problem.pattern
+        attitude.as_matrix(),
+        problem.unit_los,
+        problem.boresight_rows,
+        problem.pattern,
+        problem.pattern_antenna,
     )
     sigma, threshold = problem.sigma_db, problem.threshold_db
     if objective == "truncated_ml":

@@ -54,9 +54,10 @@ Size classes.  The NLP is built once per (pattern, bucket size, options) and
 per process (``functools.lru_cache``; ``nlpsol`` objects pickle, but each
 worker process builds its own and uses it from one thread).  All epoch data are parameters:
 ``A_ref`` (9), lines of sight and boresight rows (``3 x size`` each),
-``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), and for the
-truncated objective standard deviations (size) and ``tau`` (1), with epochs
-padded to the buckets of :mod:`attopt.solvers.snr.padding`.
+``P0`` (size), ``P_n`` (1), weights (size) and SNRs (size), when the antennas'
+patterns differ the rows' antennas (size), and for the truncated objective
+standard deviations (size) and ``tau`` (1), with epochs padded to the buckets
+of :mod:`attopt.solvers.snr.padding`.
 
 IPOPT options (:class:`attopt.solvers.ipopt.IpoptOptions`, shared with the
 MAP NLP).  ``print_level 0``, ``sb yes``, no timing print and no CasADi
@@ -98,8 +99,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.gain_patterns import GainPattern
-from attopt.formulations.snr_model import snr_function
+from attopt.formulations.gain_patterns import AntennaPatterns
+from attopt.formulations.snr_model import Pattern, snr_function
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.ipopt import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, IpoptOptions
 from attopt.solvers.snapshot_sequence import EpochEstimate
@@ -111,7 +112,9 @@ from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
 Array = NDArray[np.float64]
 
 
-def _parameter_symbols(size: int, objective: Objective = "least_squares") -> dict[str, ca.SX]:
+def _parameter_symbols(
+    size: int, objective: Objective = "least_squares", per_antenna: bool = False
+) -> dict[str, ca.SX]:
     symbols = {
         "attitude_ref": ca.SX.sym("attitude_ref", 3, 3),
         "los": ca.SX.sym("los_orbit", size, 3),
@@ -121,6 +124,8 @@ def _parameter_symbols(size: int, objective: Objective = "least_squares") -> dic
         "weights": ca.SX.sym("weights", size),
         "snr": ca.SX.sym("snr_db", size),
     }
+    if per_antenna:
+        symbols["antenna"] = ca.SX.sym("antenna", size)
     if objective == "truncated_ml":
         symbols["sigma"] = ca.SX.sym("sigma_db", size)
         symbols["threshold"] = ca.SX.sym("threshold_db")
@@ -132,8 +137,9 @@ def parameter_vector(
 ) -> Array:
     """The NLP's parameter vector, in the order of :func:`_parameter_symbols` (column-major).
 
-    With ``threshold_db`` (the truncated objective) the padded standard
-    deviations (``1 / sqrt(w_k)``, 1 on padding rows) and the threshold follow.
+    With one pattern per antenna the rows' antennas follow; with ``threshold_db``
+    (the truncated objective) the padded standard deviations (``1 / sqrt(w_k)``, 1 on
+    padding rows) and the threshold.
     """
     parts = [
         attitude_ref.ravel(order="F"),
@@ -144,6 +150,8 @@ def parameter_vector(
         padded.weights,
         padded.snr,
     ]
+    if padded.antenna is not None:
+        parts.append(padded.antenna)
     if threshold_db is not None:
         observed = padded.weights > 0
         sigma = np.ones(padded.size)
@@ -154,7 +162,7 @@ def parameter_vector(
 
 @lru_cache(maxsize=32)
 def nlp_solver(
-    pattern: GainPattern,
+    pattern: Pattern,
     size: int,
     options: IpoptOptions,
     objective: Objective = "least_squares",
@@ -163,10 +171,9 @@ def nlp_solver(
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
     v = ca.SX.sym("v", 3)
-    p = _parameter_symbols(size, objective)
-    predicted = snr_function(pattern, size)(
-        v, p["attitude_ref"], p["los"], p["boresight"], p["p0"], p["noise"]
-    )
+    p = _parameter_symbols(size, objective, isinstance(pattern, AntennaPatterns))
+    data = [p[name] for name in ("los", "boresight", "p0", "noise", "antenna") if name in p]
+    predicted = snr_function(pattern, size)(v, p["attitude_ref"], *data)
     loss = objective_loss(
         objective, p["snr"], predicted, p["weights"], p.get("sigma"), p.get("threshold")
     )

@@ -65,7 +65,7 @@ class EulerResiduals:
     def __init__(self, problem: SnrEpoch, attitude_ref: Array) -> None:
         padded = pad_epoch(problem, attitude_ref)
         self._function = snr_euler_jacobian_function(problem.pattern, padded.size)
-        self._args = (padded.los, padded.boresight, padded.p0, padded.noise)
+        self._args = padded.model_inputs
         self._scale = np.sqrt(padded.weights)
         self._snr = padded.snr
         self._z: Array | None = None

@@ -8,7 +8,10 @@ handful of compiled problems per process.  Padding rows have weight 0 and
 measured SNR 0, and a harmless geometry: the line of sight lies along the
 padding boresight at the reference attitude (``cos alpha = 1``, the gain is
 finite and smooth there for every pattern), so they add exactly nothing to the
-loss, its gradient or its Hessian.
+loss, its gradient or its Hessian.  When the antennas' patterns differ, the
+padded epoch also carries each row's receiving antenna (padding rows: that of
+the padding boresight), the extra input of the compiled functions
+(:mod:`attopt.formulations.snr_model`).
 """
 
 from __future__ import annotations
@@ -46,6 +49,8 @@ class PaddedEpoch:
         noise: noise power (dBW).
         weights: ``(size,)`` ``1 / sigma_k^2``, 0 for padding rows.
         snr: ``(size,)`` measured SNR (dB), 0 for padding rows.
+        antenna: ``(size,)`` receiving antenna of each row (as floats) when the
+            antennas' patterns differ, else ``None``.
     """
 
     m: int
@@ -55,10 +60,18 @@ class PaddedEpoch:
     noise: float
     weights: Array
     snr: Array
+    antenna: Array | None = None
 
     @property
     def size(self) -> int:
         return int(self.weights.shape[0])
+
+    @property
+    def model_inputs(self) -> tuple[Array | float, ...]:
+        """The per-epoch inputs of the compiled SNR functions, in the order of
+        :func:`attopt.formulations.snr_model.symbolic_inputs`."""
+        inputs = (self.los, self.boresight, self.p0, self.noise)
+        return inputs if self.antenna is None else (*inputs, self.antenna)
 
 
 def pad_epoch(problem: SnrEpoch, attitude_ref: Array, size: int | None = None) -> PaddedEpoch:
@@ -72,6 +85,7 @@ def pad_epoch(problem: SnrEpoch, attitude_ref: Array, size: int | None = None) -
     size = bucket_size(m) if size is None else size
     if size < m:
         raise ValueError(f"cannot pad {m} observations to {size} rows")
+    pad_antenna = int(problem.antenna[0]) if m else 0
     pad_boresight = problem.boresight_rows[0] if m else np.array([0.0, 0.0, 1.0])
     los = np.empty((size, 3))
     boresight = np.empty((size, 3))
@@ -85,4 +99,8 @@ def pad_epoch(problem: SnrEpoch, attitude_ref: Array, size: int | None = None) -
     weights[:m] = problem.weights
     snr = np.zeros(size)
     snr[:m] = problem.snr_db
-    return PaddedEpoch(m, los, boresight, p0, problem.noise_dbw, weights, snr)
+    antenna = None
+    if problem.pattern_antenna is not None:
+        antenna = np.full(size, float(pad_antenna))
+        antenna[:m] = problem.pattern_antenna
+    return PaddedEpoch(m, los, boresight, p0, problem.noise_dbw, weights, snr, antenna)
