@@ -47,7 +47,7 @@ from attopt.experiments.config.components import (
     TleOrbit,
     UtcTime,
 )
-from attopt.experiments.environment.orbit import check_window
+from attopt.experiments.environment.orbit import checked_window
 from attopt.experiments.environment.traffic import TrafficModel
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.link_budget import ADSB_FREQUENCY_HZ, LinkBudget
@@ -240,11 +240,7 @@ class AdsbScenario(Parameters):
     @field_validator("orbit")
     @classmethod
     def _propagates_over_the_pass(cls, orbit: Orbit, info: ValidationInfo) -> Orbit:
-        if {"start_utc", "duration_s", "step_s"} <= info.data.keys():
-            check_window(
-                orbit, info.data["start_utc"], info.data["duration_s"], info.data["step_s"]
-            )
-        return orbit
+        return checked_window(orbit, info.data)
 
     @property
     def n_antennas(self) -> int:

@@ -293,6 +293,17 @@ class Station(Parameters):
     )
 
 
+def repeated(names: list[str]) -> list[str]:
+    """The names that occur more than once, sorted (for the unique-name validators).
+
+    Example::
+
+        >>> repeated(["a", "b", "a"])
+        ['a']
+    """
+    return sorted({name for name in names if names.count(name) > 1})
+
+
 def _checked_time(value: str) -> str:
     from astropy.time import Time
 

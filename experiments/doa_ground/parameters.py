@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.config.components import Orbit, Station, TleOrbit, UtcTime
+from attopt.experiments.config.components import Orbit, Station, TleOrbit, UtcTime, repeated
 from attopt.formulations.doa_array import UniformCircularArray
 from attopt.formulations.rigid_body import INERTIA_SEED003
 
@@ -165,9 +165,10 @@ class DoaScenario(Parameters):
     @classmethod
     def _unique_names(cls, value: list[Station]) -> list[Station]:
         names = [station.name for station in value]
-        repeated = sorted({name for name in names if names.count(name) > 1})
-        if repeated:
-            raise ValueError(f"station names must be unique, repeated: {', '.join(repeated)}")
+        if repeated(names):
+            raise ValueError(
+                f"station names must be unique, repeated: {', '.join(repeated(names))}"
+            )
         return value
 
     def scenario(self) -> DoaScenario:

@@ -7,8 +7,9 @@ the WGS84 geodetic coordinates.  Positions are in km, velocities in km/s.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import astropy.units as u
 import numpy as np
@@ -148,6 +149,17 @@ def window_times(
     """The epochs ``t = 0, step_s, ...`` below ``duration_s`` (s) and as UTC times."""
     t = np.arange(0.0, duration_s, step_s)
     return t, Time(start_utc, scale="utc") + t * u.s
+
+
+def checked_window(
+    orbit: TleOrbit | CircularOrbit, window: Mapping[str, Any]
+) -> TleOrbit | CircularOrbit:
+    """``orbit``, checked by :func:`check_window` over the ``start_utc``, ``duration_s`` and
+    ``step_s`` of ``window`` (a parameter model's validated fields) when it has all three:
+    the body of the experiments' ``orbit`` validators."""
+    if {"start_utc", "duration_s", "step_s"} <= window.keys():
+        check_window(orbit, window["start_utc"], window["duration_s"], window["step_s"])
+    return orbit
 
 
 def check_window(

@@ -25,7 +25,7 @@ from typing import Annotated, Literal
 from pydantic import Field, ValidationInfo, field_validator
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.config.components import Station, TleOrbit, UtcTime
+from attopt.experiments.config.components import Station, TleOrbit, UtcTime, repeated
 from attopt.formulations.geo_link import GeoLink
 
 GARUDA1_TLE = (
@@ -209,9 +209,8 @@ class GeoWorld(Parameters):
     @classmethod
     def _unique(cls, value: list[Station]) -> list[Station]:
         names = [station.name for station in value]
-        repeated = sorted({name for name in names if names.count(name) > 1})
-        if repeated:
-            raise ValueError(f"station names must be unique: {repeated}")
+        if repeated(names):
+            raise ValueError(f"station names must be unique: {repeated(names)}")
         return value
 
     @property

@@ -62,8 +62,9 @@ from attopt.experiments.config.components import (
     TleOrbit,
     UtcTime,
     gyro_model,
+    repeated,
 )
-from attopt.experiments.environment.orbit import check_window
+from attopt.experiments.environment.orbit import checked_window
 from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
@@ -188,19 +189,14 @@ class WahbaMagSunParameters(Parameters):
     @field_validator("orbit")
     @classmethod
     def _propagates_over_the_window(cls, orbit: Orbit, info: ValidationInfo) -> Orbit:
-        if {"start_utc", "duration_s", "step_s"} <= info.data.keys():
-            check_window(
-                orbit, info.data["start_utc"], info.data["duration_s"], info.data["step_s"]
-            )
-        return orbit
+        return checked_window(orbit, info.data)
 
     @field_validator("filters")
     @classmethod
     def _unique_names(cls, filters: list[str], info: ValidationInfo) -> list[str]:
         names = [*info.data.get("methods", []), *filters]
-        repeated = sorted({name for name in names if names.count(name) > 1})
-        if repeated:
-            raise ValueError(f"names must be unique across methods and filters: {repeated}")
+        if repeated(names):
+            raise ValueError(f"names must be unique across methods and filters: {repeated(names)}")
         return filters
 
     @field_validator("gyro")
