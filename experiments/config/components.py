@@ -293,6 +293,17 @@ class Station(Parameters):
     )
 
 
+def _unique_station_names(stations: list[Station]) -> list[Station]:
+    names = [station.name for station in stations]
+    if repeated(names):
+        raise ValueError(f"station names must be unique: {repeated(names)}")
+    return stations
+
+
+Stations = Annotated[list[Station], AfterValidator(_unique_station_names)]
+"""``[[stations]]``: any number of stations with distinct names (rows and tables use them)."""
+
+
 def repeated(names: list[str]) -> list[str]:
     """The names that occur more than once, sorted (for the unique-name validators).
 

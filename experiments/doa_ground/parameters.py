@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.config.components import Orbit, Station, TleOrbit, UtcTime, repeated
+from attopt.experiments.config.components import Orbit, Station, Stations, TleOrbit, UtcTime
 from attopt.formulations.doa_array import UniformCircularArray
 from attopt.formulations.rigid_body import INERTIA_SEED003
 
@@ -141,7 +141,7 @@ class DoaScenario(Parameters):
     start_utc: UtcTime = Field(START_UTC, description="Start of the pass.")
     duration_s: float = Field(5000.0, gt=0, description="Length of the pass (sec. 6).")
     step_s: float = Field(0.25, gt=0, description="Processing step (sec. 4.2).")
-    stations: list[Station] = Field(
+    stations: Stations = Field(
         default_factory=lambda: list(STATIONS),
         min_length=1,
         description="Ground transmitters whose DOAs the array measures.",
@@ -159,16 +159,6 @@ class DoaScenario(Parameters):
         duration = info.data.get("duration_s")
         if duration is not None and value >= duration:
             raise ValueError(f"step_s must be below duration_s = {duration:g}")
-        return value
-
-    @field_validator("stations")
-    @classmethod
-    def _unique_names(cls, value: list[Station]) -> list[Station]:
-        names = [station.name for station in value]
-        if repeated(names):
-            raise ValueError(
-                f"station names must be unique, repeated: {', '.join(repeated(names))}"
-            )
         return value
 
     def scenario(self) -> DoaScenario:

@@ -25,7 +25,7 @@ from typing import Annotated, Literal
 from pydantic import Field, ValidationInfo, field_validator
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.config.components import Station, TleOrbit, UtcTime, repeated
+from attopt.experiments.config.components import Station, Stations, TleOrbit, UtcTime
 from attopt.formulations.geo_link import GeoLink
 
 GARUDA1_TLE = (
@@ -190,7 +190,7 @@ class GeoWorld(Parameters):
     start_utc: UtcTime = Field(GARUDA1_EPOCH_UTC, description="Start of the pass.")
     broadcaster: Broadcaster = Field(default_factory=Broadcaster, description="Broadcaster.")
     receiver: Receiver = Field(default_factory=Receiver, description="Stations' receivers.")
-    stations: list[Station] = Field(
+    stations: Stations = Field(
         default_factory=lambda: list(TABLE2_STATIONS),
         min_length=1,
         description="Ground stations (Table 2).",
@@ -203,14 +203,6 @@ class GeoWorld(Parameters):
         duration = info.data.get("duration_s")
         if duration is not None and duration < 2 * value:
             raise ValueError(f"duration_s = {duration} must hold two epochs of step_s")
-        return value
-
-    @field_validator("stations")
-    @classmethod
-    def _unique(cls, value: list[Station]) -> list[Station]:
-        names = [station.name for station in value]
-        if repeated(names):
-            raise ValueError(f"station names must be unique: {repeated(names)}")
         return value
 
     @property
