@@ -30,6 +30,7 @@ from attopt.experiments.adsb_snr.experiment import (
     noise_free_pass,
     power_offsets,
     simulate_pass,
+    trial_pass,
 )
 from attopt.experiments.adsb_snr.parameters import DEFAULT_BORESIGHTS_BODY, DEFAULT_TLE
 from attopt.experiments.adsb_snr.report import observations_section
@@ -79,12 +80,8 @@ def _epoch_rows(document: str) -> pd.DataFrame:
     """The per-epoch columns every row of trial 0 carries (:func:`epoch_statistics`), for a
     JSON document of overrides."""
     parameters = _parameters(json.loads(document))
-    scenario = noise_free_pass(parameters)
+    scenario, noisy = trial_pass(parameters, SEED)
     receiver = parameters.receiver
-    offsets = power_offsets(scenario, SEED, parameters.traffic.power_offset_sigma_db)
-    noisy = simulate_pass(
-        scenario, np.random.default_rng(SEED), receiver.snr_sigma_db, receiver.threshold_db, offsets
-    )
     columns = epoch_statistics(scenario, noisy, receiver.snr_sigma_db, receiver.threshold_db)
     return pd.DataFrame(columns)
 

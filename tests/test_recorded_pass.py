@@ -35,7 +35,12 @@ from attopt.experiments.recorded.records import (
 from attopt.experiments.sweep.seeding import trial_seed
 from attopt.experiments.wahba_mag_sun import experiment as wahba
 from attopt.formulations.doa_measurement import DoaMeasurement
-from attopt.formulations.gain_patterns import SEED000_HELIX, ParabolicPattern, TabulatedPattern
+from attopt.formulations.gain_patterns import (
+    SEED000_HELIX,
+    AntennaPatterns,
+    ParabolicPattern,
+    TabulatedPattern,
+)
 from attopt.formulations.passes import GyroRecord, Prior
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.pipeline import run_estimators
@@ -165,13 +170,13 @@ def test_every_table_builds_the_measurements_it_describes():
     assert types == [
         ["DoaMeasurement", "VectorMeasurement"],
         ["SnrMeasurement", "VectorMeasurement"],
-        ["SnrMeasurement", "SnrMeasurement", "VectorMeasurement"],  # two gain patterns
+        ["SnrMeasurement", "VectorMeasurement"],  # a helix's and the dish's SNRs
         ["DoaMeasurement", "SnrMeasurement"],
     ]
-    (helices, dish) = recorded.pass_.snapshots[2].of_type(SnrMeasurement)
-    assert helices.epoch.pattern == SEED000_HELIX and helices.epoch.n_antennas == 2
-    assert helices.epoch.antenna.tolist() == [1]
-    assert dish.epoch.n_antennas == 1 and dish.epoch.antenna.tolist() == [0]
+    (snr,) = recorded.pass_.snapshots[2].of_type(SnrMeasurement)
+    assert snr.epoch.pattern == AntennaPatterns(tuple(a.pattern.pattern() for a in ANTENNAS))
+    assert snr.epoch.n_antennas == 4 and snr.epoch.antenna.tolist() == [1, 2]
+    assert snr.epoch.sigma_db.tolist() == [1.0, 0.5]
     (doa,) = recorded.pass_.snapshots[0].of_type(DoaMeasurement)
     assert doa.near_axis.tolist() == [False, True]
     assert recorded.pass_.gyro is None and recorded.gyro_pass.gyro is not None
@@ -279,8 +284,8 @@ def test_estimating_the_exported_pass_gives_the_experiments_rows():
 
 
 def test_experiments_without_an_export_say_so():
-    with pytest.raises(ValueError, match=r"adsb-snr.*cannot export"):
-        exporter("adsb-snr")
+    with pytest.raises(ValueError, match=r"noop.*cannot export"):
+        exporter("noop")
 
 
 def _vectors_pass(truth: bool = True) -> RecordedPass:

@@ -247,6 +247,8 @@ class NoiseFreePass:
     aircraft: NDArray[np.intp]
     los_orbit: NDArray[np.float64]
     p0_dbw: NDArray[np.float64]
+    aircraft_ecef_km: NDArray[np.float64]
+    """The transmitting aircraft's positions, ECEF (ITRS), ``(M, 3)``."""
     true_snr_db: NDArray[np.float64]
     """SNR at the true attitude (eq. 13), ``(M,)``."""
     jacobian: NDArray[np.float64]
@@ -284,7 +286,7 @@ def _noise_free_pass(key: str) -> NoiseFreePass:
     pattern = antenna_pattern(scenario)
     link = scenario.link_budget
     parts: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("epoch", "antenna", "aircraft", "los", "p0")
+        k: [] for k in ("epoch", "antenna", "aircraft", "los", "p0", "position")
     }
     snr_parts, jac_parts = [], []
     for table in observation_chunks(geometry):
@@ -301,7 +303,14 @@ def _noise_free_pass(key: str) -> NoiseFreePass:
         )
         for key_, value in zip(
             parts,
-            (table.epoch_index, table.antenna, table.aircraft, table.los_orbit, p0),
+            (
+                table.epoch_index,
+                table.antenna,
+                table.aircraft,
+                table.los_orbit,
+                p0,
+                table.aircraft_ecef_km,
+            ),
             strict=True,
         ):
             parts[key_].append(value)
@@ -315,6 +324,7 @@ def _noise_free_pass(key: str) -> NoiseFreePass:
         aircraft=np.concatenate(parts["aircraft"]),
         los_orbit=np.concatenate(parts["los"]),
         p0_dbw=np.concatenate(parts["p0"]),
+        aircraft_ecef_km=np.concatenate(parts["position"]),
         true_snr_db=np.concatenate(snr_parts),
         jacobian=np.concatenate(jac_parts),
         boresights_body=geometry.boresights_body,
@@ -543,16 +553,32 @@ def method_estimators(parameters: AdsbSnrParameters) -> dict[str, SnapshotEstima
     }
 
 
+def trial_pass(
+    parameters: AdsbSnrParameters, seed: np.random.SeedSequence
+) -> tuple[NoiseFreePass, NoisyPass]:
+    """The scenario's noise-free pass and trial ``seed``'s measurements of it (module
+    docstring, 1-4): the SNR noise from ``default_rng(seed)``, the power offsets from
+    :func:`power_offsets`."""
+    scenario = noise_free_pass(parameters)
+    receiver = parameters.receiver
+    offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
+    noisy = simulate_pass(
+        scenario,
+        np.random.default_rng(seed),
+        receiver.snr_sigma_db,
+        receiver.threshold_db,
+        offsets,
+    )
+    return scenario, noisy
+
+
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One noisy pass solved by every method in ``setting["methods"]`` and every
     filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_snr.filters`)."""
     parameters = AdsbSnrParameters.model_validate(setting)
-    scenario = noise_free_pass(parameters)
+    scenario, noisy = trial_pass(parameters, seed)
     receiver = parameters.receiver
-    sigma, threshold = receiver.snr_sigma_db, receiver.threshold_db
-    offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
-    noisy = simulate_pass(scenario, np.random.default_rng(seed), sigma, threshold, offsets)
-    common = epoch_statistics(scenario, noisy, sigma, threshold)
+    common = epoch_statistics(scenario, noisy, receiver.snr_sigma_db, receiver.threshold_db)
     snapshots = snr_snapshots(noisy.epochs)
     frames, solutions = [], {}
     for label, solver in method_estimators(parameters).items():

@@ -67,6 +67,7 @@ from attopt.experiments.metrics import (
     status_columns,
 )
 from attopt.experiments.simulation import (
+    FilterInputs,
     GyroPass,
     GyroTruth,
     child_rng,
@@ -138,6 +139,21 @@ def _adsb_gyro_truth(key: str, rate_hz: float) -> GyroTruth:
     return gyro_truth(geometry.t, frames, scenario.attitude.attitude, rate_hz)
 
 
+def gyro_inputs(
+    parameters: AdsbSnrParameters,
+    seed: np.random.SeedSequence,
+    index: int,
+    truth: GyroTruth | None = None,
+) -> FilterInputs:
+    """The samples of gyro ``index`` of ``gyros`` and the filters' prior, from child stream
+    ``1 + index`` of the trial's seed (module docstring); ``truth``: the scenario's
+    (:func:`adsb_gyro_truth`) at the gyros' rate, computed when not given."""
+    model = gyro_model(parameters.gyros[index])
+    truth = truth or adsb_gyro_truth(parameters, model.rate_hz)
+    rng = child_rng(seed, 1 + index)
+    return simulate_filter_inputs(truth, model, rng, parameters.initial_sigma_deg)
+
+
 def paper_measurements(solution: Track, sigma_deg: float) -> list[AttitudeMeasurement | None]:
     """Euler angles of the valid single-frame solutions (Liu et al. 2023 eqs. 41-46)."""
     covariance = np.radians(sigma_deg) ** 2 * np.eye(3)
@@ -195,14 +211,12 @@ def filter_rows(
     if not methods:
         return []
     paper_filter = methods.pop(PAPER_FILTER, None)
-    models = [gyro_model(gyro) for gyro in parameters.gyros]
-    truth = adsb_gyro_truth(parameters, models[0].rate_hz)
+    truth = adsb_gyro_truth(parameters, gyro_model(parameters.gyros[0]).rate_hz)
     snr = snr_measurements(epochs, parameters.filter_snr_model)
     paper = paper_measurements(nlse, parameters.paper_sigma_deg) if nlse is not None else None
     frames = []
-    for index, (gyro, model) in enumerate(zip(parameters.gyros, models, strict=True)):
-        rng = child_rng(seed, 1 + index)
-        inputs = simulate_filter_inputs(truth, model, rng, parameters.initial_sigma_deg)
+    for index, gyro in enumerate(parameters.gyros):
+        inputs = gyro_inputs(parameters, seed, index, truth)
         simulated = inputs.gyro_pass(truth, snr)
         runs: dict[str, Run] = {}
         if paper_filter is not None:

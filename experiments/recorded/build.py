@@ -38,6 +38,7 @@ from attopt.formulations.attitude_measurement import AttitudeMeasurement, Vector
 from attopt.formulations.conventions import orbit_frame_attitude
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.gain_patterns import shared_pattern
 from attopt.formulations.passes import GyroRecord, Prior
 from attopt.formulations.snapshot import VECTOR_COLUMNS, Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -129,33 +130,23 @@ def vector_measurement(rows: pd.DataFrame) -> VectorMeasurement:
 
 
 def snr_measurements(rows: pd.DataFrame, snr: SnrEntry) -> list[SnrMeasurement]:
-    """One epoch's rows of the ``snr`` table: one :class:`SnrMeasurement` per distinct gain
-    pattern of the receiving antennas (all of them in one when they share it, the antenna
-    index then as stored)."""
-    patterns = [antenna.pattern.pattern() for antenna in snr.antennas]
-    boresights = np.array([antenna.boresight_body for antenna in snr.antennas], dtype=float)
-    antenna = rows["antenna"].to_numpy(dtype=np.intp)
-    out = []
-    for pattern in dict.fromkeys(patterns):
-        group = np.flatnonzero([p == pattern for p in patterns])
-        take = np.isin(antenna, group)
-        if not take.any():
-            continue
-        part = rows[take]
-        epoch = SnrEpoch(
-            snr_db=part["snr_db"].to_numpy(dtype=float),
-            los_orbit=xyz(part, "los"),
-            antenna=np.searchsorted(group, antenna[take]),
-            boresights_body=boresights[group],
-            p0_dbw=part["p0_dbw"].to_numpy(dtype=float),
-            noise_dbw=snr.noise_dbw,
-            pattern=pattern,
-            sigma_db=part["sigma_db"].to_numpy(dtype=float),
-            threshold_db=snr.threshold_db,
-            transmitter=part["transmitter"].to_numpy(dtype=np.intp),
-        )
-        out.append(SnrMeasurement(epoch, truncated=snr.truncated))
-    return out
+    """One epoch's rows of the ``snr`` table as one :class:`SnrMeasurement`: every antenna's
+    boresight, the antenna index as stored and the antennas' gain pattern, the one pattern
+    when they share it, else one per antenna
+    (:func:`~attopt.formulations.gain_patterns.shared_pattern`)."""
+    epoch = SnrEpoch(
+        snr_db=rows["snr_db"].to_numpy(dtype=float),
+        los_orbit=xyz(rows, "los"),
+        antenna=rows["antenna"].to_numpy(dtype=np.intp),
+        boresights_body=np.array([a.boresight_body for a in snr.antennas], dtype=float),
+        p0_dbw=rows["p0_dbw"].to_numpy(dtype=float),
+        noise_dbw=snr.noise_dbw,
+        pattern=shared_pattern([antenna.pattern.pattern() for antenna in snr.antennas]),
+        sigma_db=rows["sigma_db"].to_numpy(dtype=float),
+        threshold_db=snr.threshold_db,
+        transmitter=rows["transmitter"].to_numpy(dtype=np.intp),
+    )
+    return [SnrMeasurement(epoch, truncated=snr.truncated)]
 
 
 def doa_measurement(rows: pd.DataFrame, doa: DoaEntry) -> DoaMeasurement:

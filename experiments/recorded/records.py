@@ -63,6 +63,53 @@ def vector_table(
     )
 
 
+def snr_table(
+    *,
+    t: ArrayLike,
+    antenna: ArrayLike,
+    transmitter: ArrayLike,
+    transmitter_km: ArrayLike,
+    los: ArrayLike,
+    p0_dbw: ArrayLike,
+    snr_db: ArrayLike,
+    sigma_db: ArrayLike,
+) -> pd.DataFrame:
+    """The ``snr`` table of ``M`` received messages, one row each in the given order:
+    times, antenna indices and transmitter ids ``(M,)``, transmitter positions
+    ``(M, 3)`` (km, ``position_frame``), unit lines of sight ``(M, 3)``
+    (``attitude_frame``), isotropic powers and measured SNRs ``(M,)`` and the SNR sigma,
+    broadcastable to ``(M,)`` (dB).
+
+    Example::
+
+        >>> from attopt.experiments.recorded.records import snr_table
+        >>> table = snr_table(
+        ...     t=[0.0], antenna=[1], transmitter=[7], transmitter_km=[[7000.0, 0.0, 0.0]],
+        ...     los=[[0.0, 0.0, 1.0]], p0_dbw=[-130.0], snr_db=[12.5], sigma_db=1.0,
+        ... )
+        >>> table[["antenna", "transmitter", "los_z", "sigma_db"]].to_numpy().tolist()
+        [[1.0, 7.0, 1.0, 1.0]]
+    """
+    snr = np.asarray(snr_db, dtype=float)
+    return pd.DataFrame(
+        {
+            "t_s": np.asarray(t, dtype=float),
+            "antenna": np.asarray(antenna, dtype=np.int64),
+            "transmitter": np.asarray(transmitter, dtype=np.int64),
+            **_xyz_columns("transmitter", transmitter_km, "km"),
+            **_xyz_columns("los", los),
+            "p0_dbw": np.asarray(p0_dbw, dtype=float),
+            "snr_db": snr,
+            "sigma_db": np.broadcast_to(np.asarray(sigma_db, dtype=float), snr.shape),
+        }
+    )
+
+
+def epochs_table(t: ArrayLike) -> pd.DataFrame:
+    """The ``epochs`` table: every epoch time, also those without an observation."""
+    return pd.DataFrame({"t_s": np.asarray(t, dtype=float)})
+
+
 def gyro_table(record: GyroRecord) -> pd.DataFrame:
     """The ``gyro`` table of a record: one row per sample time, the last row's rates NaN
     (it closes the record)."""
