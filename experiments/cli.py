@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from attopt.experiments.experiment import Experiment
     from attopt.experiments.sweep import SweepResult
 
@@ -41,6 +43,8 @@ SUMMARY_COLUMNS = (
 MAX_ERRORS_SHOWN = 5
 EXIT_USAGE = 2
 EXIT_INCOMPLETE = 1
+EXIT_INTEGRITY = 1
+"""``attopt check --max-share``: some group's share beyond the quantile exceeds it."""
 EXIT_INTERRUPTED = 130
 
 
@@ -133,7 +137,7 @@ def run(
             err=True,
         )
         raise typer.Exit(EXIT_INTERRUPTED) from None
-    _print_result(result)
+    _print_result(result, declared)
     if not result.complete:
         raise typer.Exit(EXIT_INCOMPLETE)
 
@@ -189,6 +193,45 @@ def _load_experiment(name: str) -> Experiment:
     except (UnknownExperimentError, ImportError) as error:
         typer.echo(f"error: cannot load experiment {name!r}: {error}", err=True)
         raise typer.Exit(EXIT_USAGE) from None
+
+
+@app.command()
+def check(
+    out: Annotated[Path, typer.Argument(help="A results directory (attopt run or estimate).")],
+    max_share: Annotated[
+        float | None,
+        typer.Option(help="Exit 1 when some group's share beyond the quantile exceeds this."),
+    ] = None,
+) -> None:
+    """Print the integrity of the estimates in OUT: per group, the share of valid epochs
+    whose NEES exceeds the chi-square 1 - 1e-4 quantile, the mean NEES, the valid share."""
+    from attopt.experiments.reporting.integrity import integrity_table
+    from attopt.experiments.sweep.check import ResultsError, results_rows
+
+    try:
+        rows, by = results_rows(out)
+    except ResultsError as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    typer.echo(integrity_table(rows, by).to_string(index=False, float_format="{:.4g}".format))
+    share = _echo_worst_share(rows, by)
+    if max_share is not None and share > max_share:
+        raise typer.Exit(EXIT_INTEGRITY)
+
+
+def _echo_worst_share(rows: pd.DataFrame, by: list[str]) -> float:
+    """Print the worst group's share beyond the quantile; return it (no NEES: 0)."""
+    from attopt.experiments.reporting.integrity import worst_share
+
+    share, group = worst_share(rows, by)
+    if group:
+        typer.echo(
+            f"Integrity: worst share of valid epochs beyond the chi-square 1 - 1e-4 quantile "
+            f"{share:.3g} ({group}); 1e-4 for a consistent estimator"
+        )
+        return share
+    typer.echo("Integrity: no NEES in the rows (no estimate with a covariance and a truth)")
+    return 0.0
 
 
 @app.command("list")
@@ -316,8 +359,10 @@ def bench_wahba(
     typer.echo(format_table(run(n_batch=epochs, calls=calls), epochs))
 
 
-def _print_result(result: SweepResult) -> None:
+def _print_result(result: SweepResult, experiment: Experiment) -> None:
+    from attopt.experiments.sweep.check import integrity_groups
     from attopt.experiments.sweep.report import failure_digest
+    from attopt.experiments.sweep.tasks import setting_columns
 
     summary = result.summary
     keys = list(summary.columns[: summary.columns.get_loc("n_rows")])
@@ -329,6 +374,9 @@ def _print_result(result: SweepResult) -> None:
         f"{result.n_resumed} already done, {result.n_failed} failed, "
         f"{result.n_missing} missing ({result.elapsed_s:.1f} s)"
     )
+    if len(result.rows):
+        columns = setting_columns(result.settings)
+        _echo_worst_share(result.rows, integrity_groups(result.rows, columns, experiment.group_by))
     for line in result.dropped_chunks:
         typer.echo(f"  warning: {line}", err=True)
     if len(result.code_versions) > 1:

@@ -99,3 +99,43 @@ def test_estimators_lists_the_registry_by_kind():
     passes = CliRunner().invoke(app, ["estimators", "--kind", "pass"])
     assert [line.split()[0] for line in passes.output.splitlines()] == estimators("pass")
     assert "fg_batch_offsets  pass  SnrMeasurement" in passes.output
+
+
+def test_check_groups_a_sweep_as_its_report_does(tmp_path):
+    from attopt.experiments.sweep import run_sweep
+
+    out = tmp_path / "toy"
+    run_sweep(TOY, trials=2, out=out, workers=1, progress=False)
+    result = runner.invoke(app, ["check", str(out)])
+    assert result.exit_code == 0, result.output
+    header = result.output.splitlines()[0].split()
+    # the setting columns that vary (the manifest's order), then the group_by columns
+    assert sorted(header[:2]) == ["label", "scale"] and header[2] == "method"
+    assert "no NEES in the rows" in result.output
+
+
+def test_check_names_the_worst_group_and_fails_above_max_share(tmp_path):
+    import pandas as pd
+
+    rows = pd.DataFrame(
+        {
+            "method": ["good"] * 4 + ["overconfident"] * 4,
+            "valid": True,
+            **{f"err_{a}_deg": 0.1 for a in "xyz"},
+            "nees": [1.0, 2.0, 3.0, 4.0, 2.0, 30.0, 50.0, 3.0],
+        }
+    )
+    rows.to_parquet(tmp_path / "rows.parquet")
+    result = runner.invoke(app, ["check", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    assert "quantile 0.5 (method=overconfident)" in result.output
+    strict = runner.invoke(app, ["check", str(tmp_path), "--max-share", "0.001"])
+    assert strict.exit_code == 1
+    lenient = runner.invoke(app, ["check", str(tmp_path), "--max-share", "0.5"])
+    assert lenient.exit_code == 0
+
+
+def test_check_of_a_directory_without_results_exits_2(tmp_path):
+    result = runner.invoke(app, ["check", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "not a results directory" in result.output

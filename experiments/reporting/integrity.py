@@ -31,6 +31,33 @@ def integrity_table(rows: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
     )
 
 
+def worst_share(rows: pd.DataFrame, by: Sequence[str]) -> tuple[float, str]:
+    """The largest share beyond the quantile over the groups of ``by``
+    (:func:`~attopt.experiments.reporting.statistics.integrity`) and its group, as
+    ``"key=value, ..."``; ``(nan, "")`` when no group has a NEES.
+
+    Example::
+
+        >>> import pandas as pd
+        >>> from attopt.experiments.reporting.integrity import worst_share
+        >>> rows = pd.DataFrame({
+        ...     "method": ["a", "a", "b", "b"], "valid": True, "err_x_deg": 0.1, "err_y_deg": 0.1,
+        ...     "err_z_deg": 0.1,
+        ...     "nees": [2.0, 25.0, 2.0, 3.0],
+        ... })
+        >>> worst_share(rows, ["method"])
+        (0.5, 'method=a')
+    """
+    by = list(by)
+    shares = integrity(rows, by)["share_beyond"]
+    if not shares.notna().any():
+        return float("nan"), ""
+    group = shares.idxmax()
+    values = group if isinstance(group, tuple) else (group,)
+    label = ", ".join(f"{key}={value}" for key, value in zip(by, values, strict=True))
+    return float(shares.max()), label
+
+
 def integrity_section(rows: pd.DataFrame, by: Sequence[str], command: str = "") -> str:
     """``## Integrity``: per group of ``by``, the share of valid epochs whose NEES exceeds
     the chi-square(3) 1 - 1e-4 quantile, the mean NEES and the valid fraction."""
@@ -38,9 +65,10 @@ def integrity_section(rows: pd.DataFrame, by: Sequence[str], command: str = "") 
     table = integrity_table(rows, by)
     caption = (
         "How often each estimator's own covariance fails to cover its error: over its valid "
-        "epochs with a NEES (3-dof, `nees`), the share beyond the chi-square(3) "
-        f"{1 - INTEGRITY_PROBABILITY:g} quantile ({threshold:.1f}; {INTEGRITY_PROBABILITY:g} "
-        "for a consistent estimator), the mean NEES (3) and the valid share of all its epochs. "
+        "epochs with a NEES (`nees`, over 3 axes or the row's `nees_dof`), the share beyond "
+        f"the chi-square {1 - INTEGRITY_PROBABILITY:g} quantile of its degrees of freedom "
+        f"({threshold:.1f} for 3; {INTEGRITY_PROBABILITY:g} for a consistent estimator), the "
+        "mean NEES (its degrees of freedom) and the valid share of all its epochs. "
         f"{NOT_AVAILABLE}: no NEES in the rows (no covariance)." + made_by(command)
     )
     formats = {

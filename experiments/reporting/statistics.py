@@ -146,21 +146,36 @@ def integrity(
     Columns (index: the groups, in order of appearance):
 
     * ``epochs``: rows of the group; ``valid_fraction``: share of them valid (:func:`valid_mask`);
-    * ``nees_epochs``: valid rows with a finite ``nees`` (the 3-dof NEES
-      ``e^T P^-1 e`` against the estimator's own covariance ``P``);
+    * ``nees_epochs``: valid rows with a finite ``nees`` (the NEES ``e^T P^-1 e``
+      against the estimator's own covariance ``P``, over the row's ``nees_dof``
+      axes when the rows have that column, else over 3);
     * ``share_beyond``: share of those whose NEES exceeds :func:`nees_threshold`
-      (``probability`` for a consistent estimator with Gaussian errors);
-    * ``mean_nees`` (3 for a consistent one).
+      of its degrees of freedom (``probability`` for a consistent estimator with
+      Gaussian errors);
+    * ``mean_nees`` (the degrees of freedom for a consistent one).
 
     Without a ``nees`` column, or where a group has no finite NEES (a method
     without a covariance), ``share_beyond`` and ``mean_nees`` are NaN.
+
+    Example::
+
+        >>> import pandas as pd
+        >>> from attopt.experiments.reporting.statistics import integrity
+        >>> rows = pd.DataFrame({
+        ...     "method": ["a", "a", "b", "b"], "valid": True, "err_x_deg": 0.1, "err_y_deg": 0.1,
+        ...     "err_z_deg": 0.1,
+        ...     "nees": [2.0, 25.0, 2.0, 19.0], "nees_dof": [3, 3, 3, 2],
+        ... })
+        >>> integrity(rows, ["method"])["share_beyond"].tolist()  # 21.1 (3 dof), 18.4 (2)
+        [0.5, 0.5]
     """
     by = list(by)
     valid = valid_mask(rows)
     nees = rows["nees"].to_numpy(dtype=float) if "nees" in rows else np.full(len(rows), np.nan)
     nees = np.where(valid, nees, np.nan)
     judged = np.isfinite(nees)
-    beyond = np.where(judged, nees > nees_threshold(probability), np.nan)
+    dof = rows["nees_dof"].to_numpy(dtype=float) if "nees_dof" in rows else NEES_DOF
+    beyond = np.where(judged, nees > chi2.isf(probability, dof), np.nan)
     work = rows[by].assign(_valid=valid, _judged=judged, _nees=nees, _beyond=beyond)
     groups = work.groupby(by, sort=False, dropna=False)
     return pd.DataFrame(

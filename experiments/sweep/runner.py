@@ -16,6 +16,7 @@ from attopt.experiments.experiment import Experiment, ReportContext, Setting
 from attopt.experiments.registry import display_name, reference_of
 from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.sweep.aggregate import invalid_reasons, summarise
+from attopt.experiments.sweep.check import integrity_groups
 from attopt.experiments.sweep.engines import Engine, make_engine
 from attopt.experiments.sweep.report import RunDescription, render_report
 from attopt.experiments.sweep.seeding import check_root_seed
@@ -25,7 +26,7 @@ from attopt.experiments.sweep.tasks import (
     ChunkSpec,
     default_chunk_size,
     plan_chunks,
-    scalar_setting_items,
+    setting_columns,
 )
 
 CONFIG_FILE = "config.toml"
@@ -154,11 +155,11 @@ def run_sweep(
                 computed, errors = _execute(runner, specs, store, bar)
     rows = store.load_rows(trials)
     failures = store.load_failures(trials)
-    setting_columns = list(dict.fromkeys(k for s in settings for k in scalar_setting_items(s)))
+    columns = setting_columns(settings)
     summary = summarise(
         rows,
         failures,
-        setting_columns=setting_columns,
+        setting_columns=columns,
         group_by=experiment.group_by,
         extra=experiment.summary_columns,
     )
@@ -178,7 +179,7 @@ def run_sweep(
         n_missing=n_missing,
         code_versions=code_versions,
     )
-    _write_outputs(store.out, experiment, description, rows, summary, failures, setting_columns)
+    _write_outputs(store.out, experiment, description, rows, summary, failures, columns)
     return SweepResult(
         out_dir=store.out,
         experiment=experiment.name,
@@ -254,15 +255,15 @@ def _write_outputs(
     rows: pd.DataFrame,
     summary: pd.DataFrame,
     failures: pd.DataFrame,
-    setting_columns: list[str],
+    columns: list[str],
 ) -> None:
     summary.to_csv(out / "summary.csv", index=False)
     failures.to_csv(out / "failures.csv", index=False)
     reasons = invalid_reasons(rows, experiment.group_by)
     integrity = ""
     if experiment.report is None and len(rows):
-        varying = [c for c in setting_columns if rows[c].nunique(dropna=False) > 1]
-        integrity = integrity_section(rows, [*varying, *experiment.group_by], description.command)
+        by = integrity_groups(rows, columns, experiment.group_by)
+        integrity = integrity_section(rows, by, description.command)
     report = render_report(description, summary, reasons, failures, integrity)
     (out / "report.md").write_text(report)
     if experiment.report is not None:

@@ -131,6 +131,11 @@ def scalar_setting_items(setting: Setting) -> dict[str, Any]:
     }
 
 
+def setting_columns(settings: Sequence[Setting]) -> list[str]:
+    """The row columns of a grid's settings (:func:`scalar_setting_items`), in order."""
+    return list(dict.fromkeys(k for s in settings for k in scalar_setting_items(s)))
+
+
 def labelled_rows(
     output: Any, setting: Setting, setting_index: int, trial_index: int
 ) -> list[Row] | pd.DataFrame:
