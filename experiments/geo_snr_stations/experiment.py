@@ -40,12 +40,13 @@ into an angle random walk of ``arw_deg_sqrt_h`` (0.1 deg/h^(1/2)), a rate random
 ``rrw_deg_h_sqrt_h`` (1 deg/h per h^(1/2)) and an initial rate-error sigma of
 ``initial_sigma_deg_h`` (1 deg/h).
 
-Prior.  The paper starts its filter with 5 deg per axis (``initial_sigma_deg``).  An
-attitude error is drawn with that sigma from the trial's child stream
-(:func:`attopt.experiments.simulation.child_rng`) and its boresight is replaced by
-``cone``'s at the first epoch (:func:`attopt.solvers.geo.manoeuvre.boresight_prior`,
-yaw kept, yaw sigma ``initial_sigma_deg``, sigma across it ``[restart]``'s
-``boresight_sigma_deg``): from the raw draw (up to 9 deg off) the
+Prior (:func:`filter_prior`).  The paper starts its filter with 5 deg per axis
+(``initial_sigma_deg``).  An attitude error is drawn with that sigma from the trial's
+child stream (:func:`attopt.experiments.simulation.child_rng`) and its boresight is
+replaced by ``cone``'s at the first epoch
+(:func:`attopt.solvers.geo.manoeuvre.boresight_prior`, yaw kept, yaw sigma
+``initial_sigma_deg``, sigma across it ``[restart]``'s ``boresight_sigma_deg``): from
+the raw draw (up to 9 deg off) the
 stations fall outside the 9 deg main lobe at the sigma points and USQUE
 never updates (measured: no update in the hour).  Restarts after a detection use
 ``[restart]`` (:func:`detection_options`).
@@ -294,14 +295,28 @@ def configured(name: str) -> Estimator:
     return found
 
 
-def _filter_prior(
+def filter_prior(
     parameters: GeoSnrStationsParameters,
+    seed: np.random.SeedSequence,
     scenario: GeoSnrScenario,
-    rng: np.random.Generator,
     cone_start: Array,
 ) -> Prior:
-    """The paper's 5 deg draw with its boresight replaced by ``cone``'s (module docstring)."""
+    """The gyro-aided filters' prior at the first epoch (ECI -> body; module docstring).
+
+    Pimienta-Penalver and Crassidis start their filter with ``initial_sigma_deg`` (5 deg)
+    per axis: an attitude error of that sigma is drawn from trial ``seed``'s child stream
+    (:func:`attopt.experiments.simulation.child_rng`, :data:`GYRO_STREAM`) about the true
+    first attitude, and its boresight is replaced by ``cone_start``, the cone
+    intersection's boresight at the first epoch (ECI;
+    :func:`attopt.solvers.geo.manoeuvre.boresight_prior`): the yaw of the draw is kept with
+    sigma ``initial_sigma_deg``, the sigma across the boresight is ``[restart]``'s
+    ``boresight_sigma_deg``, the rate error (bias) starts at zero with the assumed-rate
+    model's initial sigma (:func:`rate_model`).  The trial's filters
+    (:func:`filter_pass`) and its export
+    (:func:`attopt.experiments.geo_snr_stations.export.export`) both start from it.
+    """
     sigma0 = np.radians(parameters.initial_sigma_deg)
+    rng = child_rng(seed, GYRO_STREAM)
     draw = Rotation.from_rotvec(sigma0 * rng.standard_normal(3)) * scenario.truth[0]
     start = DetectionOptions(
         boresight_sigma=np.radians(parameters.restart.boresight_sigma_deg),
@@ -309,6 +324,49 @@ def _filter_prior(
         bias_sigma=rate_model(parameters).initial_bias_sigma,
     )
     return boresight_prior(draw, cone_start, np.zeros(3), start)
+
+
+def filter_gyro(parameters: GeoSnrStationsParameters, scenario: GeoSnrScenario) -> GyroRecord:
+    """The filters' assumed-rate gyro record: :func:`assumed_rates` with :func:`rate_model`."""
+    samples = assumed_rates(scenario)
+    return GyroRecord(samples.t, samples.rates, rate_model(parameters))
+
+
+def filter_station_indices(
+    parameters: GeoSnrStationsParameters, scenario: GeoSnrScenario
+) -> NDArray[np.intp]:
+    """Indices of ``filter_stations`` among the scenario's stations, in their order."""
+    names = scenario.station_names
+    return np.array([names.index(name) for name in parameters.filter_stations], dtype=np.intp)
+
+
+def filter_snrs(snr: Array, stations: NDArray[np.intp]) -> Array:
+    """The measured SNRs ``snr`` ``(N, m)`` of the filter ``stations`` only (NaN at the
+    others): what the filters are given."""
+    filter_snr = np.full_like(snr, np.nan)
+    filter_snr[:, stations] = snr[:, stations]
+    return filter_snr
+
+
+def filter_measurements(scenario: GeoSnrScenario, filter_snr: Array) -> list[SnrMeasurement | None]:
+    """Per epoch, the finite SNRs of ``filter_snr`` (:func:`filter_snrs`) as one
+    measurement (ECI -> body, :meth:`GeoSnrScenario.measurement`), ``None`` where there
+    are none."""
+    return [
+        scenario.measurement(k, row) if np.isfinite(row).any() else None
+        for k, row in enumerate(filter_snr)
+    ]
+
+
+def cone_start(cone: Pointing) -> Array:
+    """``cone``'s boresight at the first epoch (ECI), the filters' prior boresight.
+
+    Raises:
+        ValueError: the cones do not intersect at the first epoch.
+    """
+    if not np.isfinite(cone.boresight[0]).all():
+        raise ValueError(f"no cone intersection at the first epoch: {cone.reason[0]}")
+    return cone.boresight[0]
 
 
 def filter_pass(
@@ -321,17 +379,11 @@ def filter_pass(
     """The filter stations' SNRs ``filter_snr`` (NaN at the others) with the assumed-rate
     gyro and the prior (module docstring), ``cone``: the cone intersection's boresight at
     the first epoch."""
-    measurements = [
-        scenario.measurement(k, row) if np.isfinite(row).any() else None
-        for k, row in enumerate(filter_snr)
-    ]
-    samples, model = assumed_rates(scenario), rate_model(parameters)
-    prior = _filter_prior(parameters, scenario, child_rng(seed, GYRO_STREAM), cone)
     return Pass(
         scenario.t,
-        epoch_snapshots(measurements, scenario.t),
-        GyroRecord(samples.t, samples.rates, model),
-        prior,
+        epoch_snapshots(filter_measurements(scenario, filter_snr), scenario.t),
+        filter_gyro(parameters, scenario),
+        filter_prior(parameters, seed, scenario, cone),
     )
 
 
@@ -357,13 +409,10 @@ def filter_pointings(
     """The ``filters``' rows on the filter stations' SNRs (module docstring); ``snapshot``:
     ``cone`` and ``lsq``, for the prior and the restarts."""
     cone, lsq = snapshot
-    if not np.isfinite(cone.boresight[0]).all():
-        raise ValueError(f"no cone intersection at the first epoch: {cone.reason[0]}")
-    stations = np.array([scenario.station_names.index(n) for n in parameters.filter_stations])
-    filter_snr = np.full_like(snr, np.nan)
-    filter_snr[:, stations] = snr[:, stations]
+    start = cone_start(cone)
+    filter_snr = filter_snrs(snr, filter_station_indices(parameters, scenario))
     n_stations = np.isfinite(filter_snr).sum(axis=1)
-    pass_ = filter_pass(parameters, seed, scenario, filter_snr, cone.boresight[0])
+    pass_ = filter_pass(parameters, seed, scenario, filter_snr, start)
     filters = resolve(parameters.filters, filter_labels(), "filters")
     needs_detection = DETECT in filters or any(
         name in FACTOR_GRAPH and configured(name).starts_from for name in filters.values()
@@ -394,16 +443,39 @@ def filter_pointings(
     return pointings
 
 
-def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
-    """One noisy pass solved by every method and filter of the setting (module docstring)."""
+def simulate(
+    setting: Setting, seed: np.random.SeedSequence
+) -> tuple[GeoSnrStationsParameters, GeoSnrScenario, Array]:
+    """The validated parameters of ``setting``, its scenario (with or without the
+    manoeuvre) and trial ``seed``'s measured SNRs ``(N, m)``
+    (:meth:`~attopt.experiments.geo_snr_stations.scenario.GeoSnrScenario.simulate_snr`)."""
     parameters = setting_parameters(setting)
     scenario = build_geo_snr_scenario(parameters, setting["manoeuvre"])
-    snr = scenario.simulate_snr(np.random.default_rng(seed))
-    stations = np.array([scenario.station_names.index(n) for n in parameters.filter_stations])
-    heard = [np.flatnonzero(np.isfinite(row)) for row in snr]
-    cone_stations = [np.intersect1d(stations, h) for h in heard]
+    return parameters, scenario, scenario.simulate_snr(np.random.default_rng(seed))
+
+
+def heard_stations(snr: Array) -> list[NDArray[np.intp]]:
+    """Per epoch, the indices of the stations with a measured SNR (they hear the
+    satellite)."""
+    return [np.flatnonzero(np.isfinite(row)) for row in snr]
+
+
+def cone_pointing(
+    parameters: GeoSnrStationsParameters, scenario: GeoSnrScenario, snr: Array
+) -> Pointing:
+    """``cone`` at every epoch: the ``geo_cone`` estimator on the filter stations that
+    hear the satellite then (module docstring)."""
+    stations = filter_station_indices(parameters, scenario)
+    cones = [np.intersect1d(stations, heard) for heard in heard_stations(snr)]
+    return boresight_pointing("geo_cone", scenario, snr, cones)
+
+
+def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
+    """One noisy pass solved by every method and filter of the setting (module docstring)."""
+    parameters, scenario, snr = simulate(setting, seed)
+    heard = heard_stations(snr)
     snapshot = {
-        "geo_cone": boresight_pointing("geo_cone", scenario, snr, cone_stations),
+        "geo_cone": cone_pointing(parameters, scenario, snr),
         "geo_lsq": boresight_pointing("geo_lsq", scenario, snr, heard),
     }
     pointings = {
