@@ -79,9 +79,11 @@ from attopt.experiments.recorded.metadata import (
 )
 from attopt.experiments.recorded.recorded_pass import RecordedPass
 from attopt.experiments.recorded.records import (
+    epochs_table,
     gyro_table,
     position_table,
     prior_entry,
+    snr_table,
     truth_table,
 )
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -90,35 +92,28 @@ ANTENNA = "dish"
 """The name of the one receiving antenna: the broadcaster's dish."""
 
 
-def snr_table(
+def snr_rows(
     scenario: GeoSnrScenario, filter_snr: np.ndarray, measurements: list[SnrMeasurement | None]
 ) -> pd.DataFrame:
     """The ``snr`` table of ``measurements`` (one per epoch or ``None``, from the SNRs
     ``filter_snr`` ``(N, m)``): per epoch its stations in index order, each with the
     values its :class:`~attopt.formulations.snr_problem.SnrEpoch` holds (module
     docstring)."""
-    parts = []
-    for k, measurement in enumerate(measurements):
-        if measurement is None:
-            continue
-        epoch = measurement.epoch
-        stations = np.flatnonzero(np.isfinite(filter_snr[k]))
-        positions = scenario.stations_eci_km[k, stations]
-        parts.append(
-            pd.DataFrame(
-                {
-                    "t_s": np.full(epoch.m, scenario.t[k]),
-                    "antenna": np.asarray(epoch.antenna, dtype=np.int64),
-                    "transmitter": stations.astype(np.int64),
-                    **{f"transmitter_{a}_km": positions[:, i] for i, a in enumerate("xyz")},
-                    **{f"los_{a}": epoch.los_orbit[:, i] for i, a in enumerate("xyz")},
-                    "p0_dbw": epoch.p0_dbw,
-                    "snr_db": epoch.snr_db,
-                    "sigma_db": np.broadcast_to(epoch.sigma_db, (epoch.m,)),
-                }
-            )
-        )
-    return pd.concat(parts, ignore_index=True)
+    heard = [k for k, measurement in enumerate(measurements) if measurement is not None]
+    epochs = [measurements[k].epoch for k in heard]
+    stations = [np.flatnonzero(np.isfinite(filter_snr[k])) for k in heard]
+    return snr_table(
+        t=np.concatenate([np.full(e.m, scenario.t[k]) for k, e in zip(heard, epochs, strict=True)]),
+        antenna=np.concatenate([e.antenna for e in epochs]),
+        transmitter=np.concatenate(stations),
+        transmitter_km=np.concatenate(
+            [scenario.stations_eci_km[k, s] for k, s in zip(heard, stations, strict=True)]
+        ),
+        los=np.concatenate([e.los_orbit for e in epochs]),
+        p0_dbw=np.concatenate([e.p0_dbw for e in epochs]),
+        snr_db=np.concatenate([e.snr_db for e in epochs]),
+        sigma_db=np.concatenate([np.broadcast_to(e.sigma_db, (e.m,)) for e in epochs]),
+    )
 
 
 def snr_entry(measurements: list[SnrMeasurement | None]) -> SnrEntry:
@@ -178,9 +173,9 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     )
     t = scenario.t
     tables = {
-        "epochs": pd.DataFrame({"t_s": t}),
+        "epochs": epochs_table(t),
         "gyro": gyro_table(gyro),
-        "snr": snr_table(scenario, filter_snr, measurements),
+        "snr": snr_rows(scenario, filter_snr, measurements),
         "position": position_table(
             t, scenario.satellite_eci_km, np.full_like(scenario.satellite_eci_km, np.nan)
         ),
