@@ -90,6 +90,12 @@ def test_rows_store_the_estimated_and_true_attitudes(rows: pd.DataFrame) -> None
             yaw = np.degrees((estimate * truth.inv()).as_rotvec()[:, 2])
             np.testing.assert_allclose(yaw, frame["yaw_err_deg"], atol=1e-9)
     assert rows["nees"].notna().all()
+    dof = rows.groupby("method")["nees_dof"].unique()
+    assert {m: d.tolist() for m, d in dof.items() if m in ("cone", "lsq", "usque")} == {
+        "cone": [2],
+        "lsq": [2],
+        "usque": [3],
+    }
     filters = rows[rows["method"].isin(["usque", "usque_detect", "fg_batch"])]
     assert (filters["n_stations"] == 3).all()
     lsq = rows[rows["method"] == "lsq"]

@@ -32,13 +32,18 @@ from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track, attitude_errors, normalised_errors, observable_sigma
 
 Array = NDArray[np.float64]
+POINTING_DOF = 2
+"""Degrees of freedom of a boresight's NEES (:func:`pointing_nees`)."""
+ATTITUDE_DOF = 3
+"""Degrees of freedom of an attitude's NEES (:func:`attitude_nees`)."""
 
 
 @dataclass
 class Pointing:
     """One method's estimates at the ``N`` epochs: boresights ``(N, 3)`` (ECI), the stored
     quaternions ``(N, 4)`` (ECI -> body, scipy scalar-last), ``sigma`` ``(N, 3)`` rad,
-    ``bound`` ``(N, 2)`` rad, the filters' ``yaw`` error (rad), ``nees``, the stations whose
+    ``bound`` ``(N, 2)`` rad, the filters' ``yaw`` error (rad), ``nees`` over ``nees_dof``
+    axes (:data:`POINTING_DOF` across the boresight, 3 for an attitude), the stations whose
     SNRs the method was given (``n_stations``), the ``reason`` of each epoch without
     estimate and extra columns."""
 
@@ -51,6 +56,7 @@ class Pointing:
     n_stations: NDArray[np.intp]
     reason: NDArray[np.object_]
     extra: dict[str, Array] = field(default_factory=dict)
+    nees_dof: int = POINTING_DOF
 
     @classmethod
     def empty(cls, n_stations: NDArray[np.intp]) -> Pointing:
@@ -94,6 +100,7 @@ class Pointing:
             "reason": np.where(valid, "", self.reason),
             **attitude_columns(np.where(valid[:, None], self.quaternion, np.nan), scenario.truth),
             "nees": np.where(valid, self.nees, np.nan),
+            "nees_dof": self.nees_dof,
             "n_stations": self.n_stations,
             **self.extra,
         }
@@ -240,5 +247,6 @@ def track_pointing(
     pointing.sigma = observable_sigma(track.covariance)
     pointing.bound = pointing.sigma[:, :2]
     pointing.nees = attitude_nees(track, scenario.truth)
+    pointing.nees_dof = ATTITUDE_DOF
     pointing.extra["nis"] = track.loss
     return pointing
