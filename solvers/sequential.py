@@ -50,6 +50,7 @@ counted as ``recoveries`` (the gyro filters inflate the attitude by
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
@@ -57,6 +58,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import ConvergenceError
@@ -69,6 +71,7 @@ Array = NDArray[np.float64]
 
 DIAGNOSTICS = (
     "nis",
+    "nis_dof",
     "n_used",
     "n_gated",
     "n_nan",
@@ -154,7 +157,8 @@ def rejected_epoch(n_gated: float, n_used: float) -> bool:
 
 @dataclass
 class TrackMonitor:
-    """Detects a lost track and inflates the covariance to re-acquire (module docstring).
+    """Detects a lost track and inflates the covariance to re-acquire, and tests the
+    innovations' consistency (module docstring).
 
     Attributes:
         max_rejected_epochs: consecutive :func:`rejected_epoch` measurement
@@ -162,22 +166,51 @@ class TrackMonitor:
         inflation: added to the covariance every ``max_rejected_epochs`` such
             epochs (``recoveries`` is set in that epoch's counts); ``None``:
             never (the online smoother, which has no re-acquisition).
+        window: updates in the innovation test (0: no test).
+        false_alarm: the test's probability of flagging a consistent filter, per epoch.
         rejected: consecutive rejected epochs so far (an accepted one resets it).
         since_inflation: those since the last inflation.
+        recent: ``(nis, nis_dof)`` of the last ``window`` updates.
     """
 
     max_rejected_epochs: int
     inflation: Array | None = None
+    window: int = 0
+    false_alarm: float = 1e-6
     rejected: int = 0
     since_inflation: int = 0
+    recent: deque[tuple[float, float]] = field(default_factory=deque)
 
     @property
     def lost(self) -> bool:
         """Whether the track is lost (epochs without a measurement keep the state)."""
         return self.rejected >= self.max_rejected_epochs
 
+    @property
+    def p_value(self) -> float:
+        """``P(chi2(sum dof) >= sum nis)`` over the last ``window`` updates, the windowed
+        test of the normalised innovations squared (Bar-Shalom, Li and Kirubarajan 2001
+        sec. 5.4.2; ``nis = nu^T S^-1 nu``, ``S = H P H^T + R``, is chi-square with the
+        update's ``dof`` rows when the filter is consistent); NaN before any update."""
+        if not self.recent:
+            return float("nan")
+        nis, dof = np.sum(np.array(self.recent), axis=0)
+        return float(chi2.sf(nis, dof))
+
+    @property
+    def inconsistent(self) -> bool:
+        """Whether the last ``window`` updates' innovations fail the test: the filter's
+        covariance does not describe its errors (epochs without an update keep the
+        verdict)."""
+        return bool(self.p_value < self.false_alarm)
+
     def check(self, counts: dict[str, float], covariance: Array) -> Array:
         """The covariance to carry on with after an epoch's update ``counts``."""
+        nis, dof = counts.get("nis", np.nan), counts.get("nis_dof", 0.0)
+        if self.window and np.isfinite(nis) and dof > 0:
+            self.recent.append((nis, dof))
+            if len(self.recent) > self.window:
+                self.recent.popleft()
         n_used = counts.get("n_used", 0.0)
         if rejected_epoch(counts.get("n_gated", 0.0), n_used):
             self.rejected += 1
@@ -325,6 +358,7 @@ def run_filter(
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
+    inconsistent = np.zeros(t.size, dtype=bool)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -333,13 +367,19 @@ def run_filter(
         if updated is not None:
             counts = _merged(counts, updated)
             filter.covariance = monitor.check(counts, filter.covariance)
-        lost[k] = monitor.lost
+        lost[k], inconsistent[k] = monitor.lost, monitor.inconsistent
         if not record.store(k, filter, counts):
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     return filter_result(
-        method, record, options, t, None if history is None else history.history(record), lost
+        method,
+        record,
+        options,
+        t,
+        None if history is None else history.history(record),
+        lost,
+        inconsistent,
     )
 
 
@@ -350,6 +390,7 @@ def filter_result(
     t: ArrayLike | None,
     history: FilterHistory | None = None,
     lost: NDArray[np.bool_] | None = None,
+    inconsistent: NDArray[np.bool_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -358,7 +399,9 @@ def filter_result(
     * a gyro gap longer than ``options.max_gyro_gap_s`` (when the record has
       ``gyro_gap_s``);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
-    * a lost track (``lost``, from the :class:`TrackMonitor`).
+    * a lost track (``lost``, from the :class:`TrackMonitor`);
+    * inconsistent innovations (``inconsistent``, the monitor's windowed test over
+      ``options.consistency_window`` updates).
 
     The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
     normalised innovation squared of the epoch's update (``nis``; NaN without
@@ -382,6 +425,11 @@ def filter_result(
     if lost is not None:
         reason[lost & (reason == "")] = (
             f"lost track: observations gated for {options.max_rejected_epochs} epochs"
+        )
+    if inconsistent is not None:
+        reason[inconsistent & (reason == "")] = (
+            f"inconsistent: the innovations of the last {options.consistency_window} updates "
+            f"fail the chi-square test at {options.consistency_false_alarm:g}"
         )
     valid = reason == ""
     error = np.full(record.n, None, dtype=object)

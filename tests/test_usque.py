@@ -220,8 +220,13 @@ def test_gated_outlier_leaves_the_estimate_as_without_it() -> None:
         gated.state_covariance, reference.state_covariance, rtol=1e-10, atol=0
     )
     np.testing.assert_allclose(diagnostics["nis"], reference.diagnostics["nis"])
-    ungated = run(data, prior, with_outlier, FilterOptions(gate_probability=1.0))
+    unmonitored = FilterOptions(gate_probability=1.0, consistency_window=0)
+    ungated = run(data, prior, with_outlier, unmonitored)
     assert np.degrees(np.abs(data.errors(ungated)[k])).max() > 1.0  # the outlier does harm
+    # ... and, ungated, the innovation test flags the epoch it enters
+    monitored = run(data, prior, with_outlier, FilterOptions(gate_probability=1.0))
+    assert not monitored.valid[k] and monitored.reason[k].startswith("inconsistent")
+    assert monitored.valid[:k].all()
 
 
 def test_gyro_gap_grows_the_covariance_and_is_flagged_only_when_long() -> None:

@@ -68,6 +68,10 @@ Array = NDArray[np.float64]
 STATE_SIZE = 6
 GATE_PROBABILITY = 0.9999
 """Default gate: a Gaussian block is wrongly rejected once in 10,000 (3.9 sigma for a scalar)."""
+CONSISTENCY_WINDOW = 10
+"""Updates in the innovation consistency test (:class:`FilterOptions`)."""
+CONSISTENCY_FALSE_ALARM = 1e-6
+"""The consistency test's false-alarm probability per epoch (:class:`FilterOptions`)."""
 
 
 def error_vector(estimate: Rotation, reference: Rotation) -> Array:
@@ -129,6 +133,15 @@ class FilterOptions:
             filter can re-acquire (:class:`~attopt.solvers.sequential.TrackMonitor`;
             the bias covariance is inflated by the prior's).
         recover_sigma: that inflation (rad).
+        consistency_window: updates whose normalised innovations squared are summed in
+            the consistency test (:class:`~attopt.solvers.sequential.TrackMonitor`): an
+            epoch whose window's sum exceeds the chi-square quantile of its degrees of
+            freedom at ``consistency_false_alarm`` is flagged ``inconsistent``, since
+            the filter's covariance does not describe its errors there (a model that
+            does not fit the data, a filter still converging from a wrong start); 0
+            turns the test off.
+        consistency_false_alarm: the test's probability of flagging an epoch of a
+            consistent filter.
 
     Example::
 
@@ -148,6 +161,8 @@ class FilterOptions:
     max_update_iterations: int = 10
     max_rejected_epochs: int = 10
     recover_sigma: float = np.radians(20.0)
+    consistency_window: int = CONSISTENCY_WINDOW
+    consistency_false_alarm: float = CONSISTENCY_FALSE_ALARM
 
 
 @dataclass(frozen=True)
@@ -291,7 +306,12 @@ def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
     inflation = np.zeros((STATE_SIZE, STATE_SIZE))
     inflation[:3, :3] = options.recover_sigma**2 * np.eye(3)
     inflation[3:, 3:] = prior.covariance[3:, 3:]
-    return TrackMonitor(options.max_rejected_epochs, inflation)
+    return TrackMonitor(
+        options.max_rejected_epochs,
+        inflation,
+        options.consistency_window,
+        options.consistency_false_alarm,
+    )
 
 
 class GyroStateFilter(SequentialFilter):

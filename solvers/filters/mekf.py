@@ -94,10 +94,15 @@ def update(
     (1/2) x^T P^-1 x`` at the next linearisation: a step that raises it is
     halved (at most :data:`MAX_HALVINGS` times, then the last accepted point
     is kept), so an iteration never ends at a point worse than where it
-    started.  It does not protect against a second basin of the cost: from
-    a prior far off (a 2.5-sigma draw of the experiments' 10 deg) the first
-    update of an ``adsb-snr`` pass can converge to a local minimum 50 deg
-    away (measured in 1 of 100 trials; docs/filters.md).
+    started.  The counts' ``nis`` is ``nu~^T S^-1 nu~`` with ``nu~ = z - h(x_i) +
+    H_i x_i``, the innovation relinearised at the last iterate (twice the MAP cost at
+    its optimum, to Gauss-Newton accuracy: chi-square with ``nis_dof`` rows for a
+    consistent filter, and not inflated by the first linearisation's error after a
+    large correction), summed over a window by the consistency test of
+    :class:`~attopt.solvers.sequential.TrackMonitor`.  It does not protect against a
+    second basin of the cost: from a prior far off (a 2.5-sigma draw of the
+    experiments' 10 deg) the first update of an ``adsb-snr`` pass can converge to
+    a local minimum 50 deg away (measured in 1 of 100 trials; docs/filters.md).
     The covariance of the error relative to ``A^-`` is finally carried to the
     body frame of the reset attitude, ``P <- T P T^T`` with ``T =
     blockdiag(J(x), I)``.
@@ -105,7 +110,7 @@ def update(
     eye = np.eye(STATE_SIZE)
     blocks = measurement.blocks
     r_all = measurement.noise_covariance_at(attitude)
-    counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan}
+    counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     state = np.zeros(STATE_SIZE)
     current = attitude
@@ -157,11 +162,11 @@ def update(
             continue
         accepted_state, accepted_cost, halvings = state, cost, 0
         h = h_all[rows]
-        gain, nis, posterior = kalman_gain(covariance, h, r, nu)
-        trial_step = gain @ (nu + h @ state) - state
+        relinearised = nu + h @ state  # the innovation relinearised at the iterate
+        gain, nis, posterior = kalman_gain(covariance, h, r, relinearised)
+        trial_step = gain @ relinearised - state
         state = state + trial_step
-        if iteration == 0:
-            counts["nis"] = nis
+        counts["nis"], counts["nis_dof"] = nis, float(rows.size)
         if not np.all(np.isfinite(state)):
             return attitude, np.full(3, np.nan), covariance, counts  # flagged by the caller
         if linearised(trial_step, posterior, options.relinearise_fraction):

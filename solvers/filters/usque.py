@@ -68,7 +68,10 @@ first order for nonlinear ones such as the unit vectors').  Each block is first 
 ``nu`` and its diagonal block of ``P_nunu`` (:func:`~attopt.solvers.filters.common.gate`);
 (U8) uses the accepted rows; ``P^+`` is floored if it loses definiteness
 (:func:`~attopt.solvers.filters.common.repair_covariance`).  ``nis`` is ``nu^T
-P_nunu^-1 nu`` over the accepted rows.
+P_nunu^-1 nu`` over the accepted rows, with ``nu`` relinearised at the last iterate
+(``nu + H dx``: the Gauss-Newton value of twice the update's cost at its optimum, robust
+to a large first innovation; ``nis_dof`` its rows), which the consistency test of
+:class:`~attopt.solvers.sequential.TrackMonitor` sums over a window.
 
 Deviations from CM:
 
@@ -261,7 +264,7 @@ def update(
     P^-`` this is the unscented update itself (``H P^- H^T + Omega = P_nunu
     - R``, ``P^- H^T = P_xnu``).  Gating uses the first pass.
     """
-    counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan}
+    counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     offsets, repaired = sigma_offsets(covariance)
     counts["covariance_repairs"] = float(repaired)
@@ -321,12 +324,12 @@ def update(
             nu = WEIGHTS @ innovations
         h, omega = regression(nu - innovations, offsets)  # pass 0: (U7)-(U8)
         noise = r + omega if r.ndim == 1 else r + np.diag(omega)
-        gain, nis, posterior = kalman_gain(covariance, h, noise, nu)
-        step = gain @ (nu + h @ state) - state
+        relinearised = nu + h @ state  # the innovation relinearised at the iterate
+        gain, nis, posterior = kalman_gain(covariance, h, noise, relinearised)
+        step = gain @ relinearised - state
         state = state + step
         counts["update_iterations"] = float(iteration + 1)
-        if iteration == 0:
-            counts["nis"] = nis
+        counts["nis"], counts["nis_dof"] = nis, float(rows.size)
         diagonal = r if r.ndim == 1 else np.diag(r)
         regression_exact = omega.sum() <= options.relinearise_fraction * diagonal.sum()
         if linearised(step, posterior, options.relinearise_fraction) and regression_exact:
