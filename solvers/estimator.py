@@ -28,7 +28,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 from scipy.spatial.transform import Rotation
 
@@ -37,6 +37,9 @@ from attopt.formulations.errors import UnsupportedMeasurementError
 from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.snapshot import Snapshot
 from attopt.solvers.results import Solution, Track
+
+Motion = Literal["gyro", "dynamics"]
+"""What carries a pass estimator's attitude between epochs (:attr:`PassEstimator.motion`)."""
 
 
 class Estimator(ABC):
@@ -127,16 +130,26 @@ class PassEstimator(Estimator):
         starts_from: registry names of estimators whose track this one can
             start from, in order of preference (the first one run on the same
             pass is used; :func:`attopt.solvers.pipeline.run_estimators`).
+        motion: what carries the attitude from epoch to epoch: ``"gyro"``, the
+            pass's gyro record (the attitude relative to the gyro's inertial
+            frame, with a bias prior), or ``"dynamics"``, the pass's rigid-body
+            dynamics (Euler's equation, Yang et al. 2014 eqs. 23-25; the
+            attitude relative to the orbit frame, with a rate prior).  A recorded
+            pass gives each the pass it needs
+            (:func:`attopt.experiments.recorded.estimate.estimate`).
 
     Example::
 
         >>> from attopt import estimator
         >>> estimator("rts").starts_from, estimator("fg_batch").starts_from
         (('mekf',), ('fg_online', 'rts'))
+        >>> estimator("mekf").motion, estimator("ekf_seed003").motion
+        ('gyro', 'dynamics')
     """
 
     kind: ClassVar[str] = "pass"
     starts_from: ClassVar[tuple[str, ...]] = ()
+    motion: ClassVar[Motion] = "gyro"
 
     @abstractmethod
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:

@@ -76,6 +76,10 @@ acceptance, rejections by reason, and mean squared errors of ``theta`` and
 ``phi`` and of their CRBs at the true DOAs (``doa_*`` columns, deg^2), and the same
 per configured station ``k`` (1-based, ``doa_count_station<k>``,
 ``doa_accepted_station<k>``, ``doa_theta_mse_station<k>_deg2``, ...).
+
+Export.  :func:`simulate_pass` and :func:`gyro_inputs` are what a trial simulates
+before its estimators run; :mod:`attopt.experiments.doa_ground.export` writes them as
+a recorded pass (``attopt export doa-ground``).
 """
 
 from __future__ import annotations
@@ -120,6 +124,7 @@ from attopt.experiments.metrics import (
 )
 from attopt.experiments.simulation import (
     GYRO_STREAM,
+    FilterInputs,
     GyroTruth,
     child_rng,
     simulate_filter_inputs,
@@ -321,8 +326,35 @@ def _music(
     )
 
 
-def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
-    """One pass at the setting's SNR and ``L``: every estimator on the same DOAs (docstring)."""
+@dataclass(frozen=True)
+class SimulatedPass:
+    """What :func:`trial` simulates before its estimators run (module docstring, 1).
+
+    Attributes:
+        parameters: the setting's validated parameters.
+        geometry: the scenario's true geometry and attitude (cached: do not modify).
+        epochs, stations: the visible ``(epoch, station)`` pairs MUSIC estimated,
+            epoch-major.
+        doas: MUSIC's estimates of those pairs.
+        vectors: body vectors, reference vectors and sigmas, ``(N, S, .)``
+            (:func:`unit_vector_observations`).
+        pass_: the pass of the unit vectors with the scenario's rigid-body dynamics and
+            the ``[prior]``'s orbit-frame estimate with its body rate: what Yang et al.
+            2014's EKF, its RTS pass and the batch least squares solve.
+    """
+
+    parameters: DoaGroundParameters
+    geometry: DoaGroundGeometry
+    epochs: np.ndarray
+    stations: np.ndarray
+    doas: DoaEstimates
+    vectors: tuple[np.ndarray, np.ndarray, np.ndarray]
+    pass_: Pass
+
+
+def simulate_pass(setting: Setting, seed: np.random.SeedSequence) -> SimulatedPass:
+    """The DOAs, unit vectors and dynamics pass of trial ``seed`` of ``setting``: MUSIC's
+    noise from ``numpy.random.default_rng(seed)`` (module docstring, 1)."""
     parameters = setting_parameters(setting)
     geometry = build_geometry(parameters)
     (epochs, stations), doas = estimate_doas(
@@ -335,6 +367,19 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     )
     vectors = unit_vector_observations(geometry, epochs, stations, doas)
     doa_pass = _vector_pass(geometry, vectors, _prior(parameters.prior))
+    return SimulatedPass(parameters, geometry, epochs, stations, doas, vectors, doa_pass)
+
+
+def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
+    """One pass at the setting's SNR and ``L``: every estimator on the same DOAs (docstring)."""
+    simulated = simulate_pass(setting, seed)
+    parameters, geometry, vectors = simulated.parameters, simulated.geometry, simulated.vectors
+    epochs, stations, doas, doa_pass = (
+        simulated.epochs,
+        simulated.stations,
+        simulated.doas,
+        simulated.pass_,
+    )
     row_epochs = np.arange(0, geometry.t.size, round(parameters.row_step_s / parameters.step_s))
     common = {
         "t_s": geometry.t[row_epochs],
@@ -521,6 +566,27 @@ def _gyro_prior(
     )
 
 
+def gyro_inputs(
+    parameters: DoaGroundParameters, seed: np.random.SeedSequence, geometry: DoaGroundGeometry
+) -> tuple[GyroTruth, FilterInputs]:
+    """The truth at the gyro's samples (the epochs) and the gyro-aided rows' inputs: the
+    :func:`epoch_gyro` record drawn from the trial's gyro stream
+    (``child_rng(seed, GYRO_STREAM)``) and the EKF's initial estimate in the inertial
+    frame with the gyro's bias sigma (:func:`_gyro_prior`) as the prior."""
+    model = epoch_gyro(parameters)
+    truth = GyroTruth(
+        t=geometry.t,
+        attitude=geometry.truth * geometry.eci_to_orbit,
+        epoch_frames=geometry.eci_to_orbit,
+        epoch_samples=np.arange(geometry.t.size),
+    )
+    inputs = replace(
+        simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM)),
+        prior=_gyro_prior(parameters, geometry, model.initial_bias_sigma),
+    )
+    return truth, inputs
+
+
 def _gyro_rows(
     parameters: DoaGroundParameters,
     seed: np.random.SeedSequence,
@@ -534,17 +600,7 @@ def _gyro_rows(
     filters = resolve(parameters.filters, filter_labels(), "filters")
     if not filters:
         return []
-    model = epoch_gyro(parameters)
-    truth = GyroTruth(
-        t=geometry.t,
-        attitude=geometry.truth * geometry.eci_to_orbit,
-        epoch_frames=geometry.eci_to_orbit,
-        epoch_samples=np.arange(geometry.t.size),
-    )
-    inputs = replace(
-        simulate_filter_inputs(truth, model, child_rng(seed, GYRO_STREAM)),
-        prior=_gyro_prior(parameters, geometry, model.initial_bias_sigma),
-    )
+    truth, inputs = gyro_inputs(parameters, seed, geometry)
     simulated = inputs.gyro_pass(truth, doa_pass.snapshots)
     smoothed = start.run.track
     inertial = stored_rotations(smoothed.quaternion) * geometry.eci_to_orbit

@@ -1,7 +1,7 @@
 """Recorded passes: a documented on-disk format for your own data (``docs/pass-format.md``).
 
 A pass directory holds ``pass.toml`` (frames, gyro model, SNR antennas and link,
-DOA array, prior, dynamics) and one parquet or CSV file per table (gyro
+DOA array, priors, dynamics) and one parquet or CSV file per table (gyro
 samples, vector, SNR and DOA observations, the satellite's position, the
 truth).  :func:`load_pass` checks it and builds the library
 :class:`~attopt.formulations.passes.Pass` (:class:`RecordedPass`);

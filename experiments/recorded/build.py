@@ -30,7 +30,6 @@ from attopt.experiments.recorded.metadata import (
     DoaEntry,
     GyroEntry,
     PassMetadata,
-    PriorEntry,
     SnrEntry,
 )
 from attopt.experiments.recorded.tables import OBSERVATIONS, TABLES, fail
@@ -46,17 +45,20 @@ from attopt.formulations.snr_problem import SnrEpoch
 
 Array = NDArray[np.float64]
 Tables = Mapping[str, pd.DataFrame]
+Rows = pd.DataFrame | Mapping[str, np.ndarray]
+"""Rows of a table: a frame, or its columns by name as arrays (what :func:`snapshots`
+hands the per-epoch builders: slicing arrays is far cheaper than slicing a frame)."""
 
 UNIT_TOLERANCE = 1e-12
 """Quaternions whose norm is 1 to this are used as stored; others are normalised."""
 
 
-def columns(frame: pd.DataFrame, names: list[str] | tuple[str, ...]) -> Array:
+def columns(frame: Rows, names: list[str] | tuple[str, ...]) -> Array:
     """The columns ``names`` of ``frame`` as one C-ordered float array ``(rows, len(names))``."""
-    return np.ascontiguousarray(frame[list(names)].to_numpy(dtype=float))
+    return np.column_stack([np.asarray(frame[name], dtype=float) for name in names])
 
 
-def xyz(frame: pd.DataFrame, prefix: str, unit: str = "") -> Array:
+def xyz(frame: Rows, prefix: str, unit: str = "") -> Array:
     """The ``(rows, 3)`` columns ``{prefix}_{x,y,z}[_{unit}]``."""
     suffix = f"_{unit}" if unit else ""
     return columns(frame, [f"{prefix}_{a}{suffix}" for a in "xyz"])
@@ -122,34 +124,35 @@ def epoch_rows(name: str, frame: pd.DataFrame, t: Array) -> list[NDArray[np.intp
     return [order[a:b] for a, b in itertools.pairwise(bounds)]
 
 
-def vector_measurement(rows: pd.DataFrame) -> VectorMeasurement:
+def vector_measurement(rows: Rows) -> VectorMeasurement:
     """One epoch's rows of the ``vectors`` table as one measurement (Cilden Guler et al.
     2017 eqs. 2-4)."""
     values = columns(rows, VECTOR_COLUMNS)
-    return VectorMeasurement(values[:, :3], values[:, 3:], rows["sigma_rad"].to_numpy(float))
+    sigma = np.asarray(rows["sigma_rad"], dtype=float)
+    return VectorMeasurement(values[:, :3], values[:, 3:], sigma)
 
 
-def snr_measurements(rows: pd.DataFrame, snr: SnrEntry) -> list[SnrMeasurement]:
+def snr_measurements(rows: Rows, snr: SnrEntry) -> list[SnrMeasurement]:
     """One epoch's rows of the ``snr`` table as one :class:`SnrMeasurement`: every antenna's
     boresight, the antenna index as stored and the antennas' gain pattern, the one pattern
     when they share it, else one per antenna
     (:func:`~attopt.formulations.gain_patterns.shared_pattern`)."""
     epoch = SnrEpoch(
-        snr_db=rows["snr_db"].to_numpy(dtype=float),
+        snr_db=np.asarray(rows["snr_db"], dtype=float),
         los_orbit=xyz(rows, "los"),
-        antenna=rows["antenna"].to_numpy(dtype=np.intp),
+        antenna=np.asarray(rows["antenna"], dtype=np.intp),
         boresights_body=np.array([a.boresight_body for a in snr.antennas], dtype=float),
-        p0_dbw=rows["p0_dbw"].to_numpy(dtype=float),
+        p0_dbw=np.asarray(rows["p0_dbw"], dtype=float),
         noise_dbw=snr.noise_dbw,
         pattern=shared_pattern([antenna.pattern.pattern() for antenna in snr.antennas]),
-        sigma_db=rows["sigma_db"].to_numpy(dtype=float),
+        sigma_db=np.asarray(rows["sigma_db"], dtype=float),
         threshold_db=snr.threshold_db,
-        transmitter=rows["transmitter"].to_numpy(dtype=np.intp),
+        transmitter=np.asarray(rows["transmitter"], dtype=np.intp),
     )
     return [SnrMeasurement(epoch, truncated=snr.truncated)]
 
 
-def doa_measurement(rows: pd.DataFrame, doa: DoaEntry) -> DoaMeasurement:
+def doa_measurement(rows: Rows, doa: DoaEntry) -> DoaMeasurement:
     """One epoch's rows of the ``doa`` table as one measurement (Yang et al. 2014 eqs. 12-18)."""
     names = [f"cov_{a}_{b}_rad2" for a in ("theta", "phi") for b in ("theta", "phi")]
     return DoaMeasurement(
@@ -199,11 +202,12 @@ def snapshots(tables: Tables, metadata: PassMetadata, t: Array) -> list[Snapshot
         if name not in tables:
             continue
         frame = tables[name]
+        arrays = {column: frame[column].to_numpy() for column in frame.columns}
         for k, rows in enumerate(epoch_rows(name, frame, t)):
             if not rows.size:
                 continue
             try:
-                parts[k] += build(frame.iloc[rows])
+                parts[k] += build({column: values[rows] for column, values in arrays.items()})
             except InvalidObservationError as error:
                 raise PassFormatError.at(name, None, int(rows[0]), str(error)) from None
     return [
@@ -285,36 +289,51 @@ def _repeated(values: Array) -> NDArray[np.bool_]:
     return repeated
 
 
-def prior(entry: PriorEntry | None, frame: str) -> Prior | None:
-    """The ``[prior]`` of the attitude relative to ``frame`` (module docstring).
+def priors(metadata: PassMetadata) -> tuple[Prior | None, Prior | None]:
+    """The priors of the two passes: that of the attitude relative to
+    :attr:`~PassMetadata.attitude_frame` (``pass_``'s) and, with a gyro, that relative to
+    ECI (the gyro-aided pass's; the same one with an ECI attitude), ``None`` where
+    ``pass.toml`` has none.
 
     Raises:
-        PassFormatError: a prior relative to another frame, or one the library rejects.
+        PassFormatError: a prior that neither pass uses (relative to another frame), or
+            one the library rejects.
     """
+    frames = {metadata.attitude_frame}
+    if metadata.gyro is not None:
+        frames.add(INERTIAL)
+    for k, entry in enumerate(metadata.prior):
+        if entry.frame not in frames:
+            used = " or ".join(repr(frame) for frame in sorted(frames))
+            raise PassFormatError.at(
+                FILE,
+                f"{_prior_key(metadata, k)}.frame",
+                None,
+                f"the pass estimators estimate the attitude relative to {used}, "
+                f"not {entry.frame!r}",
+            )
+    inertial = _prior(metadata, INERTIAL) if metadata.gyro is not None else None
+    return _prior(metadata, metadata.attitude_frame), inertial
+
+
+def _prior_key(metadata: PassMetadata, k: int) -> str:
+    return "prior" if len(metadata.prior) == 1 else f"prior.{k}"
+
+
+def _prior(metadata: PassMetadata, frame: str) -> Prior | None:
+    entry = metadata.prior_in(frame)
     if entry is None:
         return None
-    if entry.frame != frame:
-        raise PassFormatError.at(
-            FILE,
-            "prior.frame",
-            None,
-            f"the pass estimators estimate the attitude relative to {frame!r}, not {entry.frame!r}",
-        )
+    key = _prior_key(metadata, metadata.prior.index(entry))
     optional = {"bias": entry.bias_rad_s, "rate": entry.rate_rad_s}
     try:
         return Prior(
-            stored_rotation(np.array(entry.quaternion), FILE, "prior.quaternion"),
+            stored_rotation(np.array(entry.quaternion), FILE, f"{key}.quaternion"),
             np.array(entry.covariance, dtype=float),
             **{k: np.array(v, dtype=float) for k, v in optional.items() if v is not None},
         )
     except (InvalidObservationError, ValueError) as error:
-        raise PassFormatError.at(FILE, "prior", None, str(error)) from None
-
-
-def estimated_frame(metadata: PassMetadata) -> str:
-    """The frame of the attitude the pass estimators estimate: the gyro's (ECI) when the
-    pass has a gyro, else :attr:`~PassMetadata.attitude_frame`."""
-    return INERTIAL if metadata.gyro is not None else metadata.attitude_frame
+        raise PassFormatError.at(FILE, key, None, str(error)) from None
 
 
 def needs_orbit_frames(metadata: PassMetadata) -> bool:

@@ -1,13 +1,20 @@
 """``attopt estimate``: registered estimators on a recorded pass, with an experiment's outputs.
 
 :func:`estimate` runs the estimators by registry name
-(:func:`attopt.solvers.pipeline.run_estimators`): snapshot estimators on the
-pass's measurements (:attr:`RecordedPass.pass_
-<attopt.experiments.recorded.recorded_pass.RecordedPass.pass_>`), pass
-estimators on the gyro-aided pass when the recording has a gyro
+(:func:`attopt.solvers.pipeline.run_estimators`) on the pass each needs:
+snapshot estimators, and the pass estimators on rigid-body dynamics
+(:attr:`PassEstimator.motion <attopt.solvers.estimator.PassEstimator.motion>`
+``"dynamics"``: Yang et al. 2014's EKF, its RTS pass, the batch least
+squares), on the pass's measurements relative to the attitude frame with the
+dynamics and that frame's prior (:attr:`RecordedPass.pass_
+<attopt.experiments.recorded.recorded_pass.RecordedPass.pass_>`); the
+gyro-aided pass estimators (``motion`` ``"gyro"``) on the gyro-aided pass when
+the recording has a gyro
 (:attr:`~attopt.experiments.recorded.recorded_pass.RecordedPass.gyro_pass`,
-their tracks turned back to the attitude frame,
-:func:`attopt.experiments.metrics.in_orbit_frame`), else on the same pass.
+with the ECI prior, their tracks turned back to the attitude frame,
+:func:`attopt.experiments.metrics.in_orbit_frame`), else on ``pass_``.
+Estimators on the same pass run together, so one starts from another's track
+(``starts_from``: ``rts`` from ``mekf``, ``rts_seed003`` from ``ekf_seed003``).
 
 :func:`write_outputs` writes what an experiment writes, from the same helpers:
 
@@ -82,13 +89,15 @@ def estimate(recorded: RecordedPass, methods: Sequence[str]) -> dict[str, Run]:
         [('quest', 30), ('mekf', 30)]
     """
     chosen = {name: estimator(name) for name in methods}
-    snapshot = {n: e for n, e in chosen.items() if not isinstance(e, PassEstimator)}
-    passes = {n: e for n, e in chosen.items() if isinstance(e, PassEstimator)}
-    runs = run_estimators(recorded.pass_, snapshot) if snapshot else {}
-    if passes:
+    gyro_aided = {
+        n: e for n, e in chosen.items() if isinstance(e, PassEstimator) and e.motion == "gyro"
+    }
+    on_pass = {n: e for n, e in chosen.items() if n not in gyro_aided}
+    runs = run_estimators(recorded.pass_, on_pass) if on_pass else {}
+    if gyro_aided:
         gyro = recorded.gyro_pass
         turned = gyro is not None and recorded.frames is not None
-        for name, run in run_estimators(gyro or recorded.pass_, passes).items():
+        for name, run in run_estimators(gyro or recorded.pass_, gyro_aided).items():
             track = in_orbit_frame(run.track, recorded.frames) if turned else run.track
             runs[name] = replace(run, track=track)
     return {name: runs[name] for name in methods}

@@ -2,8 +2,10 @@
 
 A pydantic schema (the same library as the experiments' configuration): the
 frames, the gyro's model, the SNR antennas with their gain patterns and the
-link's noise power and threshold, the DOA array and its mounting, the prior
-and the rigid-body dynamics.  Each part turns into the library object the
+link's noise power and threshold, the DOA array and its mounting, the priors
+(at most one per frame: the estimators on rigid-body dynamics start from the
+attitude frame's, the gyro-aided ones from the ECI one) and the rigid-body
+dynamics.  Each part turns into the library object the
 estimators consume (:class:`~attopt.formulations.gyro.GyroModel`, the
 patterns of :mod:`attopt.formulations.gain_patterns`, ...), and back
 (:func:`pattern_entry`, :func:`gyro_entry`).  Every error of a document is
@@ -13,13 +15,15 @@ reported at once, by key.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from tomli_w import dumps
 
+from attopt.experiments.config.components import repeated
 from attopt.experiments.recorded.errors import PassFormatError
 from attopt.formulations.doa_measurement import AXIS_THRESHOLD
 from attopt.formulations.gain_patterns import (
@@ -202,9 +206,9 @@ class DoaEntry(Entry):
 
 
 class PriorEntry(Entry):
-    """``[prior]``: the pass estimators' initial estimate
-    (:class:`~attopt.formulations.passes.Prior`) at the first epoch (with a gyro, at the
-    first gyro sample)."""
+    """One ``[prior]``: an initial estimate (:class:`~attopt.formulations.passes.Prior`) of
+    the attitude relative to ``frame`` at the first epoch (with a gyro, at the first gyro
+    sample).  A pass has at most one per frame (:attr:`PassMetadata.prior`)."""
 
     frame: Frame = Field(description="frame the prior attitude is relative to")
     quaternion: Quaternion = Field(description="reference -> body, scalar last")
@@ -240,7 +244,9 @@ class PassMetadata(Entry):
     gyro: GyroEntry | None = None
     snr: SnrEntry | None = None
     doa: DoaEntry | None = None
-    prior: PriorEntry | None = None
+    prior: tuple[PriorEntry, ...] = Field(
+        (), description="the priors, at most one per frame: one [prior] or [[prior]] tables"
+    )
     dynamics: DynamicsEntry | None = None
 
     @field_validator("start_utc")
@@ -250,9 +256,47 @@ class PassMetadata(Entry):
             np.datetime64(value)  # ValueError for a malformed time
         return value
 
+    @field_validator("prior", mode="before")
+    @classmethod
+    def _one_or_many(cls, value: Any) -> Any:
+        """One table (``[prior]``, a mapping or an entry) is a tuple of one; ``None``, none."""
+        if value is None:
+            return ()
+        return (value,) if isinstance(value, Mapping | PriorEntry) else value
+
+    @field_validator("prior")
+    @classmethod
+    def _one_per_frame(cls, value: tuple[PriorEntry, ...]) -> tuple[PriorEntry, ...]:
+        twice = repeated([entry.frame for entry in value])
+        if twice:
+            frames = ", ".join(repr(frame) for frame in twice)
+            raise ValueError(f"at most one prior per frame, not several relative to {frames}")
+        return value
+
+    def prior_in(self, frame: str) -> PriorEntry | None:
+        """The prior of the attitude relative to ``frame``, ``None`` if there is none.
+
+        Example::
+
+            >>> from attopt.experiments.recorded.metadata import PassMetadata, PriorEntry
+            >>> eci = PriorEntry(frame="eci", quaternion=(0.0, 0.0, 0.0, 1.0),
+            ...                  covariance=((1e-4, 0.0, 0.0), (0.0, 1e-4, 0.0), (0.0, 0.0, 1e-4)))
+            >>> metadata = PassMetadata(attitude_frame="orbit", prior=eci)
+            >>> metadata.prior_in("eci") == eci, metadata.prior_in("orbit")
+            (True, None)
+        """
+        return next((entry for entry in self.prior if entry.frame == frame), None)
+
     def to_text(self) -> str:
-        """The TOML text of the metadata (exact floats)."""
-        return dumps(self.model_dump(mode="python", exclude_none=True))
+        """The TOML text of the metadata (exact floats): one prior as a ``[prior]`` table,
+        several as ``[[prior]]`` tables, none left out."""
+        document = self.model_dump(mode="python", exclude_none=True)
+        priors = document["prior"]
+        if not priors:
+            del document["prior"]
+        elif len(priors) == 1:
+            document["prior"] = priors[0]
+        return dumps(document)
 
     @classmethod
     def from_text(cls, text: str) -> PassMetadata:
@@ -269,7 +313,8 @@ class PassMetadata(Entry):
         try:
             return cls.model_validate(document)
         except ValidationError as error:
-            raise PassFormatError(f"{FILE}: {_problems(error)}") from None
+            one_prior = isinstance(document.get("prior"), Mapping)
+            raise PassFormatError(f"{FILE}: {_problems(error, one_prior)}") from None
 
     @classmethod
     def read(cls, directory: Path) -> PassMetadata:
@@ -280,11 +325,15 @@ class PassMetadata(Entry):
         return cls.from_text(path.read_text())
 
 
-def _problems(error: ValidationError) -> str:
-    """Every error of a validation, ``key.path: message (got value)``, joined by ``; ``."""
+def _problems(error: ValidationError, one_prior: bool = False) -> str:
+    """Every error of a validation, ``key.path: message (got value)``, joined by ``; ``
+    (``one_prior``: the document's ``[prior]`` is one table, its keys ``prior.KEY``)."""
     parts = []
     for item in error.errors():
-        key = ".".join(str(part) for part in item["loc"]) or "(document)"
+        loc = item["loc"]
+        if one_prior and loc[:2] == ("prior", 0):
+            loc = ("prior", *loc[2:])
+        key = ".".join(str(part) for part in loc) or "(document)"
         got = "" if item["type"] == "missing" else f" (got {item['input']!r})"
         parts.append(f"key {key}: {item['msg']}{got}")
     return "; ".join(parts)

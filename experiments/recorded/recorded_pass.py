@@ -21,17 +21,16 @@ from scipy.spatial.transform import Rotation
 
 from attopt.experiments.recorded.build import (
     epoch_times,
-    estimated_frame,
     gyro_record,
     needs_orbit_frames,
     orbit_frames,
-    prior,
+    priors,
     require_tables,
     snapshots,
     truth,
 )
 from attopt.experiments.recorded.errors import PassFormatError
-from attopt.experiments.recorded.metadata import FILE, ORBIT, PassMetadata
+from attopt.experiments.recorded.metadata import FILE, INERTIAL, ORBIT, PassMetadata
 from attopt.experiments.recorded.tables import FORMATS, TABLES, checked, read_table, write_table
 from attopt.experiments.simulation import referenced
 from attopt.formulations.errors import InvalidObservationError
@@ -47,14 +46,15 @@ class RecordedPass:
 
     Attributes:
         pass_: the :class:`~attopt.formulations.passes.Pass` of the measurements
-            relative to ``metadata.attitude_frame``: what the snapshot estimators solve.
-            It carries the gyro and the prior when they refer to that frame (an ECI
-            attitude), and the rigid-body dynamics (orbit frame).
+            relative to ``metadata.attitude_frame``: what the snapshot estimators and
+            those on rigid-body dynamics solve.  It carries the prior relative to that
+            frame, the gyro when it refers to that frame (an ECI attitude) and the
+            rigid-body dynamics (orbit frame).
         gyro_pass: the pass the gyro-aided estimators solve (``None`` without a gyro):
             with an orbit-frame attitude, the measurements re-expressed for the attitude
             relative to ECI with the epochs' orbit frames (``A_bi = A_bo A_oi``,
-            :func:`~attopt.experiments.simulation.referenced`), the gyro and the prior;
-            else ``pass_`` itself.
+            :func:`~attopt.experiments.simulation.referenced`), the gyro and the prior
+            relative to ECI; else the measurements, gyro and prior of ``pass_``.
         frames: ``A_oi`` at the epochs when the orbit frame is needed, else ``None``.
         truth: the true attitude (``attitude_frame`` -> body) at the epochs, or ``None``.
 
@@ -91,20 +91,14 @@ class RecordedPass:
             if needs_orbit_frames(metadata)
             else None
         )
-        start = prior(metadata.prior, estimated_frame(metadata))
-        same_frame = estimated_frame(metadata) == metadata.attitude_frame
+        own, inertial_prior = priors(metadata)
+        inertial = metadata.attitude_frame == INERTIAL
         try:
-            pass_ = Pass(
-                t,
-                measured,
-                gyro if same_frame else None,
-                start if same_frame else None,
-                _dynamics(metadata, frames),
-            )
+            pass_ = Pass(t, measured, gyro if inertial else None, own, _dynamics(metadata, frames))
             gyro_pass = None
             if gyro is not None:
-                inertial = pass_.snapshots if same_frame else referenced(measured, frames)
-                gyro_pass = Pass(t, epoch_snapshots(inertial, t), gyro, start)
+                moved = pass_.snapshots if inertial else referenced(measured, frames)
+                gyro_pass = Pass(t, epoch_snapshots(moved, t), gyro, inertial_prior)
         except InvalidObservationError as error:
             raise PassFormatError.at("gyro", "t_s", None, str(error)) from None
         for name, value in (

@@ -4,7 +4,8 @@
 Each takes a :class:`~attopt.formulations.passes.Pass` with uniformly spaced
 epochs, the :class:`~attopt.formulations.passes.RigidBody` dynamics and a
 :class:`~attopt.formulations.passes.Prior` with a rate (``Prior(attitude,
-covariance of [attitude, rate], rate=...)``, at epoch 0), and returns a
+covariance of [attitude, rate], rate=...)``, at epoch 0), no gyro (their ``motion`` is
+``"dynamics"``), and returns a
 :class:`~attopt.solvers.results.Track` with state ``("rate", "attitude")``:
 ``rate`` the ``omega_bi`` estimates and ``state_covariance`` that of
 ``[delta_omega, delta]``.
@@ -31,7 +32,7 @@ from attopt.solvers.doa.ekf import (
     run_vectors,
 )
 from attopt.solvers.doa.vector_slots import unit_vectors_only, vector_slots
-from attopt.solvers.estimator import PassEstimator
+from attopt.solvers.estimator import Motion, PassEstimator
 from attopt.solvers.filters.common import FilterOptions
 from attopt.solvers.filters.rts import rts_smooth
 from attopt.solvers.results import Track
@@ -67,6 +68,7 @@ class DoaEkf(PassEstimator):
         "EKF on Euler's equation with wheels, no gyro (Yang et al. 2014 sec. 5, eqs. 23-33)"
     )
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+    motion: ClassVar[Motion] = "dynamics"
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
         """The filtered track with its history (``initial`` unused).
@@ -108,6 +110,7 @@ class DoaRts(PassEstimator):
         "multiplicative RTS smoother over Yang et al. 2014's EKF (attitude block last)"
     )
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
+    motion: ClassVar[Motion] = "dynamics"
     starts_from: ClassVar[tuple[str, ...]] = ("ekf_seed003",)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
@@ -138,6 +141,7 @@ class DoaBatchLs(PassEstimator):
         "whole-pass batch least squares over Yang et al. 2014's torque-free dynamics (Q = 0)"
     )
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (VectorMeasurement,)
+    motion: ClassVar[Motion] = "dynamics"
     starts_from: ClassVar[tuple[str, ...]] = ("rts_seed003",)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
