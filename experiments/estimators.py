@@ -1,7 +1,7 @@
 """An experiment's row labels and the registry estimators they name.
 
 Each experiment maps its row labels (``mekf_snr``, ``wahba``,
-``ekf_seed003_q1e-09``, ...) to registry names
+``ekf_yang2014_q1e-09``, ...) to registry names
 (:mod:`attopt.solvers.registry`) in one place; its ``methods`` and ``filters``
 parameters are checked here against the labels of the registered estimators
 (:func:`registered_labels`), so a name the registry does not have is a

@@ -91,7 +91,7 @@ class UniformCircularArray:
         return np.asarray(direction, dtype=float) @ scaled
 
 
-SEED003_UCA = UniformCircularArray()
+YANG2014_UCA = UniformCircularArray()
 """The 12-element UCA of Yang et al. 2014 sec. 4.1 (r = lambda = 150 mm)."""
 
 
@@ -194,7 +194,7 @@ def unit_vector_covariance(theta: ArrayLike, phi: ArrayLike, covariance: ArrayLi
 
 
 def steering_vector(
-    theta: ArrayLike, phi: ArrayLike, array: UniformCircularArray = SEED003_UCA
+    theta: ArrayLike, phi: ArrayLike, array: UniformCircularArray = YANG2014_UCA
 ) -> ComplexArray:
     """``a(theta, phi)`` ``(..., M)`` of Yang et al. 2014 eq. 21."""
     direction = doa_unit_vector(np.asarray(theta, float), np.asarray(phi, float))
@@ -207,7 +207,7 @@ def simulate_snapshots(
     snr_db: float,
     n_snapshots: int,
     rng: np.random.Generator,
-    array: UniformCircularArray = SEED003_UCA,
+    array: UniformCircularArray = YANG2014_UCA,
 ) -> ComplexArray:
     """``X = a(theta, phi) s + N`` ``(..., M, L)`` (Yang et al. 2014 eqs. 8-10).
 
@@ -232,7 +232,7 @@ def simulate_sample_covariance(
     snr_db: float,
     n_snapshots: int,
     rng: np.random.Generator,
-    array: UniformCircularArray = SEED003_UCA,
+    array: UniformCircularArray = YANG2014_UCA,
 ) -> ComplexArray:
     """Sample covariance ``R_hat = X X^H / L`` ``(..., M, M)`` (eq. 10) of the snapshots
     of :func:`simulate_snapshots`, drawn directly at a cost independent of ``L``.

@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from attopt.formulations.doa_array import (
-    SEED003_UCA,
+    YANG2014_UCA,
     Array,
     UniformCircularArray,
     doa_unit_vector,
@@ -53,7 +53,7 @@ def phase_jacobian_function(array: UniformCircularArray) -> ca.Function:
 
 
 def doa_information_geometry(
-    theta: ArrayLike, phi: ArrayLike, array: UniformCircularArray = SEED003_UCA
+    theta: ArrayLike, phi: ArrayLike, array: UniformCircularArray = YANG2014_UCA
 ) -> Array:
     """``G^T (I - 1 1^T / M) G`` ``(..., 2, 2)`` (rad^-2) at DOAs ``(theta, phi)``."""
     theta, phi = np.broadcast_arrays(np.asarray(theta, float), np.asarray(phi, float))
@@ -70,7 +70,7 @@ def stochastic_crb(
     phi: ArrayLike,
     snr: ArrayLike,
     n_snapshots: ArrayLike,
-    array: UniformCircularArray = SEED003_UCA,
+    array: UniformCircularArray = YANG2014_UCA,
 ) -> Array:
     """CRB ``(..., 2, 2)`` (rad^2) of ``(theta, phi)`` (module docstring).
 

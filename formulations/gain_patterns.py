@@ -112,7 +112,7 @@ class CosinePowerPattern:
 
     The main lobe is where ``G = 10 lg g >= min_gain_dbi``; Liu et al. 2023 sec. 5.1
     uses ``G >= 4 dBi`` for its helix, ``g = 14.4598 cos^6 alpha``
-    (:data:`SEED000_HELIX`, main lobe to 41.7 deg).  The pattern is a function
+    (:data:`LIU2023_HELIX`, main lobe to 41.7 deg).  The pattern is a function
     of ``cos(alpha)`` alone: ``G = 10 lg(peak_gain) + 10 n lg(cos alpha)``.
 
     Example::
@@ -300,10 +300,10 @@ class AntennaPatterns:
 
         >>> import numpy as np
         >>> from attopt.formulations.gain_patterns import AntennaPatterns, ParabolicPattern
-        >>> from attopt.formulations.gain_patterns import SEED000_HELIX
+        >>> from attopt.formulations.gain_patterns import LIU2023_HELIX
         >>> from attopt.formulations.symbolic import NUMPY
         >>> dish = ParabolicPattern(20.0, np.radians(20.0), min_gain_dbi=10.0)
-        >>> both = AntennaPatterns((SEED000_HELIX, dish))
+        >>> both = AntennaPatterns((LIU2023_HELIX, dish))
         >>> antenna = np.array([0, 1])
         >>> both.gain_dbi(np.ones(2), np.zeros(2), antenna, NUMPY).round(2).tolist()
         [11.6, 20.0]
@@ -347,8 +347,8 @@ def shared_pattern(patterns: Sequence[GainPattern]) -> GainPattern | AntennaPatt
 
     Example::
 
-        >>> from attopt.formulations.gain_patterns import SEED000_HELIX, shared_pattern
-        >>> shared_pattern([SEED000_HELIX, SEED000_HELIX]) is SEED000_HELIX
+        >>> from attopt.formulations.gain_patterns import LIU2023_HELIX, shared_pattern
+        >>> shared_pattern([LIU2023_HELIX, LIU2023_HELIX]) is LIU2023_HELIX
         True
     """
     patterns = tuple(patterns)
@@ -358,5 +358,5 @@ def shared_pattern(patterns: Sequence[GainPattern]) -> GainPattern | AntennaPatt
     return AntennaPatterns(patterns)
 
 
-SEED000_HELIX = CosinePowerPattern(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)
+LIU2023_HELIX = CosinePowerPattern(peak_gain=14.4598, exponent=6.0, min_gain_dbi=4.0)
 """The helix of Liu et al. 2023 eq. 63, main lobe ``G >= 4 dBi`` (sec. 5.1)."""

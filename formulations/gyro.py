@@ -12,7 +12,7 @@ independent white noises with power spectral densities ``sigma_v^2 I`` and
 
 Liu et al. 2023 sec. 5.1 gives "sigma_v = sigma_u = 0.05 deg/s" without time units.
 attopt reads both as spectral densities with the SI second, ``sigma_v = 0.05
-deg/s^(1/2)`` and ``sigma_u = 0.05 deg/s^(3/2)`` (:data:`SEED000_GYRO`):
+deg/s^(1/2)`` and ``sigma_u = 0.05 deg/s^(3/2)`` (:data:`LIU2023_GYRO`):
 this is also what a discrete filter at the paper's 1 s step with ``Q_k = Q``
 (eqs. 38-39, no ``T`` factor) assumes.  The rate random walk is enormous
 (the bias wanders by ``0.05 sqrt(3600) = 3 deg/s`` per axis in an hour), so
@@ -125,8 +125,8 @@ class GyroModel:
 
 DEG = np.pi / 180.0
 
-SEED000_GYRO = GyroModel(
-    name="seed000", sigma_v=0.05 * DEG, sigma_u=0.05 * DEG, initial_bias_sigma=0.1 * DEG
+LIU2023_GYRO = GyroModel(
+    name="liu2023", sigma_v=0.05 * DEG, sigma_u=0.05 * DEG, initial_bias_sigma=0.1 * DEG
 )
 """Liu et al. 2023 sec. 5.1 read literally (module docstring); initial bias 0.1 deg/s (not in
 the paper)."""
@@ -140,7 +140,7 @@ MEMS_GYRO = GyroModel(
 """MEMS class: 0.3 deg/h^(1/2) angle random walk, 10 deg/h per h^(1/2) rate random
 walk, 0.1 deg/s (360 deg/h) turn-on bias."""
 
-GYRO_MODELS = {model.name: model for model in (SEED000_GYRO, MEMS_GYRO)}
+GYRO_MODELS = {model.name: model for model in (LIU2023_GYRO, MEMS_GYRO)}
 
 
 def _cross_matrices(w: Array) -> Array:

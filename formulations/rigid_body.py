@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 
 from attopt.formulations.symbolic import CASADI, namespace_of
 
-INERTIA_SEED003 = np.array(
+YANG2014_INERTIA = np.array(
     [[6.6199, 0.01636, 0.2363], [0.01636, 8.95, 0.2247], [0.2363, 0.2247, 9.4968]]
 )
 """Inertia matrix of Yang et al. 2014 eq. 25 (kg m^2)."""

@@ -143,7 +143,7 @@ class PassEstimator(Estimator):
         >>> from attopt import estimator
         >>> estimator("rts").starts_from, estimator("fg_batch").starts_from
         (('mekf',), ('fg_online', 'rts'))
-        >>> estimator("mekf").motion, estimator("ekf_seed003").motion
+        >>> estimator("mekf").motion, estimator("ekf_yang2014").motion
         ('gyro', 'dynamics')
     """
 

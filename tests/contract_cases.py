@@ -263,5 +263,5 @@ CASES: dict[str, Case] = {
     **dict.fromkeys(("geo_cone", "geo_lsq"), GEO),
     **dict.fromkeys(("mekf", "usque", "rts", "fg_online", "fg_batch"), GYRO_VECTORS),
     "fg_batch_offsets": GYRO_SNRS,
-    **dict.fromkeys(("ekf_seed003", "rts_seed003", "bls_seed003"), DYNAMICS_VECTORS),
+    **dict.fromkeys(("ekf_yang2014", "rts_yang2014", "bls_yang2014"), DYNAMICS_VECTORS),
 }

@@ -42,7 +42,7 @@ from attopt.experiments.environment.orbit import circular_orbit_tle
 from attopt.experiments.environment.traffic import MEAN_RADIUS_KM, TrafficModel, sample_traffic
 from attopt.experiments.experiment import ReportContext
 from attopt.experiments.sweep import run_sweep
-from attopt.formulations.gain_patterns import SEED000_HELIX, TabulatedPattern, gain_dbi_at_angle
+from attopt.formulations.gain_patterns import LIU2023_HELIX, TabulatedPattern, gain_dbi_at_angle
 from attopt.formulations.snr_model import snr_db
 from tests.report_tables import row, table
 
@@ -66,7 +66,7 @@ PARABOLIC = {
     "roll_off_db": 12.0,
 }
 TABLE_DEG = [0.0, 8.0, 16.0, 24.0, 32.0, 40.0]
-TABLE_DBI = [float(g) for g in gain_dbi_at_angle(SEED000_HELIX, np.radians(TABLE_DEG))]
+TABLE_DBI = [float(g) for g in gain_dbi_at_angle(LIU2023_HELIX, np.radians(TABLE_DEG))]
 FEW_ESTIMATORS = {"methods": ["nlp"], "filters": [], "gyros": ["mems"]}
 runner = CliRunner()
 

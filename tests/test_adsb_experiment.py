@@ -227,7 +227,7 @@ def test_filter_rows_are_valid_and_consistent_for_every_gyro(sweep):
 def test_snr_filters_beat_the_papers_mekf(sweep, gyro):
     # The target is "at most half" over the hour (the report measures it);
     # on the first two minutes, still settling from the 10 deg initial error, the
-    # ratio measured 0.86 with the seed000 gyro and 0.72 with the MEMS one.
+    # ratio measured 0.86 with the liu2023 gyro and 0.72 with the MEMS one.
     paper = _filter_rms(sweep.rows, "mekf_paper", gyro, 60.0)
     for method in ("mekf_snr", "usque_snr", "rts_snr"):
         assert _filter_rms(sweep.rows, method, gyro, 60.0) < paper, method
@@ -246,7 +246,7 @@ def test_factor_graph_rows_beat_the_filters_and_carry_the_posterior_bound(sweep,
     batch = _filter_rms(rows, "fg_batch", gyro, 0.0)
     assert batch <= 1.02 * _filter_rms(rows, "fg_online", gyro, 0.0)
     # both approximate the same MAP estimate; one trial's RMS differs either way
-    # (measured 0.364 against 0.346 deg with the seed000 gyro)
+    # (measured 0.364 against 0.346 deg with the liu2023 gyro)
     assert batch <= 1.1 * _filter_rms(rows, "rts_snr", gyro, 0.0)
     assert _filter_rms(rows, "fg_online", gyro, 0.0) < 1.1 * _filter_rms(
         rows, "mekf_snr", gyro, 0.0

@@ -27,7 +27,7 @@ from attopt.experiments.reporting.statistics import nees_interval
 from tests.report_tables import row, table
 
 FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_batch"]
-GYROS = ["seed000", "mems"]
+GYROS = ["liu2023", "mems"]
 N_EPOCHS = 700
 AXES = ("x", "y", "z")
 
@@ -99,7 +99,7 @@ def test_table2_row_of_the_papers_filter(tmp_path):
     mekf = row(paper, {"row": "MEKF (Liu et al. 2023 Table 2)"})
     assert mekf["RMS yaw / pitch / roll (deg)"] == "0.28 / 0.15 / 0.24"
     assert mekf["max yaw / pitch / roll (deg)"] == "1.46 / -1.31 / 2.40"
-    where = {"row": "mekf_paper, gyro seed000", "epochs": f"t >= {BURN_IN_S:g} s"}
+    where = {"row": "mekf_paper, gyro liu2023", "epochs": f"t >= {BURN_IN_S:g} s"}
     settled = row(paper, where | {"errors": "Euler"})
     assert settled["RMS yaw / pitch / roll (deg)"] == "1.00 / 1.00 / 1.00"
     assert row(paper, {"row": "mekf_paper, gyro mems", "epochs": "all", "errors": "body z/y/x"})[
@@ -108,7 +108,7 @@ def test_table2_row_of_the_papers_filter(tmp_path):
     assert settled["runtime (s)"] == "2.5"
     # the input: 1.5 deg errors; the filter's own sigma 1 deg against Table 2's RMS
     inputs = table(text, "mekf_paper and its input")
-    filtered = row(inputs, {"row": "mekf_paper, gyro seed000"})
+    filtered = row(inputs, {"row": "mekf_paper, gyro liu2023"})
     assert filtered["RMS / nlse RMS yaw / pitch / roll"] == "0.67 / 0.67 / 0.67"
     assert filtered["own sigma / Table 2 MEKF RMS yaw / pitch / roll"] == "3.57 / 6.67 / 4.17"
     assert row(inputs, {"row": "MEKF / NLSE (Liu et al. 2023 Table 2)"}).iloc[1] == (
@@ -119,7 +119,7 @@ def test_table2_row_of_the_papers_filter(tmp_path):
 def test_filters_compared_after_the_burn_in(tmp_path):
     text = filter_section(_context(_rows(snr_scale=0.6), tmp_path))
     compared = table(text, "Filters compared")
-    snr = row(compared, {"gyro": "seed000", "method": "mekf_snr"})
+    snr = row(compared, {"gyro": "liu2023", "method": "mekf_snr"})
     assert snr["RMS roll / pitch / yaw (deg)"] == "0.600 / 0.600 / 0.600"
     assert snr["RMS / mekf_paper RMS"] == "0.600"
     assert snr["gated / unpredictable / used observations"] == (

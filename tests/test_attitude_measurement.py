@@ -25,7 +25,7 @@ from attopt.formulations.attitude_measurement import (
 )
 from attopt.formulations.conventions import attitude_from_euler321, euler321_from_attitude
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import observation_mask
 from attopt.formulations.snr_problem import SnrEpoch
@@ -203,7 +203,7 @@ def test_seed_euler_rate_matrix_maps_body_rates_to_euler_rates():
     st.floats(-1.45, 1.45),
     st.floats(-math.pi, math.pi),
 )
-def test_euler_jacobian_is_minus_seed000_h_v(yaw, pitch, roll):
+def test_euler_jacobian_is_minus_liu2023_h_v(yaw, pitch, roll):
     """The Jacobian w.r.t. attopt's error ``delta`` (``A_true = exp(delta) A_est``)
     is ``-H_v`` of Liu et al. 2023 eq. 44.  The paper's error vector ``v`` is the
     opposite rotation: its ``delta q(v) (x) q_hat`` in Shuster's product has
@@ -319,7 +319,7 @@ def test_snr_measurement_nan_rows_outside_the_main_lobe_at_any_stacked_attitude(
     )
     values, jacobian = measurement.predict(stack)
     los, antenna = geometry[0], geometry[1]
-    inside = observation_mask(stack.as_matrix(), los, BORESIGHTS[antenna], SEED000_HELIX)
+    inside = observation_mask(stack.as_matrix(), los, BORESIGHTS[antenna], LIU2023_HELIX)
     usable = inside.all(axis=0)
     assert 0 < usable.sum() < usable.size  # some observations leave the lobe
     assert np.all(np.isnan(values[:, ~usable])) and np.all(np.isnan(jacobian[:, ~usable]))
@@ -403,11 +403,11 @@ def test_snr_measurement_bad_shapes_are_rejected_by_the_epoch():
     los, antenna, ranges, snr, _ = _geometry(np.random.default_rng(14), TRUTH, (3, 3))
     with pytest.raises(InvalidObservationError):
         SnrMeasurement(
-            SnrEpoch.from_ranges(snr[:-1], los, antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET)
+            SnrEpoch.from_ranges(snr[:-1], los, antenna, BORESIGHTS, ranges, LIU2023_HELIX, BUDGET)
         )
     with pytest.raises(InvalidObservationError):
         SnrMeasurement(
             SnrEpoch.from_ranges(
-                snr, los[:, :2], antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET
+                snr, los[:, :2], antenna, BORESIGHTS, ranges, LIU2023_HELIX, BUDGET
             )
         )

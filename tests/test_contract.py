@@ -220,7 +220,7 @@ GENERIC = [
 
 
 def test_the_new_type_reaches_every_generic_estimator() -> None:
-    assert {"map_nlp", "mekf", "usque", "rts", "fg_online", "ekf_seed003"} <= set(GENERIC)
+    assert {"map_nlp", "mekf", "usque", "rts", "fg_online", "ekf_yang2014"} <= set(GENERIC)
 
 
 @pytest.mark.parametrize("name", GENERIC)

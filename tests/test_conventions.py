@@ -21,7 +21,7 @@ angles = st.floats(-np.pi + 1e-3, np.pi - 1e-3)
 pitches = st.floats(-np.pi / 2 + 1e-3, np.pi / 2 - 1e-3)
 
 
-def seed000_eq8(psi: float, theta: float, phi: float) -> np.ndarray:
+def liu2023_eq8(psi: float, theta: float, phi: float) -> np.ndarray:
     """C_o^B of Liu et al. 2023 eq. 8, typed in from the paper."""
     c, s = np.cos, np.sin
     return np.array(
@@ -42,9 +42,9 @@ def seed000_eq8(psi: float, theta: float, phi: float) -> np.ndarray:
 
 
 @given(psi=angles, theta=pitches, phi=angles)
-def test_euler321_is_seed000_eq8(psi, theta, phi):
+def test_euler321_is_liu2023_eq8(psi, theta, phi):
     attitude = attitude_from_euler321(psi, theta, phi)
-    np.testing.assert_allclose(attitude.as_matrix(), seed000_eq8(psi, theta, phi), atol=1e-14)
+    np.testing.assert_allclose(attitude.as_matrix(), liu2023_eq8(psi, theta, phi), atol=1e-14)
     np.testing.assert_allclose(euler321_from_attitude(attitude), [psi, theta, phi], atol=1e-9)
 
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from scipy.stats import ks_2samp
 
 from attopt.formulations.doa_array import (
-    SEED003_UCA,
+    YANG2014_UCA,
     doa_from_unit_vector,
     doa_jacobian,
     doa_unit_vector,
@@ -26,18 +26,18 @@ from attopt.formulations.doa_array import (
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.errors import InvalidObservationError
 
-M = SEED003_UCA.n_elements
+M = YANG2014_UCA.n_elements
 KR = 2.0 * np.pi  # k r with r = lambda = 150 mm
 thetas = st.floats(0.0, np.pi / 2)
 phis = st.floats(0.0, 2.0 * np.pi)
 
 
-def test_steering_vector_is_seed003_eq21() -> None:
+def test_steering_vector_is_yang2014_eq21() -> None:
     """Pins the DOA convention: theta from the array axis +z, phi from +x towards
     +y, element 1 on +x, elements counter-clockwise, phase lead ``+k r sin theta
     cos(phi - varphi_m)`` (eq. 21)."""
-    assert SEED003_UCA.radius_m == 0.15 and SEED003_UCA.wavelength_m == 0.15 and M == 12
-    np.testing.assert_allclose(SEED003_UCA.element_directions[3], [0.0, 1.0, 0.0], atol=1e-15)
+    assert YANG2014_UCA.radius_m == 0.15 and YANG2014_UCA.wavelength_m == 0.15 and M == 12
+    np.testing.assert_allclose(YANG2014_UCA.element_directions[3], [0.0, 1.0, 0.0], atol=1e-15)
     np.testing.assert_allclose(doa_unit_vector(np.pi / 2, np.pi / 2), [0.0, 1.0, 0.0], atol=1e-16)
     a = steering_vector(np.arcsin(0.25), 0.0)  # source towards +x: k r sin theta = pi / 2
     np.testing.assert_allclose(a[[0, 3, 6]], [1j, 1.0, -1j], atol=1e-12)  # +x leads, -x lags

@@ -1,5 +1,5 @@
 """Whole-pass batch least squares over Yang et al. 2014's dynamics (``solvers/doa/batch_ls.py``,
-registry ``bls_seed003``): noise-free recovery, its covariance against the ``Q = 0``
+registry ``bls_yang2014``): noise-free recovery, its covariance against the ``Q = 0``
 posterior bound, Monte Carlo consistency, the estimator from its RTS start, flagged
 non-convergence and bad input."""
 
@@ -50,7 +50,7 @@ def solve(run: VectorPass, attitude: Rotation, rate: np.ndarray, **options) -> T
         ekf_dynamics(run.pass_()),
         run.t,
         BatchLsOptions(**options),
-        "bls_seed003",
+        "bls_yang2014",
     )
 
 
@@ -182,7 +182,7 @@ def test_a_start_spinning_beyond_the_step_limit_raises() -> None:
 
 
 def test_estimator_starts_from_the_rts_track() -> None:
-    """``bls_seed003`` on a noise-free pass: without a start track it runs ``rts_seed003``
+    """``bls_yang2014`` on a noise-free pass: without a start track it runs ``rts_yang2014``
     and starts from its first epoch, exactly as when given that track; the truth is
     recovered."""
     rng = np.random.default_rng(7)
@@ -197,7 +197,7 @@ def test_estimator_starts_from_the_rts_track() -> None:
     np.testing.assert_array_equal(own.rate, given.rate)
     expected = solve(run, stored_rotations(rts.quaternion[0]), rts.rate[0])
     np.testing.assert_array_equal(own.quaternion, expected.quaternion)
-    assert own.method == "bls_seed003" and own.report.converged
+    assert own.method == "bls_yang2014" and own.report.converged
     assert np.abs(attitude_error(own.attitude(), run.truth)).max() < 1e-9
 
 
@@ -208,5 +208,5 @@ def test_estimator_accepts_unit_vectors_only() -> None:
     snapshots = list(pass_.snapshots)
     snapshots[3] = Snapshot.of(EulerAngleMeasurement([0.1, 0.2, 0.3], 1e-4 * np.eye(3)))
     mixed = Pass(pass_.t, tuple(snapshots), None, pass_.prior, pass_.dynamics)
-    with pytest.raises(UnsupportedMeasurementError, match="bls_seed003 accepts VectorMeasurement"):
+    with pytest.raises(UnsupportedMeasurementError, match="bls_yang2014 accepts VectorMeasurement"):
         DoaBatchLs().solve(mixed)

@@ -39,7 +39,7 @@ from attopt.experiments.doa_ground.scenario import build_geometry, stations_ecef
 from attopt.experiments.environment.orbit import circular_orbit_tle
 from attopt.experiments.sweep import run_sweep
 from attopt.formulations.conventions import attitude_from_euler321
-from attopt.formulations.rigid_body import INERTIA_SEED003
+from attopt.formulations.rigid_body import YANG2014_INERTIA
 
 SHORT: dict[str, Any] = {
     "duration_s": 60.0,
@@ -57,7 +57,7 @@ THREE = [
 ]
 """Three stations within 8 deg of the first minute's sub-satellite points (0-3.4 deg N,
 57-58 deg W): all visible, the first near the array axis."""
-EKF = "ekf_seed003_q1e-12"
+EKF = "ekf_yang2014_q1e-12"
 
 
 def parameters(**overrides: Any) -> DoaGroundParameters:
@@ -141,7 +141,7 @@ def test_attitude_columns_are_the_estimate_and_the_truth() -> None:
     """``q_est_*`` and ``q_true_*`` give back the rows' error columns (``C_bo``), and the
     truth at ``t_s = 0`` is ``attitude.initial_euler_deg``."""
     rows = trial(stations=THREE)
-    for name in (EKF, "rts_seed003_q1e-12", "wahba"):
+    for name in (EKF, "rts_yang2014_q1e-12", "wahba"):
         chosen = method(rows, name)
         chosen = chosen[chosen["valid"]]
         assert len(chosen) > 0, name
@@ -237,7 +237,7 @@ def test_the_rigid_body_truth_follows_the_attitude_table() -> None:
         return float(np.abs(momentum - momentum[0]).max() / np.linalg.norm(momentum[0]))
 
     assert drift(chosen.attitude.inertia, chosen.attitude.wheel_momentum) < 1e-9
-    assert drift(INERTIA_SEED003, np.array([0.0, -0.1, 0.0])) > 1e-4
+    assert drift(YANG2014_INERTIA, np.array([0.0, -0.1, 0.0])) > 1e-4
     np.testing.assert_array_equal(geometry.dynamics.inertia, chosen.attitude.inertia)
     np.testing.assert_array_equal(geometry.dynamics.wheel_momentum, chosen.attitude.wheel_momentum)
     start = attitude_from_euler321(*np.radians(attitude["initial_euler_deg"]))
@@ -326,21 +326,21 @@ def test_the_gyro_and_the_gyro_aided_rows_follow_their_parameters() -> None:
     """``filters``, ``filter_trials`` and ``gyro``: a preset, a table without ``rate_hz``
     (sampled at the epochs) and a near-perfect table, whose MEKF is the most confident."""
     aided = {"filter_trials": 1, "filters": ["mekf"]}
-    assert {"mekf", "bls_seed003"} <= set(trial(**aided)["method"])
+    assert {"mekf", "bls_yang2014"} <= set(trial(**aided)["method"])
     assert "fg_batch" not in set(trial(**aided)["method"])
-    assert not {"mekf", "bls_seed003"} & set(trial()["method"])
+    assert not {"mekf", "bls_yang2014"} & set(trial()["method"])
     perfect = {"arw_deg_sqrt_h": 1e-4, "rrw_deg_h_sqrt_h": 1e-4, "turn_on_bias_deg_h": 1e-3}
     assert parameters(gyro=perfect).gyro.rate_hz == 4.0
     runs = {
         "mems": trial(**aided),
-        "seed000": trial(**aided, gyro="seed000"),
+        "liu2023": trial(**aided, gyro="liu2023"),
         "perfect": trial(**aided, gyro=perfect),
     }
     settled = {}
     for name, rows in runs.items():
         mekf = method(rows, "mekf")
         settled[name] = mekf.loc[mekf["phase"] == "settled", "sigma_x_deg"].mean()
-    assert settled["perfect"] < settled["mems"] != settled["seed000"]
+    assert settled["perfect"] < settled["mems"] != settled["liu2023"]
 
 
 def test_rows_follow_the_pass_row_and_table_parameters() -> None:
@@ -349,10 +349,10 @@ def test_rows_follow_the_pass_row_and_table_parameters() -> None:
     rows = trial(
         step_s=0.5, duration_s=40.0, row_step_s=2.0, settle_s=10.0, process_noise=[1e-9, 1e-10]
     )
-    ekf = method(rows, "ekf_seed003_q1e-10")
+    ekf = method(rows, "ekf_yang2014_q1e-10")
     np.testing.assert_array_equal(ekf["t_s"], np.arange(0.0, 40.0, 2.0))
     assert (ekf["phase"] == np.where(ekf["t_s"] < 10.0, "converging", "settled")).all()
-    assert {"ekf_seed003_q1e-09", "rts_seed003_q1e-10"} <= set(rows["method"])
+    assert {"ekf_yang2014_q1e-09", "rts_yang2014_q1e-10"} <= set(rows["method"])
     assert (
         music(rows)["doa_count"]
         == build_geometry(parameters(step_s=0.5, duration_s=40.0)).visible.sum()

@@ -1,4 +1,4 @@
-"""The EKF of Yang et al. 2014 (``solvers/doa/ekf.py``, registry ``ekf_seed003``): step model,
+"""The EKF of Yang et al. 2014 (``solvers/doa/ekf.py``, registry ``ekf_yang2014``): step model,
 transition matrix, convergence, the CasADi pass against the Python loop, the update against
 the textbook Joseph form, gating and the lost-track monitor."""
 
@@ -16,7 +16,7 @@ from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import ConvergenceError
 from attopt.formulations.passes import Pass, Prior, RigidBody, epoch_snapshots
-from attopt.formulations.rigid_body import INERTIA_SEED003
+from attopt.formulations.rigid_body import YANG2014_INERTIA
 from attopt.solvers.doa import DoaEkf
 from attopt.solvers.doa.ekf import (
     MAX_STEP_ANGLE,
@@ -37,7 +37,7 @@ PRIOR = FilterPrior()
 
 
 def _step(omega: np.ndarray, attitude: np.ndarray, turn: np.ndarray):
-    function = step_function(STEP_S, tuple(INERTIA_SEED003.ravel()))
+    function = step_function(STEP_S, tuple(YANG2014_INERTIA.ravel()))
     return [x.full() for x in function(omega, attitude, WHEEL_MOMENTUM, turn)]
 
 
@@ -87,7 +87,7 @@ def test_converges_from_the_paper_initial_condition_noise_free() -> None:
         np.radians(PRIOR.rate_deg_s),
         np.diag(np.radians([0.5] * 3 + [60.0] * 3) ** 2),
     )
-    dynamics = RigidBody(INERTIA_SEED003, geometry.eci_to_orbit, WHEEL_MOMENTUM)
+    dynamics = RigidBody(YANG2014_INERTIA, geometry.eci_to_orbit, WHEEL_MOMENTUM)
     pass_ = Pass(geometry.t, epoch_snapshots(measurements, geometry.t), None, prior, dynamics)
     result = DoaEkf(compiled=False).solve(pass_)
     error = np.degrees(np.linalg.norm(attitude_error(result.attitude(), geometry.truth), axis=1))
@@ -152,11 +152,11 @@ def simulate_vectors(
 ) -> VectorPass:
     """``n`` epochs ``DT`` apart; each reference vector seen with probability
     ``presence`` per epoch; truth with ``Q = process_noise E_6`` per step."""
-    step = step_function(DT, tuple(INERTIA_SEED003.ravel()))
+    step = step_function(DT, tuple(YANG2014_INERTIA.ravel()))
     frames = [Rotation.identity()]
     for _ in range(n - 1):
         frames.append(ORBIT_TURN * frames[-1])
-    dynamics = RigidBody(INERTIA_SEED003, Rotation.concatenate(frames), WHEEL_MOMENTUM)
+    dynamics = RigidBody(YANG2014_INERTIA, Rotation.concatenate(frames), WHEEL_MOMENTUM)
     turns = dynamics.orbit_turns.as_matrix()
     rate, attitude = RATE0.copy(), Rotation.random(random_state=rng)
     rates, attitudes = [], []

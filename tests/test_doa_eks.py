@@ -1,4 +1,4 @@
-"""The RTS smoother over Yang et al. 2014's EKF (``rts_seed003``) and the EKF's posterior bound
+"""The RTS smoother over Yang et al. 2014's EKF (``rts_yang2014``) and the EKF's posterior bound
 (``solvers/doa/eks.py``): the one backward pass (``solvers/filters/rts.py``) against the
 textbook recursion for the EKF and the gyro MEKF, covariance order, errors, Monte Carlo
 NEES, and the bound against the EKF run at the truth."""
@@ -46,7 +46,7 @@ def state_errors(result: Track, run: VectorPass) -> np.ndarray:
 
 
 def smooth(run: VectorPass, filtered: Track) -> Track:
-    """``rts_seed003`` over the EKF track ``filtered`` of ``run``."""
+    """``rts_yang2014`` over the EKF track ``filtered`` of ``run``."""
     return DoaRts().solve(run.pass_(), initial=filtered)
 
 
@@ -109,7 +109,7 @@ def mekf_smoother() -> tuple[tuple, tuple, Rotation]:
 
 
 def ekf_smoother() -> tuple[tuple, tuple, Rotation]:
-    """``rts_seed003`` on an EKF pass (attitude block last) and the textbook recursion on
+    """``rts_yang2014`` on an EKF pass (attitude block last) and the textbook recursion on
     the filter's history; also the filtered attitudes."""
     rng = np.random.default_rng(8)
     run = simulate_vectors(rng, 200, process_noise=PROCESS_NOISE)
@@ -134,7 +134,7 @@ def ekf_smoother() -> tuple[tuple, tuple, Rotation]:
 def test_rts_backward_is_the_textbook_recursion(smoother) -> None:
     """The one RTS smoother (``attopt.solvers.filters.rts.rts_smooth``) on the gyro MEKF's
     track (state ``[delta, delta_beta]``, ``rts``) and on the EKF's
-    (``[delta_omega, delta]``, ``rts_seed003``) equals the textbook recursion: one
+    (``[delta_omega, delta]``, ``rts_yang2014``) equals the textbook recursion: one
     backward pass serves both filters."""
     (attitude, rest, covariance), expected, filtered = smoother()
     assert np.abs(attitude_error(attitude, expected[0])).max() < 1e-12

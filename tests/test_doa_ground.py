@@ -10,7 +10,7 @@ from attopt.experiments.doa_ground.parameters import DoaScenario, RigidBodyTruth
 from attopt.experiments.doa_ground.scenario import build_geometry, coverage
 from attopt.experiments.sweep.seeding import trial_seed
 from attopt.formulations.doa_measurement import DoaMeasurement
-from attopt.formulations.rigid_body import INERTIA_SEED003
+from attopt.formulations.rigid_body import YANG2014_INERTIA
 
 COARSE = DoaScenario(step_s=10.0)
 """The whole (default, 5000 s) pass at a coarse step keeps the geometry cheap."""
@@ -44,7 +44,7 @@ def test_doas_are_the_measurement_model_at_the_truth() -> None:
 def test_torque_free_dynamics_conserve_inertial_angular_momentum() -> None:
     """Eq. 23 without torque: ``A_bi^T (I omega + h)`` is constant over the pass."""
     geometry = build_geometry(COARSE)
-    body_momentum = geometry.rate @ INERTIA_SEED003.T + RigidBodyTruth().wheel_momentum
+    body_momentum = geometry.rate @ YANG2014_INERTIA.T + RigidBodyTruth().wheel_momentum
     inertial = (geometry.truth * geometry.eci_to_orbit).inv().apply(body_momentum)
     drift = np.abs(inertial - inertial[0]).max()
     assert drift < 1e-9 * np.linalg.norm(inertial[0])
@@ -68,11 +68,11 @@ def test_quick_trial_is_reproducible() -> None:
     # runtime_s is the only column that is not reproducible
     pd.testing.assert_frame_equal(first.drop(columns="runtime_s"), again.drop(columns="runtime_s"))
     assert set(first["method"]) == {
-        "ekf_seed003_q1e-09",
-        "ekf_seed003_q1e-12",
-        "rts_seed003_q1e-09",
-        "rts_seed003_q1e-12",
-        "bls_seed003",
+        "ekf_yang2014_q1e-09",
+        "ekf_yang2014_q1e-12",
+        "rts_yang2014_q1e-09",
+        "rts_yang2014_q1e-12",
+        "bls_yang2014",
         "wahba",
         "music",
         "mekf",
@@ -109,13 +109,13 @@ def test_gyro_aided_rows_reach_the_posterior_bound() -> None:
     assert rms("fg_batch") <= 1.05 * rms("mekf")
     assert 0.5 < rms("fg_batch") / rms("fg_batch", "pbound_{}_deg") < 2.0
     for q in ("1e-09", "1e-12"):  # the RTS pass improves on its EKF, and the bound on both
-        ekf, rts = f"ekf_seed003_q{q}", f"rts_seed003_q{q}"
+        ekf, rts = f"ekf_yang2014_q{q}", f"rts_yang2014_q{q}"
         assert rms(rts) < rms(ekf)
         assert rms(rts, "pbound_{}_deg") < rms(ekf, "pbound_{}_deg")
         assert rms(rts, "crb_{}_deg") < rms(ekf, "crb_{}_deg") < rms(ekf, "pbound_{}_deg")
     # the batch least squares: below the low-Q RTS, its bound the RTS's Q = 0 bound
-    assert rms("bls_seed003") < rms("rts_seed003_q1e-12")
-    assert rms("bls_seed003", "pbound_{}_deg") == rms("rts_seed003_q1e-12", "crb_{}_deg")
+    assert rms("bls_yang2014") < rms("rts_yang2014_q1e-12")
+    assert rms("bls_yang2014", "pbound_{}_deg") == rms("rts_yang2014_q1e-12", "crb_{}_deg")
 
 
 def test_gyro_rows_run_in_the_first_filter_trials_only() -> None:
@@ -131,6 +131,6 @@ def test_gyro_rows_run_in_the_first_filter_trials_only() -> None:
     (setting,) = grid(parameters)
     first = EXPERIMENT.trial(setting, trial_seed(0, 0, 0))
     second = EXPERIMENT.trial(setting, trial_seed(0, 0, 1))
-    assert {"bls_seed003", "mekf", "fg_batch"} <= set(first["method"])
-    assert not {"bls_seed003", "mekf", "fg_batch"} & set(second["method"])
-    assert {"ekf_seed003_q1e-09", "rts_seed003_q1e-12", "wahba"} <= set(second["method"])
+    assert {"bls_yang2014", "mekf", "fg_batch"} <= set(first["method"])
+    assert not {"bls_yang2014", "mekf", "fg_batch"} & set(second["method"])
+    assert {"ekf_yang2014_q1e-09", "rts_yang2014_q1e-12", "wahba"} <= set(second["method"])

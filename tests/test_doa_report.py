@@ -4,9 +4,9 @@ Two settings (0 dB at ``L = 100`` and ``L = 10``), three trials, the gyro-aided
 methods in the first two.  Settled errors per trial (deg, body x axis; the
 Euler errors are ``(e, 2 e, 3 e)``; signs alternate over the rows):
 
-* ``ekf_seed003_q1e-09``: 0.3, 0.3, 1.2; ``ekf_seed003_q1e-12`` half of that;
+* ``ekf_yang2014_q1e-09``: 0.3, 0.3, 1.2; ``ekf_yang2014_q1e-12`` half of that;
 * each RTS 0.4 times its EKF's on the first two trials (same as the EKF's on the
-  third), ``fg_batch`` 0.18, ``mekf`` 0.5 and ``bls_seed003`` 0.03 (the last three
+  third), ``fg_batch`` 0.18, ``mekf`` 0.5 and ``bls_yang2014`` 0.03 (the last three
   in the first two trials); ``crb_*`` 0.02 per axis on the EKF rows, 0.01 on
   the RTS rows;
 * ``wahba``: 2.0 on every other settled row, invalid (NaN) on the rest;
@@ -113,10 +113,12 @@ def _trial(trial: int, q_scales: Mapping[str, float], filters: bool) -> list[pd.
     smoother_crb = {f"crb_{a}_deg": 0.01 for a in "xyz"}
     for q, scale in q_scales.items():
         extra = _filter_extra(rate, 0.2, runtime=trial + 1.0)
-        frames.append(_frame(f"ekf_seed003_q{q}", scale * ekf, **extra, **crb))
-        frames.append(_frame(f"rts_seed003_q{q}", rts_scale * scale * ekf, **extra, **smoother_crb))
+        frames.append(_frame(f"ekf_yang2014_q{q}", scale * ekf, **extra, **crb))
+        frames.append(
+            _frame(f"rts_yang2014_q{q}", rts_scale * scale * ekf, **extra, **smoother_crb)
+        )
     if filters:
-        frames.append(_frame("bls_seed003", 0.03, **_filter_extra(rate, 0.02, runtime=3.0)))
+        frames.append(_frame("bls_yang2014", 0.03, **_filter_extra(rate, 0.02, runtime=3.0)))
         frames.append(_frame("mekf", 0.5, **_filter_extra(np.nan, 0.1, runtime=5.0)))
         frames.append(_frame("fg_batch", 0.18, **_filter_extra(np.nan, 0.1, 10.0 * (trial + 1))))
     music = {"doa_count": 100, "doa_crb_theta_deg2": 0.01, "doa_crb_phi_deg2": 0.04}
@@ -161,17 +163,17 @@ def test_attitude_rmses_pool_the_settled_valid_rows_of_all_trials() -> None:
     rows = _rows()
     methods = attitude_methods(rows, PARAMETERS)
     assert methods == [
-        "ekf_seed003_q1e-09",
-        "ekf_seed003_q1e-12",
-        "rts_seed003_q1e-09",
-        "rts_seed003_q1e-12",
-        "bls_seed003",
+        "ekf_yang2014_q1e-09",
+        "ekf_yang2014_q1e-12",
+        "rts_yang2014_q1e-09",
+        "rts_yang2014_q1e-12",
+        "bls_yang2014",
         "wahba",
         "mekf",
         "fg_batch",
     ]
     table = attitude_table(rows, methods)
-    ekf = table.loc[(0.0, 100, "ekf_seed003_q1e-09")]
+    ekf = table.loc[(0.0, 100, "ekf_yang2014_q1e-09")]
     pooled = np.sqrt(np.mean(np.square(EKF_ERROR)))  # eq. 34: equal rows per trial
     np.testing.assert_allclose(
         ekf[["yaw_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg"]], [pooled, 2 * pooled, 3 * pooled]
@@ -179,7 +181,7 @@ def test_attitude_rmses_pool_the_settled_valid_rows_of_all_trials() -> None:
     assert ekf["total_rmse_deg"] == pytest.approx(pooled)
     assert ekf["bound_total_deg"] == pytest.approx(0.2 * np.sqrt(3.0))
     assert (ekf["valid"], ekf["trials"]) == (1.0, 3)
-    assert table.loc[(0.0, 10, "ekf_seed003_q1e-12"), "total_rmse_deg"] == pytest.approx(
+    assert table.loc[(0.0, 10, "ekf_yang2014_q1e-12"), "total_rmse_deg"] == pytest.approx(
         0.5 * pooled
     )
     wahba = table.loc[(0.0, 100, "wahba")]
@@ -211,11 +213,11 @@ def test_smoother_ratios_use_only_the_trials_fg_batch_ran_in(tmp_path: Path) -> 
     assert line["trials"] == "2"
     assert (line["EKF Q = 1e-09"], line["EKF Q = 1e-12"]) == ("0.300", "0.150")
     assert (line["RTS Q = 1e-09"], line["RTS Q = 1e-12"]) == ("0.120", "0.060")
-    assert line["bls_seed003 (CRB)"] == "0.0300 (-)"  # the synthetic bls rows carry no crb_*
+    assert line["bls_yang2014 (CRB)"] == "0.0300 (-)"  # the synthetic bls rows carry no crb_*
     assert line["mekf"] == "0.500"
     assert line["fg_batch (pass bound)"] == f"0.180 ({0.1 * np.sqrt(3.0):.3f})"
-    ratios = ["RTS / EKF 1e-09", "RTS / EKF 1e-12", "bls_seed003 / EKF 1e-09"]
-    ratios += ["bls_seed003 / EKF 1e-12", "fg_batch / EKF 1e-09", "fg_batch / EKF 1e-12"]
+    ratios = ["RTS / EKF 1e-09", "RTS / EKF 1e-12", "bls_yang2014 / EKF 1e-09"]
+    ratios += ["bls_yang2014 / EKF 1e-12", "fg_batch / EKF 1e-09", "fg_batch / EKF 1e-12"]
     assert line[ratios].tolist() == ["0.40", "0.40", "0.10", "0.20", "0.60", "1.20"]
 
 
@@ -250,12 +252,12 @@ def test_consistency_pools_the_valid_rows_per_phase(tmp_path: Path) -> None:
     invalid rows do not count."""
     rows = _rows()
     table_ = consistency_table(rows, attitude_methods(rows, PARAMETERS))
-    ekf = table_.loc[(0.0, 100, "ekf_seed003_q1e-09", "settled")]
+    ekf = table_.loc[(0.0, 100, "ekf_yang2014_q1e-09", "settled")]
     assert ekf.tolist() == pytest.approx([54.0, 9.0, 1.0 / 3.0])
-    assert table_.loc[(0.0, 100, "ekf_seed003_q1e-09", "converging"), "above"] == 1.0
+    assert table_.loc[(0.0, 100, "ekf_yang2014_q1e-09", "converging"), "above"] == 1.0
     assert table_.loc[(0.0, 100, "wahba", "settled"), "mean"] == pytest.approx(400.0)
     text = _report(rows, tmp_path)
-    line = _line(text, "Consistency", SNR_dB="0", L="100", method="ekf_seed003_q1e-09")
+    line = _line(text, "Consistency", SNR_dB="0", L="100", method="ekf_yang2014_q1e-09")
     assert line.iloc[3:].tolist() == ["54", "9", "0.333", "1.000"]
 
 
@@ -265,7 +267,7 @@ def test_integrity_takes_every_phase_of_every_trial(tmp_path: Path) -> None:
     settled rows and all 10 converging."""
     text = _report(_rows(), tmp_path)
     section = table(text, "Integrity")
-    ekf = row(section, {"snr_db": "0", "snapshots": "100", "method": "ekf_seed003_q1e-09"})
+    ekf = row(section, {"snr_db": "0", "snapshots": "100", "method": "ekf_yang2014_q1e-09"})
     mean = (30 * 1e4 + 40 * 9 + 20 * 144) / 90
     assert ekf.iloc[3:].tolist() == ["90", "1.000", "90", f"{50 / 90:.3g}", f"{mean:.3g}"]
     wahba = row(section, {"snr_db": "0", "snapshots": "100", "method": "wahba"})
@@ -283,7 +285,7 @@ def test_missing_methods_and_settings_show_a_dash(tmp_path: Path) -> None:
     assert doa.tolist() == ["0", "10", "-", "-", "-", "-", "-", "0.781", "0.684"]
     ekf = row(
         table(text, "Yang et al. 2014 Table 1 beside ours", 1),
-        {"L": "100", "method": "ekf_seed003_q1e-09"},
+        {"L": "100", "method": "ekf_yang2014_q1e-09"},
     )
     assert ekf.iloc[3:7].tolist() == ["0.735", "1.470", "2.205", "0.083 / 0.061 / 0.094"]
 
@@ -317,7 +319,7 @@ def test_stations_table_follows_the_configured_stations(tmp_path: Path) -> None:
 def test_runtime_is_the_mean_over_passes() -> None:
     rows = _rows()
     runtimes = runtime_table(rows, attitude_methods(rows, PARAMETERS))
-    assert runtimes.loc["ekf_seed003_q1e-09"].tolist() == [6, 2.0]  # 2 settings x 3 trials
+    assert runtimes.loc["ekf_yang2014_q1e-09"].tolist() == [6, 2.0]  # 2 settings x 3 trials
     assert runtimes.loc["fg_batch"].tolist() == [4, 15.0]
     assert "wahba" not in runtimes.index  # no runtime_s
 

@@ -30,7 +30,7 @@ from attopt.solvers.pipeline import run_estimators
 from attopt.solvers.registry import estimator, estimators
 
 runner = CliRunner()
-DYNAMICS = "ekf_seed003"
+DYNAMICS = "ekf_yang2014"
 GYRO_AIDED = "mekf"
 TRACK_FIELDS = ("quaternion", "covariance", "valid")
 
@@ -88,7 +88,7 @@ def test_estimating_the_exported_pass_gives_the_trials_rows():
     recorded = _exported()
     same = {
         DYNAMICS: ekf_method(PROCESS_NOISE),
-        "rts_seed003": rts_method(PROCESS_NOISE),
+        "rts_yang2014": rts_method(PROCESS_NOISE),
         GYRO_AIDED: GYRO_AIDED,
     }
     runs = estimate(recorded, list(same))
@@ -114,7 +114,7 @@ def test_the_pass_estimators_say_what_carries_their_attitude():
         motion: {n for n in estimators("pass") if estimator(n).motion == motion}
         for motion in ("gyro", "dynamics")
     }
-    assert by_motion["dynamics"] == {"ekf_seed003", "rts_seed003", "bls_seed003"}
+    assert by_motion["dynamics"] == {"ekf_yang2014", "rts_yang2014", "bls_yang2014"}
     assert by_motion["gyro"] | by_motion["dynamics"] == set(estimators("pass"))
 
 

@@ -30,7 +30,7 @@ from attopt.formulations.attitude_measurement import (
 )
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.gyro import GyroModel, GyroSamples, simulate_gyro
 from attopt.formulations.passes import Prior
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -311,7 +311,7 @@ def _snr_pass(extra=None, replace=None, drop: int | None = None, epochs: int = 2
             antenna = np.append(antenna, extra[1])
             ranges = np.append(ranges, extra[2])
             snr = np.append(snr, extra[3])
-        epoch = SnrEpoch.from_ranges(snr, los, antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET)
+        epoch = SnrEpoch.from_ranges(snr, los, antenna, BORESIGHTS, ranges, LIU2023_HELIX, BUDGET)
         measurements.append(SnrMeasurement(epoch))
     prior = Prior(
         Rotation.from_rotvec(np.radians([1.0, -0.5, 0.8])) * TRUTH,

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import (
-    SEED000_HELIX,
+    LIU2023_HELIX,
     CosinePowerPattern,
     ParabolicPattern,
     TabulatedPattern,
@@ -25,33 +25,33 @@ from attopt.formulations.symbolic import CASADI, NUMPY
 PARABOLIC = ParabolicPattern(peak_gain_dbi=11.6, theta_3db_rad=math.radians(50.0), min_gain_dbi=4.0)
 TABLE_ANGLES = np.radians(np.linspace(0.0, 41.0, 15))
 TABULATED = TabulatedPattern(
-    tuple(TABLE_ANGLES), tuple(gain_dbi_at_angle(SEED000_HELIX, TABLE_ANGLES))
+    tuple(TABLE_ANGLES), tuple(gain_dbi_at_angle(LIU2023_HELIX, TABLE_ANGLES))
 )
-PATTERNS = {"cos6": SEED000_HELIX, "parabolic": PARABOLIC, "tabulated": TABULATED}
+PATTERNS = {"cos6": LIU2023_HELIX, "parabolic": PARABOLIC, "tabulated": TABULATED}
 
 
-def test_seed000_helix_peak_and_main_lobe_edge():
+def test_liu2023_helix_peak_and_main_lobe_edge():
     # Liu et al. 2023 eq. 63: g = 14.4598 cos^6(alpha); main lobe G >= 4 dBi (sec. 5.1).
-    assert gain_dbi_at_angle(SEED000_HELIX, 0.0) == pytest.approx(
+    assert gain_dbi_at_angle(LIU2023_HELIX, 0.0) == pytest.approx(
         10 * math.log10(14.4598), abs=1e-12
     )
-    assert SEED000_HELIX.peak_gain_dbi == pytest.approx(11.6016, abs=1e-4)
+    assert LIU2023_HELIX.peak_gain_dbi == pytest.approx(11.6016, abs=1e-4)
     # Lobe edge: cos^6(alpha) = 10^0.4 / 14.4598 = 2.511886 / 14.4598 = 0.173715,
     # cos(alpha) = 0.173715^(1/6) = 0.746975, alpha = 41.671 deg.
-    assert SEED000_HELIX.min_cos**6 == pytest.approx(10**0.4 / 14.4598, rel=1e-12)
-    assert SEED000_HELIX.min_cos == pytest.approx(0.746975, abs=1e-6)
-    assert math.degrees(SEED000_HELIX.max_off_boresight_rad) == pytest.approx(41.671, abs=1e-3)
-    edge = gain_dbi_at_angle(SEED000_HELIX, SEED000_HELIX.max_off_boresight_rad)
+    assert LIU2023_HELIX.min_cos**6 == pytest.approx(10**0.4 / 14.4598, rel=1e-12)
+    assert LIU2023_HELIX.min_cos == pytest.approx(0.746975, abs=1e-6)
+    assert math.degrees(LIU2023_HELIX.max_off_boresight_rad) == pytest.approx(41.671, abs=1e-3)
+    edge = gain_dbi_at_angle(LIU2023_HELIX, LIU2023_HELIX.max_off_boresight_rad)
     assert edge == pytest.approx(4.0, abs=1e-12)
 
 
-def test_cosine_power_pattern_is_ten_lg_of_seed000_eq63():
-    alpha = np.linspace(0.0, SEED000_HELIX.max_off_boresight_rad, 50)
+def test_cosine_power_pattern_is_ten_lg_of_liu2023_eq63():
+    alpha = np.linspace(0.0, LIU2023_HELIX.max_off_boresight_rad, 50)
     expected = 10 * np.log10(14.4598 * np.cos(alpha) ** 6)
-    np.testing.assert_allclose(gain_dbi_at_angle(SEED000_HELIX, alpha), expected, atol=1e-12)
+    np.testing.assert_allclose(gain_dbi_at_angle(LIU2023_HELIX, alpha), expected, atol=1e-12)
 
 
-def test_parabolic_pattern_seed004_eq5():
+def test_parabolic_pattern_pimienta_penalver_eq5():
     # C = 12 dB with theta_3dB the full half-power beamwidth: -3 dB at theta_3dB / 2.
     theta = PARABOLIC.theta_3db_rad
     assert gain_dbi_at_angle(PARABOLIC, 0.0) == pytest.approx(11.6, abs=1e-12)
@@ -89,10 +89,10 @@ def test_tabulated_spline_passes_through_the_table_and_approximates_the_pattern(
     )
     alpha = np.linspace(0.0, TABULATED.max_off_boresight_rad, 301)
     np.testing.assert_allclose(
-        gain_dbi_at_angle(TABULATED, alpha), gain_dbi_at_angle(SEED000_HELIX, alpha), atol=2e-3
+        gain_dbi_at_angle(TABULATED, alpha), gain_dbi_at_angle(LIU2023_HELIX, alpha), atol=2e-3
     )
     assert TABULATED.max_off_boresight_rad == pytest.approx(math.radians(41.0))
-    assert TABULATED.peak_gain_dbi == pytest.approx(SEED000_HELIX.peak_gain_dbi)
+    assert TABULATED.peak_gain_dbi == pytest.approx(LIU2023_HELIX.peak_gain_dbi)
 
 
 def test_tabulated_gain_continues_along_its_tangent_beyond_the_table():

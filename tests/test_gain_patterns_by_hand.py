@@ -26,7 +26,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.gain_patterns import (
-    SEED000_HELIX,
+    LIU2023_HELIX,
     GainPattern,
     ParabolicPattern,
     TabulatedPattern,
@@ -87,7 +87,7 @@ def assert_pinned(pattern: GainPattern, alpha_deg: float, gain_dbi: float, slope
     ],
 )
 def test_helix_cos6_pattern_off_axis(alpha_deg: float, gain_dbi: float, slope: float) -> None:
-    assert_pinned(SEED000_HELIX, alpha_deg, gain_dbi, slope)
+    assert_pinned(LIU2023_HELIX, alpha_deg, gain_dbi, slope)
 
 
 NARROW_DISH = ParabolicPattern(

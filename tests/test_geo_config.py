@@ -138,7 +138,7 @@ OVERRIDES: dict[str, dict[str, Any]] = {
     "slew": {"attitude": {"slew_rate_deg_h": 11.0}},
     "manoeuvre": {"manoeuvre": [False, True], "attitude": {"manoeuvre": MANOEUVRE}},
     "methods": {"methods": ["cone", "nlse"]},
-    "filters": {"filters": ["mekf", "rts", "fg_online", "ekf_seed003"]},
+    "filters": {"filters": ["mekf", "rts", "fg_online", "ekf_yang2014"]},
     "filter_stations": {
         **FILTERS,
         "methods": ["cone"],
@@ -291,10 +291,10 @@ def check_methods() -> None:
 def check_filters() -> None:
     """Other pass estimators of the registry; one that cannot run here gives invalid rows."""
     frame = case("filters")
-    labels = ["lsq", "mekf", "rts", "fg_online", "ekf_seed003"]
+    labels = ["lsq", "mekf", "rts", "fg_online", "ekf_yang2014"]
     assert list(dict.fromkeys(frame["method"])) == labels
-    assert frame[frame["method"] != "ekf_seed003"]["valid"].all()
-    failed = method(frame, "ekf_seed003")
+    assert frame[frame["method"] != "ekf_yang2014"]["valid"].all()
+    failed = method(frame, "ekf_yang2014")
     assert not failed["valid"].any() and failed["reason"].str.contains("dynamics").all()
 
 

@@ -20,8 +20,8 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.gyro import (
     GYRO_MODELS,
+    LIU2023_GYRO,
     MEMS_GYRO,
-    SEED000_GYRO,
     GyroModel,
     attitude_increment,
     error_state_transition,
@@ -72,7 +72,7 @@ def blockwise_relative_error(q: np.ndarray, reference: np.ndarray) -> list[float
 # --- discretisation -------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("model", [SEED000_GYRO, MEMS_GYRO, TEST_GYRO], ids=lambda m: m.name)
+@pytest.mark.parametrize("model", [LIU2023_GYRO, MEMS_GYRO, TEST_GYRO], ids=lambda m: m.name)
 @pytest.mark.parametrize("dt", [0.1, 1.0, 10.0])
 def test_process_noise_is_van_loan_at_zero_rate(model, dt):
     """Exact for a non-rotating body: Q11 = sigma_v^2 dt + sigma_u^2 dt^3/3,
@@ -320,15 +320,15 @@ def test_gyro_model_rejects_bad_statistics(kwargs):
 # --- the documented models -----------------------------------------------------------------
 
 
-def test_seed000_gyro_is_the_seeds_numbers_in_si_units():
+def test_liu2023_gyro_is_the_papers_numbers_in_si_units():
     """Liu et al. 2023 sec. 5.1: sigma_v = sigma_u = 0.05 deg/s read as 0.05 deg/s^(1/2)
     and 0.05 deg/s^(3/2); 0.1 deg/s initial bias; 10 Hz."""
-    assert SEED000_GYRO.sigma_v == pytest.approx(8.726646259971648e-4, rel=1e-15)
-    assert SEED000_GYRO.sigma_u == pytest.approx(8.726646259971648e-4, rel=1e-15)
-    assert SEED000_GYRO.initial_bias_sigma == pytest.approx(1.7453292519943296e-3, rel=1e-15)
-    assert SEED000_GYRO.rate_hz == 10.0 and SEED000_GYRO.dt == pytest.approx(0.1)
+    assert LIU2023_GYRO.sigma_v == pytest.approx(8.726646259971648e-4, rel=1e-15)
+    assert LIU2023_GYRO.sigma_u == pytest.approx(8.726646259971648e-4, rel=1e-15)
+    assert LIU2023_GYRO.initial_bias_sigma == pytest.approx(1.7453292519943296e-3, rel=1e-15)
+    assert LIU2023_GYRO.rate_hz == 10.0 and LIU2023_GYRO.dt == pytest.approx(0.1)
     # "the bias wanders by 0.05 sqrt(3600) = 3 deg/s per axis in an hour"
-    assert math.degrees(SEED000_GYRO.sigma_u * math.sqrt(3600.0)) == pytest.approx(3.0, rel=1e-12)
+    assert math.degrees(LIU2023_GYRO.sigma_u * math.sqrt(3600.0)) == pytest.approx(3.0, rel=1e-12)
 
 
 def test_mems_gyro_is_the_documented_mems_class():
@@ -348,4 +348,4 @@ def test_mems_gyro_is_the_documented_mems_class():
 
 
 def test_gyro_registry():
-    assert GYRO_MODELS == {"seed000": SEED000_GYRO, "mems": MEMS_GYRO}
+    assert GYRO_MODELS == {"liu2023": LIU2023_GYRO, "mems": MEMS_GYRO}

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.link_budget import (
     LinkBudget,
     free_space_loss_db,
@@ -61,7 +61,7 @@ def test_boresight_snr_is_plausible(distance_km, expected_db):
         boresight,
         budget.isotropic_power_dbw(distance_km * 1e3),
         budget.noise_power_dbw,
-        SEED000_HELIX,
+        LIU2023_HELIX,
     )
     print(f"boresight SNR at {distance_km:.0f} km: {snr[0]:.2f} dB")
     assert snr[0] == pytest.approx(expected_db, abs=1e-4)

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from attopt.formulations.doa_array import (
-    SEED003_UCA,
+    YANG2014_UCA,
     doa_unit_vector,
     simulate_sample_covariance,
     simulate_snapshots,
@@ -22,7 +22,7 @@ from attopt.formulations.errors import InvalidObservationError, UnobservableErro
 from attopt.solvers.doa import MusicEstimator
 
 MUSIC = MusicEstimator()
-M = SEED003_UCA.n_elements
+M = YANG2014_UCA.n_elements
 
 
 def wrapped(angle: np.ndarray) -> np.ndarray:
@@ -80,8 +80,8 @@ def test_agrees_with_pyroomacoustics_music() -> None:
     on a 1-degree (azimuth x colatitude) grid: its peak lies within 0.75 deg
     (great circle; half a grid cell's diagonal is 0.71 deg) of ours."""
     c = 299792458.0
-    fs = 2.0 * c / SEED003_UCA.wavelength_m
-    positions = (SEED003_UCA.radius_m * SEED003_UCA.element_directions).T
+    fs = 2.0 * c / YANG2014_UCA.wavelength_m
+    positions = (YANG2014_UCA.radius_m * YANG2014_UCA.element_directions).T
     reference = pra.doa.algorithms["MUSIC"](
         positions,
         fs,
@@ -177,7 +177,7 @@ def test_ambiguous_peaks_are_rejected_not_reported() -> None:
     result = MUSIC.estimate(simulate_snapshots(theta, phi, -14.0, 100, rng))
     truth = doa_unit_vector(theta, phi)[result.valid, :2]
     estimate = doa_unit_vector(result.theta, result.phi)[result.valid, :2]
-    outside = np.linalg.norm(estimate - truth, axis=1) > SEED003_UCA.first_null_radius / 2
+    outside = np.linalg.norm(estimate - truth, axis=1) > YANG2014_UCA.first_null_radius / 2
     assert result.valid.sum() > 50
     assert outside.mean() <= 0.01
 
@@ -247,7 +247,7 @@ def test_grid_peaks_equal_the_neighbour_gather_reference() -> None:
         np.testing.assert_array_equal(main, expected_main)
         np.testing.assert_array_equal(second, expected_second)
     lobe = np.linalg.norm(MUSIC.grid[main][:, None] - MUSIC.grid, axis=-1)
-    outside = lobe > SEED003_UCA.first_null_radius
+    outside = lobe > YANG2014_UCA.first_null_radius
     highest_outside = np.argmax(np.where(outside, slopes, -np.inf), axis=1)
     assert ((second != highest_outside) & (second != main)).any()
     assert (second == main).any()

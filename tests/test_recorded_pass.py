@@ -36,7 +36,7 @@ from attopt.experiments.sweep.seeding import trial_seed
 from attopt.experiments.wahba_mag_sun import experiment as wahba
 from attopt.formulations.doa_measurement import DoaMeasurement
 from attopt.formulations.gain_patterns import (
-    SEED000_HELIX,
+    LIU2023_HELIX,
     AntennaPatterns,
     ParabolicPattern,
     TabulatedPattern,
@@ -52,10 +52,10 @@ TRUTH = Rotation.from_rotvec(
 )
 ANTENNAS = (
     AntennaEntry(
-        name="helix 1", boresight_body=(0.0, 0.77, 0.64), pattern=pattern_entry(SEED000_HELIX)
+        name="helix 1", boresight_body=(0.0, 0.77, 0.64), pattern=pattern_entry(LIU2023_HELIX)
     ),
     AntennaEntry(
-        name="helix 2", boresight_body=(0.0, -0.77, 0.64), pattern=pattern_entry(SEED000_HELIX)
+        name="helix 2", boresight_body=(0.0, -0.77, 0.64), pattern=pattern_entry(LIU2023_HELIX)
     ),
     AntennaEntry(
         name="dish",

@@ -370,15 +370,15 @@ def test_registry_estimators() -> None:
         "fg_online",
         "fg_batch",
         "fg_batch_offsets",
-        "ekf_seed003",
-        "rts_seed003",
-        "bls_seed003",
+        "ekf_yang2014",
+        "rts_yang2014",
+        "bls_yang2014",
     ]
     starts = {
         e.name: e.starts_from for package in (filters, smoother, doa) for e in package.ESTIMATORS
     }
-    assert starts["rts"] == ("mekf",) and starts["rts_seed003"] == ("ekf_seed003",)
-    assert starts["bls_seed003"] == ("rts_seed003",) and starts["fg_online"] == ()
+    assert starts["rts"] == ("mekf",) and starts["rts_yang2014"] == ("ekf_yang2014",)
+    assert starts["bls_yang2014"] == ("rts_yang2014",) and starts["fg_online"] == ()
     assert starts["fg_batch"] == starts["fg_batch_offsets"] == ("fg_online", "rts")
     for package in (filters, smoother, doa):
         for estimator in package.ESTIMATORS:

@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import EulerAngleMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.gyro import GyroModel, GyroSamples, attitude_increment, simulate_gyro
 from attopt.formulations.passes import Prior
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -172,7 +172,7 @@ def _snr_measurement(rng: np.random.Generator, truth: Rotation = TRUTH) -> SnrMe
         antenna,
         BORESIGHTS,
         ranges,
-        SEED000_HELIX,
+        LIU2023_HELIX,
         BUDGET,
     )
     return SnrMeasurement(epoch, truncated=True)

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import ReferencedMeasurement
 from attopt.formulations.errors import InvalidObservationError, UnsupportedMeasurementError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.gyro import GyroModel, simulate_gyro
 from attopt.formulations.snr_measurement import SnrMeasurement, truncated_mean_slope
 from attopt.formulations.snr_problem import SnrEpoch
@@ -57,7 +57,7 @@ def _epoch(
         antenna,
         BORESIGHTS,
         ranges,
-        SEED000_HELIX,
+        LIU2023_HELIX,
         BUDGET,
         sigma_db=sigma,
         threshold_db=-100.0,

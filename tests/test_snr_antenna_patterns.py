@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gain_patterns import (
-    SEED000_HELIX,
+    LIU2023_HELIX,
     AntennaPatterns,
     ParabolicPattern,
     shared_pattern,
@@ -52,7 +52,7 @@ BORESIGHTS = np.array(
     ]
 )
 """Two cross-track antennas (Liu et al. 2023 Fig. 7) and a third tilted along-track."""
-PATTERNS = (SEED000_HELIX, PARABOLIC, TABULATED)
+PATTERNS = (LIU2023_HELIX, PARABOLIC, TABULATED)
 """Antenna ``i`` has ``PATTERNS[i]``."""
 BUDGET = LinkBudget()
 TRUTH = attitude_from_euler321(*np.radians([25.0, -6.0, 8.0]))
@@ -158,7 +158,7 @@ def test_per_antenna_jacobian_is_finite_where_another_pattern_is_undefined():
     cos^6 helix on the other antenna is NaN: values and AD Jacobian stay finite and match
     central differences."""
     wide = ParabolicPattern(10.0, math.radians(100.0), min_gain_dbi=0.0)  # lobe to 91.3 deg
-    patterns = AntennaPatterns((SEED000_HELIX, wide))
+    patterns = AntennaPatterns((LIU2023_HELIX, wide))
     boresight = BORESIGHTS[[0, 1, 1, 0]]
     alpha = np.radians([10.0, 91.0, 30.0, 35.0])
     los = TRUTH.inv().apply(_directions_at(boresight, alpha, np.linspace(0.4, 4.0, 4)))
@@ -186,9 +186,9 @@ def test_per_antenna_jacobian_is_finite_where_another_pattern_is_undefined():
 
 
 def test_each_observation_is_masked_at_its_own_antennas_lobe_edge():
-    patterns = AntennaPatterns((SEED000_HELIX, PARABOLIC))
+    patterns = AntennaPatterns((LIU2023_HELIX, PARABOLIC))
     helix_edge, parabolic_edge = (
-        SEED000_HELIX.max_off_boresight_rad,
+        LIU2023_HELIX.max_off_boresight_rad,
         PARABOLIC.max_off_boresight_rad,
     )
     assert parabolic_edge < helix_edge
@@ -206,13 +206,13 @@ def test_each_observation_is_masked_at_its_own_antennas_lobe_edge():
 
 def test_antennas_that_share_a_pattern_are_the_single_pattern_epoch_bitwise():
     rng = np.random.default_rng(2)
-    los, antenna, ranges, snr = _geometry(rng, TRUTH, (6, 6, 6), (SEED000_HELIX,) * 3)
+    los, antenna, ranges, snr = _geometry(rng, TRUTH, (6, 6, 6), (LIU2023_HELIX,) * 3)
     noisy = snr + rng.standard_normal(snr.size)
     single, shared = (
         SnrEpoch.from_ranges(noisy, los, antenna, BORESIGHTS, ranges, pattern, BUDGET)
-        for pattern in (SEED000_HELIX, [SEED000_HELIX] * 3)
+        for pattern in (LIU2023_HELIX, [LIU2023_HELIX] * 3)
     )
-    assert shared.pattern is SEED000_HELIX and shared.pattern_antenna is None
+    assert shared.pattern is LIU2023_HELIX and shared.pattern_antenna is None
     assert shared_pattern([PARABOLIC, replace(PARABOLIC)]) == PARABOLIC
     for name in ("deterministic", "nlse", "nlp", "nlp_truncated"):
         one, other = (

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.snr_model import (
     cramer_rao_bound,
     fisher_information,
@@ -64,8 +64,8 @@ def test_line_of_sight_points_from_satellite_to_aircraft():
     los, distance = line_of_sight([0.0, 0.0, 0.0], [0.0, 0.0, 600.0])
     np.testing.assert_array_equal(los, [0.0, 0.0, 1.0])
     assert distance == 600.0
-    snr = snr_db(np.eye(3), los[None], [[0.0, 0.0, 1.0]], -130.0, -137.0, SEED000_HELIX)
-    assert snr[0] == pytest.approx(SEED000_HELIX.peak_gain_dbi + 7.0)
+    snr = snr_db(np.eye(3), los[None], [[0.0, 0.0, 1.0]], -130.0, -137.0, LIU2023_HELIX)
+    assert snr[0] == pytest.approx(LIU2023_HELIX.peak_gain_dbi + 7.0)
     with pytest.raises(InvalidObservationError):
         line_of_sight([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
 
@@ -212,7 +212,7 @@ def test_predict_snr_jacobian_is_with_respect_to_body_rotation_vector(name):
 def test_predict_snr_batches_epochs():
     rng = np.random.default_rng(5)
     truths = Rotation.random(4, random_state=6)
-    pattern = SEED000_HELIX
+    pattern = LIU2023_HELIX
     scenes = [_scenario(rng, truths[k], pattern, 5) for k in range(4)]
     los, boresight, p0, noise = (np.stack(x) for x in zip(*scenes, strict=True))
     snr, jac = predict_snr(truths, los, boresight, p0, noise[:, None], pattern)
@@ -240,9 +240,9 @@ def test_noise_free_measurements_have_zero_residual_at_the_truth(name):
 
 def _crb_for(antennas, m=30, seed=8):
     los, boresight, p0, noise = _scenario(
-        np.random.default_rng(seed), TRUTH, SEED000_HELIX, m, antennas=antennas
+        np.random.default_rng(seed), TRUTH, LIU2023_HELIX, m, antennas=antennas
     )
-    _, jac = predict_snr(TRUTH, los, boresight, p0, noise, SEED000_HELIX)
+    _, jac = predict_snr(TRUTH, los, boresight, p0, noise, LIU2023_HELIX)
     fisher = fisher_information(jac, sigma_db=1.0)
     return fisher, cramer_rao_bound(fisher)
 
@@ -303,35 +303,35 @@ def test_fisher_information_weights_and_mask():
     ],
 )
 def test_invalid_observations_raise_and_are_masked(corrupt, message):
-    los, boresight, p0, noise = _scenario(np.random.default_rng(9), TRUTH, SEED000_HELIX, 4)
-    clean = predict_snr(TRUTH, los, boresight, p0, noise, SEED000_HELIX)
+    los, boresight, p0, noise = _scenario(np.random.default_rng(9), TRUTH, LIU2023_HELIX, 4)
+    clean = predict_snr(TRUTH, los, boresight, p0, noise, LIU2023_HELIX)
     corrupt(los, boresight)
     with pytest.raises(InvalidObservationError, match=message):
-        snr_db(TRUTH.as_matrix(), los, boresight, p0, noise, SEED000_HELIX)
+        snr_db(TRUTH.as_matrix(), los, boresight, p0, noise, LIU2023_HELIX)
     with pytest.raises(InvalidObservationError, match=message):
-        predict_snr(TRUTH, los, boresight, p0, noise, SEED000_HELIX)
-    mask = observation_mask(TRUTH.as_matrix(), los, boresight, SEED000_HELIX)
+        predict_snr(TRUTH, los, boresight, p0, noise, LIU2023_HELIX)
+    mask = observation_mask(TRUTH.as_matrix(), los, boresight, LIU2023_HELIX)
     np.testing.assert_array_equal(mask, [True, False, True, True])
-    snr, jac = predict_snr(TRUTH, los, boresight, p0, noise, SEED000_HELIX, mask=mask)
+    snr, jac = predict_snr(TRUTH, los, boresight, p0, noise, LIU2023_HELIX, mask=mask)
     assert np.all(np.isnan(snr[1])) and np.all(np.isnan(jac[1]))
     np.testing.assert_allclose(snr[mask], clean[0][mask], atol=1e-12)
     np.testing.assert_allclose(jac[mask], clean[1][mask], atol=1e-12)
 
 
 def test_invalid_attitude_power_and_shapes_raise():
-    los, boresight, p0, noise = _scenario(np.random.default_rng(10), TRUTH, SEED000_HELIX, 3)
+    los, boresight, p0, noise = _scenario(np.random.default_rng(10), TRUTH, LIU2023_HELIX, 3)
     with pytest.raises(InvalidObservationError, match="attitude"):
-        snr_db(2 * np.eye(3), los, boresight, p0, noise, SEED000_HELIX)
+        snr_db(2 * np.eye(3), los, boresight, p0, noise, LIU2023_HELIX)
     with pytest.raises(InvalidObservationError, match="attitude"):
-        snr_db(-TRUTH.as_matrix(), los, boresight, p0, noise, SEED000_HELIX)
+        snr_db(-TRUTH.as_matrix(), los, boresight, p0, noise, LIU2023_HELIX)
     with pytest.raises(InvalidObservationError, match="power"):
-        snr_db(TRUTH.as_matrix(), los, boresight, p0, np.nan, SEED000_HELIX)
+        snr_db(TRUTH.as_matrix(), los, boresight, p0, np.nan, LIU2023_HELIX)
     with pytest.raises(InvalidObservationError, match="shape"):
-        snr_db(TRUTH.as_matrix(), los[:, :2], boresight, p0, noise, SEED000_HELIX)
+        snr_db(TRUTH.as_matrix(), los[:, :2], boresight, p0, noise, LIU2023_HELIX)
 
 
 def test_observation_mask_at_the_lobe_edge():
-    edge = SEED000_HELIX.max_off_boresight_rad
+    edge = LIU2023_HELIX.max_off_boresight_rad
     los, boresight, _, _ = _at_angles([edge - 1e-9, edge + 1e-9, 0.0], ANTENNAS[:1])
-    mask = observation_mask(TRUTH.as_matrix(), los, boresight, SEED000_HELIX)
+    mask = observation_mask(TRUTH.as_matrix(), los, boresight, LIU2023_HELIX)
     np.testing.assert_array_equal(mask, [True, False, True])

@@ -26,7 +26,7 @@ from attopt.formulations.errors import (
     UnobservableError,
     UnsupportedMeasurementError,
 )
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.passes import Prior
 from attopt.formulations.snapshot import Snapshot
@@ -63,7 +63,7 @@ ONE_STEP = ["nlse", "nlp"]
 SOLVERS = {solver.name: solver for solver in ESTIMATORS}
 
 
-def _geometry(rng, truth, per_antenna=(10, 10), pattern=SEED000_HELIX, min_snr=10.0, inner=0.0):
+def _geometry(rng, truth, per_antenna=(10, 10), pattern=LIU2023_HELIX, min_snr=10.0, inner=0.0):
     """Noise-free observations: (los, antenna, range_m, true snr, Jacobian at the truth).
 
     Directions are uniform over the part of each main lobe (beyond ``inner``
@@ -105,7 +105,7 @@ def _geometry(rng, truth, per_antenna=(10, 10), pattern=SEED000_HELIX, min_snr=1
     return los, antenna, ranges, snr, jac
 
 
-def _epoch(geometry, snr=None, pattern=SEED000_HELIX, **kwargs) -> SnrEpoch:
+def _epoch(geometry, snr=None, pattern=LIU2023_HELIX, **kwargs) -> SnrEpoch:
     los, antenna, ranges, true_snr, _ = geometry
     y = true_snr if snr is None else snr
     return SnrEpoch.from_ranges(y, los, antenna, BORESIGHTS, ranges, pattern, BUDGET, **kwargs)
@@ -137,7 +137,7 @@ def test_euler321_matrix_is_conventions_attitude_from_euler321():
 def test_euler_ad_jacobian_matches_central_differences():
     rng = np.random.default_rng(1)
     los, antenna, ranges, _, _ = _geometry(rng, TRUTH, (4, 3))
-    f = snr_euler_jacobian_function(SEED000_HELIX, len(los))
+    f = snr_euler_jacobian_function(LIU2023_HELIX, len(los))
     args = (los, BORESIGHTS[antenna], BUDGET.isotropic_power_dbw(ranges), BUDGET.noise_power_dbw)
     z = np.radians([10.0, -4.0, 6.0]) + 0.02
     _, jac = f(z, *args)
@@ -172,12 +172,12 @@ def test_padded_nlp_objective_is_the_eq19_loss():
         problem.boresight_rows,
         problem.p0_dbw,
         problem.noise_dbw,
-        SEED000_HELIX,
+        LIU2023_HELIX,
     )
     expected = 0.5 * np.sum((problem.snr_db - predicted) ** 2 / problem.sigma_db**2)
     padded = pad_epoch(problem, start.as_matrix())
     assert padded.size == 16
-    solver = nlp_solver(SEED000_HELIX, padded.size, IpoptOptions(max_iter=0))
+    solver = nlp_solver(LIU2023_HELIX, padded.size, IpoptOptions(max_iter=0))
     result = solver(x0=np.zeros(3), p=parameter_vector(padded, start.as_matrix()))
     assert float(result["f"]) == pytest.approx(expected, rel=1e-12)
     assert snr_loss(problem.snr_db, predicted, problem.weights) == pytest.approx(
@@ -188,13 +188,13 @@ def test_padded_nlp_objective_is_the_eq19_loss():
 
 def test_nlp_is_built_once_per_size_class_and_pickles():
     options = IpoptOptions()
-    assert nlp_solver(SEED000_HELIX, 16, options) is nlp_solver(SEED000_HELIX, 16, options)
+    assert nlp_solver(LIU2023_HELIX, 16, options) is nlp_solver(LIU2023_HELIX, 16, options)
     rng = np.random.default_rng(3)
     geometry = _geometry(rng, TRUTH, (5, 5))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=10))
     padded = pad_epoch(problem, TRUTH.as_matrix())
     p = parameter_vector(padded, TRUTH.as_matrix())
-    solver = nlp_solver(SEED000_HELIX, padded.size, options)
+    solver = nlp_solver(LIU2023_HELIX, padded.size, options)
     copy = pickle.loads(pickle.dumps(solver))
     np.testing.assert_allclose(
         copy(x0=np.zeros(3), p=p)["x"].full(), solver(x0=np.zeros(3), p=p)["x"].full(), atol=1e-12
@@ -311,7 +311,7 @@ def test_nlse_covariance_is_eq22_in_euler_angles_mapped_to_the_body_frame():
     problem = _epoch(geometry, geometry[3] + rng.normal(size=16))
     solution = SOLVERS["nlse"].solve(_snapshot(problem))
     z = solution.attitude.inv().as_euler("ZYX")
-    f = snr_euler_jacobian_function(SEED000_HELIX, problem.m)
+    f = snr_euler_jacobian_function(LIU2023_HELIX, problem.m)
     _, jac_z = f(z, problem.unit_los, problem.boresight_rows, problem.p0_dbw, problem.noise_dbw)
     r_z = np.linalg.inv(jac_z.full().T @ jac_z.full())  # eq. 22 with C = I (sigma = 1 dB)
     h = 1e-6
@@ -383,7 +383,7 @@ def test_warm_start_reduces_ipopt_iterations_on_a_slowly_moving_sequence(sigma_d
             BORESIGHTS[base[1]],
             BUDGET.isotropic_power_dbw(base[2]),
             BUDGET.noise_power_dbw,
-            SEED000_HELIX,
+            LIU2023_HELIX,
         )
         noisy = snr + sigma_db * rng.normal(size=20)
         problems.append(_epoch((los, base[1], base[2], snr, None), noisy))
@@ -476,7 +476,7 @@ def _bad_cases():
             kwargs.pop("antenna", antenna),
             kwargs.pop("bores", BORESIGHTS),
             a["ranges"],
-            SEED000_HELIX,
+            LIU2023_HELIX,
             BUDGET,
             **kwargs,
         )
@@ -512,7 +512,7 @@ def _bad_cases():
         ),
         "two observations": (
             SnrEpoch.from_ranges(
-                snr[:2], los[:2], antenna[:2], BORESIGHTS, ranges[:2], SEED000_HELIX
+                snr[:2], los[:2], antenna[:2], BORESIGHTS, ranges[:2], LIU2023_HELIX
             ),
             UnobservableError,
             "at least 3",
@@ -551,7 +551,7 @@ def test_malformed_input_raises_on_construction():
         boresights_body=BORESIGHTS,
         p0_dbw=np.full(4, -130.0),
         noise_dbw=-137.0,
-        pattern=SEED000_HELIX,
+        pattern=LIU2023_HELIX,
     )
     SnrEpoch(**args)
     for key, value in [
@@ -607,8 +607,8 @@ def test_an_unused_antenna_does_not_affect_the_epoch():
     rng = np.random.default_rng(21)
     los, antenna, ranges, snr, _ = _geometry(rng, TRUTH, (6, 6))
     bores = np.vstack([[np.nan, np.nan, np.nan], BORESIGHTS])
-    problem = SnrEpoch.from_ranges(snr, los, antenna + 1, bores, ranges, SEED000_HELIX, BUDGET)
-    without = SnrEpoch.from_ranges(snr, los, antenna, BORESIGHTS, ranges, SEED000_HELIX, BUDGET)
+    problem = SnrEpoch.from_ranges(snr, los, antenna + 1, bores, ranges, LIU2023_HELIX, BUDGET)
+    without = SnrEpoch.from_ranges(snr, los, antenna, BORESIGHTS, ranges, LIU2023_HELIX, BUDGET)
     for name, solver in SOLVERS.items():
         solution = solver.solve(_snapshot(problem))
         assert _error(solution, solver.solve(_snapshot(without)).attitude) < 1e-8, name

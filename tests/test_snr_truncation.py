@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import truncnorm
 
 from attopt.formulations.conventions import attitude_error
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.snr_model import cramer_rao_bound
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
 from attopt.formulations.snr_truncation import (
@@ -63,7 +63,7 @@ def _near_threshold_epoch(rng, true_snr, per_antenna=(20, 20), **kwargs):
             boresights_body=BORESIGHTS,
             p0_dbw=p0,
             noise_dbw=BUDGET.noise_power_dbw,
-            pattern=SEED000_HELIX,
+            pattern=LIU2023_HELIX,
             **kwargs,
         )
 
@@ -179,7 +179,7 @@ def test_truncated_nlp_objective_gradient_matches_finite_differences():
     a_ref = start.as_matrix()
     padded = pad_epoch(problem, a_ref)
     assert padded.size == 32  # 10 padding rows, which must add nothing
-    solver = nlp_solver(SEED000_HELIX, padded.size, IpoptOptions(), "truncated_ml")
+    solver = nlp_solver(LIU2023_HELIX, padded.size, IpoptOptions(), "truncated_ml")
     p = parameter_vector(padded, a_ref, problem.threshold_db)
     loss, gradient = solver.get_function("nlp_grad_f")(np.zeros(3), p)
     predicted, _ = model_at(problem, start)

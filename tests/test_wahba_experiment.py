@@ -170,7 +170,7 @@ def test_single_frame_rows_do_not_depend_on_the_filters(replay):
     [
         ({"filters": ["mekf", "ukf"]}, "unknown filters"),
         ({"filters": ["mekf", "mekf"]}, "unique"),
-        ({"gyro": "fog"}, "'fog': Input should be 'seed000' or 'mems'"),
+        ({"gyro": "fog"}, "'fog': Input should be 'liu2023' or 'mems'"),
         ({"initial_sigma_deg": 0.0}, "initial_sigma_deg"),
     ],
 )

@@ -153,7 +153,7 @@ from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.registry import estimator
 from attopt.solvers.results import AXES, Track, observable_sigma
 from attopt.solvers.smoother import OFFSET_PRIOR_SIGMA_DB
-from attopt.solvers.snr.deterministic import SEED000_MIN_PER_ANTENNA
+from attopt.solvers.snr.deterministic import LIU2023_MIN_PER_ANTENNA
 from attopt.solvers.snr.driver import SnrSolver, snr_epoch
 from attopt.solvers.snr.initialisation import StartSource
 from attopt.solvers.snr.padding import bucket_size
@@ -186,7 +186,7 @@ class AdsbSnrParameters(AdsbScenario):
         description="Single-frame SNR solvers (registry names).",
     )
     deterministic_min_per_antenna: int = Field(
-        SEED000_MIN_PER_ANTENNA,
+        LIU2023_MIN_PER_ANTENNA,
         ge=2,
         description="Messages an antenna needs to enter the two-step method.",
     )
@@ -195,7 +195,7 @@ class AdsbSnrParameters(AdsbScenario):
         description="Filters and smoothers (row labels).",
     )
     gyros: list[Gyro] = Field(
-        default_factory=lambda: ["seed000", "mems"],
+        default_factory=lambda: ["liu2023", "mems"],
         description="Gyros, each a preset name or a table of its numbers.",
     )
     initial_sigma_deg: float = Field(

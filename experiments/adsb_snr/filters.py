@@ -2,7 +2,7 @@
 
 On the same measured SNRs as the single-frame methods, with a simulated
 rate-integrating gyro (:mod:`attopt.formulations.gyro`) per entry of the
-``gyros`` parameter (a preset, ``seed000``: Liu et al. 2023 sec. 5.1 read
+``gyros`` parameter (a preset, ``liu2023``: Liu et al. 2023 sec. 5.1 read
 literally, 10 Hz; ``mems``: a MEMS-class unit; or a table of a gyro's numbers,
 :class:`attopt.experiments.config.components.GyroNumbers`, labelled by its
 ``name``; all of one rate), the pass estimators of the registry that accept

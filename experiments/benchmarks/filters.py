@@ -138,7 +138,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--out", type=Path, default=None, help="keep the rows here")
     args = parser.parse_args()
-    gyros = args.gyro or ["seed000", "mems"]
+    gyros = args.gyro or ["liu2023", "mems"]
     with tempfile.TemporaryDirectory() as scratch:
         out = args.out or Path(scratch) / "bench_filters"
         results = run(args.trials, args.duration, gyros, args.workers, out)

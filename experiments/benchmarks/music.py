@@ -36,7 +36,7 @@ import numpy as np
 import pyroomacoustics as pra
 
 from attopt.formulations.doa_array import (
-    SEED003_UCA,
+    YANG2014_UCA,
     simulate_sample_covariance,
     simulate_snapshots,
 )
@@ -48,7 +48,7 @@ SNR_SWEEP_DB = (-14.0, -12.0, -10.0, -8.0, -6.0, -2.0, 0.0, 14.0)
 SNAPSHOT_SWEEP = (1, 10, 20, 50, 100, 1000)
 CHUNK_ELEMENTS = 1 << 22
 """Complex snapshot samples simulated and estimated at once in the pass timing (64 MB)."""
-SEED003_TABLE1 = {  # SNR dB -> RMSE of theta, phi (deg), L = 100
+YANG2014_TABLE1 = {  # SNR dB -> RMSE of theta, phi (deg), L = 100
     -14.0: (11.118, 68.128),
     -12.0: (4.106, 17.337),
     -10.0: (1.518, 1.307),
@@ -58,7 +58,7 @@ SEED003_TABLE1 = {  # SNR dB -> RMSE of theta, phi (deg), L = 100
     0.0: (0.315, 0.308),
     14.0: (0.287, 0.289),
 }
-SEED003_TABLE2 = {  # L -> RMSE of theta, phi (deg), SNR 0 dB
+YANG2014_TABLE2 = {  # L -> RMSE of theta, phi (deg), SNR 0 dB
     1: (8.354, 51.089),
     10: (0.781, 0.684),
     20: (0.408, 0.385),
@@ -75,7 +75,7 @@ class AccuracyRow:
     accepted: float
     rmse_deg: tuple[float, float]
     crb_deg: tuple[float, float]
-    seed003_deg: tuple[float, float]
+    yang2014_deg: tuple[float, float]
     batch_ms: float
 
 
@@ -113,9 +113,9 @@ def accuracy(
     )
     rmse = np.degrees(np.sqrt(np.mean(errors**2, axis=0))) if ok.any() else np.full(2, np.nan)
     crb = np.degrees(np.sqrt(np.diag(stochastic_crb(THETA, PHI, 10 ** (snr_db / 10), n_snapshots))))
-    seed003 = SEED003_TABLE1[snr_db] if n_snapshots == 100 else SEED003_TABLE2[n_snapshots]
+    yang2014 = YANG2014_TABLE1[snr_db] if n_snapshots == 100 else YANG2014_TABLE2[n_snapshots]
     return AccuracyRow(
-        snr_db, n_snapshots, float(ok.mean()), tuple(rmse), tuple(crb), seed003, batch_ms
+        snr_db, n_snapshots, float(ok.mean()), tuple(rmse), tuple(crb), yang2014, batch_ms
     )
 
 
@@ -134,7 +134,7 @@ def single_call_costs(estimator: MusicEstimator, seed: int) -> dict[str, float]:
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(99,)))
     x = simulate_snapshots(THETA, PHI, 0.0, 100, rng)
     covariance = x @ x.conj().T / x.shape[1]
-    array = SEED003_UCA
+    array = YANG2014_UCA
     c = 299792458.0
     reference = pra.doa.algorithms["MUSIC"](
         (array.radius_m * array.element_directions).T,
@@ -172,7 +172,7 @@ def pass_costs(estimator: MusicEstimator, sets: int, seed: int) -> list[str]:
         estimator.estimate_covariance(drawn, n_snapshots, snr_db=snr_db)
 
     def snapshot_path(n_snapshots: int) -> None:
-        chunk = max(1, CHUNK_ELEMENTS // (SEED003_UCA.n_elements * n_snapshots))
+        chunk = max(1, CHUNK_ELEMENTS // (YANG2014_UCA.n_elements * n_snapshots))
         for start in range(0, sets, chunk):
             rows = slice(start, start + chunk)
             x = simulate_snapshots(theta[rows], phi[rows], snr_db, n_snapshots, rng)
@@ -207,7 +207,7 @@ def format_rows(rows: list[AccuracyRow]) -> list[str]:
             f"| {r.snr_db:g} | {r.n_snapshots} | {r.accepted:.3f} | "
             f"{r.rmse_deg[0]:.4f} / {r.crb_deg[0]:.4f} | {ratios[0]:.2f} | "
             f"{r.rmse_deg[1]:.4f} / {r.crb_deg[1]:.4f} | {ratios[1]:.2f} | "
-            f"{r.seed003_deg[0]}, {r.seed003_deg[1]} | {r.batch_ms:.3f} |"
+            f"{r.yang2014_deg[0]}, {r.yang2014_deg[1]} | {r.batch_ms:.3f} |"
         )
     return lines
 

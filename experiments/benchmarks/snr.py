@@ -26,7 +26,7 @@ from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_table
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import AttoptError
-from attopt.formulations.gain_patterns import SEED000_HELIX
+from attopt.formulations.gain_patterns import LIU2023_HELIX
 from attopt.formulations.link_budget import LinkBudget
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
@@ -55,7 +55,7 @@ class BenchRow:
 def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
     """Scenario epochs with ``OBSERVATIONS`` received messages each, and their true attitudes."""
     geometry = build_adsb_geometry(AdsbScenario(duration_s=float(n_epochs)))
-    table = observation_table(geometry, np.degrees(SEED000_HELIX.max_off_boresight_rad))
+    table = observation_table(geometry, np.degrees(LIU2023_HELIX.max_off_boresight_rad))
     boresights = geometry.boresights_body
     rng = np.random.default_rng(seed)
     budget = LinkBudget()
@@ -70,7 +70,7 @@ def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
             boresights[rows.antenna],
             p0,
             budget.noise_power_dbw,
-            SEED000_HELIX,
+            LIU2023_HELIX,
         )
         snr = snr + SNR_SIGMA_DB * rng.normal(size=snr.shape)
         received = snr >= RECEPTION_THRESHOLD_DB
@@ -84,7 +84,7 @@ def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
                 rows.antenna[pick],
                 boresights,
                 rows.range_m[pick],
-                SEED000_HELIX,
+                LIU2023_HELIX,
                 budget,
             )
         )

@@ -23,7 +23,7 @@ the same DOAs (each row label names a registry estimator with its options,
    filters propagate.  Unit vectors ``S_dr`` (eq. 12) against ``S_o`` (eq.
    17, far field) with ``R_W = sigma^2 E``, ``sigma^2 = tr(J Sigma J^T) / 2``
    from MUSIC's covariance ``Sigma`` (:func:`unit_vector_observations`).
-2. ``ekf_seed003_q<Q>``: the EKF of Yang et al. 2014 (:mod:`attopt.solvers.doa.ekf`,
+2. ``ekf_yang2014_q<Q>``: the EKF of Yang et al. 2014 (:mod:`attopt.solvers.doa.ekf`,
    rigid-body dynamics of the ``[attitude]`` table, no gyro) over all epochs from the
    ``[prior]``'s initial estimate (default the paper's initial condition, 50 deg Euler
    angles, 0.5 deg/s rates; :mod:`attopt.experiments.doa_ground.scenario` explains that
@@ -31,7 +31,7 @@ the same DOAs (each row label names a registry estimator with its options,
    ``Q = q E_6`` in ``process_noise``: the paper's printed 1e-9 and
    :data:`LOW_PROCESS_NOISE` (1e-12), with which our EKF reproduces the paper's
    attitude RMSEs (docs/doa.md).
-3. ``rts_seed003_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
+3. ``rts_yang2014_q<Q>``: the Rauch-Tung-Striebel smoother over that EKF (same
    model, same data; :func:`attopt.solvers.filters.rts.rts_smooth`).  The EKF
    and RTS rows carry ``pbound_{x,y,z}_deg``, the posterior Cramer-Rao bound of that model
    (filter and smoother) linearised along the truth, with the DOA CRB at the
@@ -43,7 +43,7 @@ the same DOAs (each row label names a registry estimator with its options,
 4. ``wahba``: the single-epoch SVD solution of Wahba's problem
    (registry ``svd``) wherever at least two accepted DOAs
    exist (about 5 % of the pass), with the single-epoch CRB ``bound_*``.
-5. ``bls_seed003`` (:func:`~attopt.experiments.doa_ground.methods.batch_ls_estimator`),
+5. ``bls_yang2014`` (:func:`~attopt.experiments.doa_ground.methods.batch_ls_estimator`),
    in the first ``filter_trials`` trials of each setting
    (:func:`attopt.experiments.sweep.seeding.trial_index`): the whole-pass batch
    least squares over the paper's deterministic dynamics

@@ -33,16 +33,16 @@ a ``doa`` table would add a DOA measurement of the same stations to each epoch.
 default options, each from the start it finds among those asked for, so it
 reproduces the trial's rows (at the rows' epochs, every ``row_step_s``) of
 
-* ``ekf_seed003`` and ``rts_seed003`` (estimated together): the rows
-  ``ekf_seed003_q1e-09`` and ``rts_seed003_q1e-09``, the registry's default
+* ``ekf_yang2014`` and ``rts_yang2014`` (estimated together): the rows
+  ``ekf_yang2014_q1e-09`` and ``rts_yang2014_q1e-09``, the registry's default
   ``Q = 1e-9 E_6`` (Yang et al. 2014's); the rows of another ``process_noise``
   need an option ``attopt estimate`` does not pass;
 * the gyro-aided filters that start from the prior: ``mekf``, ``usque``, and
   ``rts`` estimated together with ``mekf``.
 
-It does not reproduce ``bls_seed003`` and the smoothers ``fg_batch`` and
+It does not reproduce ``bls_yang2014`` and the smoothers ``fg_batch`` and
 ``fg_batch_offsets`` (the trial starts them from the lowest-``Q`` RTS pass,
-``bls_seed003`` with unconverged estimates kept), nor the ``wahba`` rows (the
+``bls_yang2014`` with unconverged estimates kept), nor the ``wahba`` rows (the
 trial's vectorised SVD at the row epochs only), nor the bounds ``pbound_*``,
 ``crb_*`` and ``bound_*`` and the ``music`` row.
 """

@@ -3,10 +3,10 @@
 One place maps each row label to a registry estimator with its options
 (:mod:`attopt.solvers.registry`), shared by the experiment and its report:
 
-* ``ekf_seed003_q<Q>`` and ``rts_seed003_q<Q>`` (:func:`dynamics_estimators`):
-  Yang et al. 2014's EKF (``ekf_seed003``) with ``Q = q E_6`` and the RTS
-  pass over it (``rts_seed003``);
-* ``bls_seed003`` (:func:`batch_ls_estimator`): the whole-pass batch least
+* ``ekf_yang2014_q<Q>`` and ``rts_yang2014_q<Q>`` (:func:`dynamics_estimators`):
+  Yang et al. 2014's EKF (``ekf_yang2014``) with ``Q = q E_6`` and the RTS
+  pass over it (``rts_yang2014``);
+* ``bls_yang2014`` (:func:`batch_ls_estimator`): the whole-pass batch least
   squares, an unconverged pass's estimates kept;
 * ``wahba`` (:data:`WAHBA`): the SVD solution of Wahba's problem (``svd``);
 * the gyro-aided ``filters`` by their registry names (:func:`filter_labels`).
@@ -30,7 +30,7 @@ from attopt.solvers.registry import estimator
 GYRO_FILTERS = ("mekf", "fg_batch")
 """Default ``filters``: the gyro-aided MEKF and the factor-graph smoother."""
 SMOOTHER = "fg_batch"
-BATCH_LS = "bls_seed003"
+BATCH_LS = "bls_yang2014"
 """Whole-pass batch least squares over Yang et al. 2014's dynamics (``Q = 0``)."""
 SUBSET_METHODS = (BATCH_LS, *GYRO_FILTERS)
 """Methods that run only in the first ``filter_trials`` trials of a setting."""
@@ -40,22 +40,22 @@ WAHBA = {"wahba": "svd"}
 
 def ekf_method(q: float) -> str:
     """Row label of Yang et al. 2014's EKF with process noise ``q``."""
-    return f"ekf_seed003_q{q:.0e}"
+    return f"ekf_yang2014_q{q:.0e}"
 
 
 def rts_method(q: float) -> str:
     """Row label of the RTS smoother over the EKF with process noise ``q``."""
-    return f"rts_seed003_q{q:.0e}"
+    return f"rts_yang2014_q{q:.0e}"
 
 
 def dynamics_estimators(q: float) -> dict[str, Estimator]:
     """The EKF with ``Q = q E_6`` and the RTS pass over it, by row label."""
-    ekf = estimator("ekf_seed003", process_noise=q)
-    return {ekf_method(q): ekf, rts_method(q): estimator("rts_seed003", forward=ekf)}
+    ekf = estimator("ekf_yang2014", process_noise=q)
+    return {ekf_method(q): ekf, rts_method(q): estimator("rts_yang2014", forward=ekf)}
 
 
 def batch_ls_estimator() -> Estimator:
-    """``bls_seed003`` with an unconverged pass's estimates kept (its rows are flagged with
+    """``bls_yang2014`` with an unconverged pass's estimates kept (its rows are flagged with
     the report's reason)."""
     return estimator(BATCH_LS, batch=BatchLsOptions(flag_unconverged=False))
 

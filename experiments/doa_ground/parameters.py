@@ -27,7 +27,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from attopt.experiments.config import Parameters
 from attopt.experiments.config.components import Orbit, Station, Stations, TleOrbit, UtcTime
 from attopt.formulations.doa_array import UniformCircularArray
-from attopt.formulations.rigid_body import INERTIA_SEED003
+from attopt.formulations.rigid_body import YANG2014_INERTIA
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
 """For ``wavelength_m = c / frequency_hz``."""
@@ -91,7 +91,7 @@ class RigidBodyTruth(Parameters):
     """
 
     inertia_kg_m2: list[list[float]] = Field(
-        default_factory=lambda: INERTIA_SEED003.tolist(),
+        default_factory=lambda: YANG2014_INERTIA.tolist(),
         description="Inertia matrix, body axes (Yang et al. 2014 eq. 25).",
     )
     wheel_momentum_nms: list[Finite] = _vector(

@@ -14,7 +14,7 @@ the recording has a gyro
 with the ECI prior, their tracks turned back to the attitude frame,
 :func:`attopt.experiments.metrics.in_orbit_frame`), else on ``pass_``.
 Estimators on the same pass run together, so one starts from another's track
-(``starts_from``: ``rts`` from ``mekf``, ``rts_seed003`` from ``ekf_seed003``).
+(``starts_from``: ``rts`` from ``mekf``, ``rts_yang2014`` from ``ekf_yang2014``).
 
 :func:`write_outputs` writes what an experiment writes, from the same helpers:
 

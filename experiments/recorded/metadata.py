@@ -142,9 +142,9 @@ def pattern_entry(pattern: GainPattern) -> CosinePowerEntry | ParabolicEntry | T
     Example::
 
         >>> from attopt.experiments.recorded.metadata import pattern_entry
-        >>> from attopt.formulations.gain_patterns import SEED000_HELIX
-        >>> entry = pattern_entry(SEED000_HELIX)
-        >>> entry.type, entry.pattern() == SEED000_HELIX
+        >>> from attopt.formulations.gain_patterns import LIU2023_HELIX
+        >>> entry = pattern_entry(LIU2023_HELIX)
+        >>> entry.type, entry.pattern() == LIU2023_HELIX
         ('cosine_power', True)
     """
     if isinstance(pattern, CosinePowerPattern):

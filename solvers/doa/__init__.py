@@ -1,8 +1,8 @@
 """Yang et al. 2014 (DOAs of ground stations): MUSIC, the EKF on rigid-body dynamics,
 its RTS smoother and the whole-pass batch least squares.
 
-Registry estimators (:mod:`attopt.solvers.doa.estimators`): ``ekf_seed003``,
-``rts_seed003`` and ``bls_seed003``.
+Registry estimators (:mod:`attopt.solvers.doa.estimators`): ``ekf_yang2014``,
+``rts_yang2014`` and ``bls_yang2014``.
 """
 
 from attopt.solvers.doa.estimators import DoaBatchLs, DoaEkf, DoaRts

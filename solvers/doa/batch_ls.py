@@ -38,7 +38,7 @@ Cramer-Rao bound evaluated at the estimate.
 No prior enters: the pass's information dwarfs any prior (the ``crb_*``
 column's 60 deg, 0.5 deg/s prior changes it by less than 1e-4 relative), and
 the start only has to lie in the basin of the minimum (the first epoch of the
-RTS pass over the EKF, ``rts_seed003``: registry estimator ``bls_seed003``,
+RTS pass over the EKF, ``rts_yang2014``: registry estimator ``bls_yang2014``,
 :mod:`attopt.solvers.doa.estimators`).  The result is a
 :class:`~attopt.solvers.results.Track` (state ``("rate", "attitude")``)
 with the pass's :class:`BatchLsReport`.

@@ -1,5 +1,5 @@
-"""Yang et al. 2014's estimators as registry estimators: ``ekf_seed003``, ``rts_seed003``,
-``bls_seed003``.
+"""Yang et al. 2014's estimators as registry estimators: ``ekf_yang2014``, ``rts_yang2014``,
+``bls_yang2014``.
 
 Each takes a :class:`~attopt.formulations.passes.Pass` with uniformly spaced
 epochs, the :class:`~attopt.formulations.passes.RigidBody` dynamics and a
@@ -63,7 +63,7 @@ class DoaEkf(PassEstimator):
     filter: FilterOptions = EKF_FAULTS
     compiled: bool = True
 
-    name: ClassVar[str] = "ekf_seed003"
+    name: ClassVar[str] = "ekf_yang2014"
     description: ClassVar[str] = (
         "EKF on Euler's equation with wheels, no gyro (Yang et al. 2014 sec. 5, eqs. 23-33)"
     )
@@ -105,13 +105,13 @@ class DoaRts(PassEstimator):
 
     forward: DoaEkf = field(default_factory=DoaEkf)
 
-    name: ClassVar[str] = "rts_seed003"
+    name: ClassVar[str] = "rts_yang2014"
     description: ClassVar[str] = (
         "multiplicative RTS smoother over Yang et al. 2014's EKF (attitude block last)"
     )
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
     motion: ClassVar[Motion] = "dynamics"
-    starts_from: ClassVar[tuple[str, ...]] = ("ekf_seed003",)
+    starts_from: ClassVar[tuple[str, ...]] = ("ekf_yang2014",)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
         """The smoothed track of ``initial`` (an EKF's on this pass), else of the EKF run here."""
@@ -136,13 +136,13 @@ class DoaBatchLs(PassEstimator):
     batch: BatchLsOptions = field(default_factory=BatchLsOptions)
     start: DoaRts = field(default_factory=DoaRts)
 
-    name: ClassVar[str] = "bls_seed003"
+    name: ClassVar[str] = "bls_yang2014"
     description: ClassVar[str] = (
         "whole-pass batch least squares over Yang et al. 2014's torque-free dynamics (Q = 0)"
     )
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (VectorMeasurement,)
     motion: ClassVar[Motion] = "dynamics"
-    starts_from: ClassVar[tuple[str, ...]] = ("rts_seed003",)
+    starts_from: ClassVar[tuple[str, ...]] = ("rts_yang2014",)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
         """The whole-pass track with its :class:`~attopt.solvers.doa.batch_ls.BatchLsReport`.

@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from attopt.formulations.doa_array import (
-    SEED003_UCA,
+    YANG2014_UCA,
     Array,
     ComplexArray,
     UniformCircularArray,
@@ -158,7 +158,7 @@ class MusicEstimator:
         max_iterations: Newton iterations before ``ConvergenceError``.
     """
 
-    array: UniformCircularArray = SEED003_UCA
+    array: UniformCircularArray = YANG2014_UCA
     cone_half_angle: float = float(np.radians(70.0))
     grid_step: float = 0.04
     peak_ratio_threshold: float = 0.5

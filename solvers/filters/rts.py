@@ -28,7 +28,7 @@ on a filter's :class:`~attopt.solvers.results.Track` with its
 :class:`~attopt.solvers.sequential.FilterHistory`, the attitude block found
 from the track's ``state``: the gyro MEKF's (state ``[delta, delta_beta]``,
 ``a = 0:3``; the filter-based smoothing baseline ``rts``) and Yang et al.
-2014's EKF's (state ``[delta_omega, delta]``, ``a = 3:6``; ``rts_seed003``).
+2014's EKF's (state ``[delta_omega, delta]``, ``a = 3:6``; ``rts_yang2014``).
 For the EKF this is its own error: :func:`~attopt.solvers.filters.common.apply_error`
 is its update's retraction ``C(delta) A``
 (:func:`~attopt.formulations.attitude_model.increment_matrix`) and ``Phi``

@@ -89,7 +89,7 @@ Deviations from CM:
   deg: SNR observations leave the antenna's main lobe at some points (they
   are then dropped) and the regression over such a spread averages the SNR
   response away, so the update hardly informs the worst-known axis and the
-  filter does not converge (measured on ``adsb-snr`` with the ``seed000``
+  filter does not converge (measured on ``adsb-snr`` with the ``liu2023``
   gyro: the pitch sigma stayed at 7.7 deg for more than ten epochs while the
   MEKF's fell to 0.6 deg, and the errors reached 90 deg).  With ``alpha =
   0.5`` (1.22 sigma) the same run converges like the MEKF (RMS within 2 %).

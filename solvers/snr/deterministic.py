@@ -55,7 +55,7 @@ from attopt.solvers.wahba import QUEST
 
 Array = NDArray[np.float64]
 
-SEED000_MIN_PER_ANTENNA = 3
+LIU2023_MIN_PER_ANTENNA = 3
 """``m_i >= 3`` of Liu et al. 2023 sec. 3.3."""
 NOMINAL_ATTITUDE = Rotation.identity()
 """Earth pointing: body frame = orbit frame (``docs/conventions.md``)."""
@@ -102,7 +102,7 @@ def _antenna_boresight(
 def two_step(
     problem: SnrEpoch,
     prior: Rotation | None = None,
-    min_per_antenna: int = SEED000_MIN_PER_ANTENNA,
+    min_per_antenna: int = LIU2023_MIN_PER_ANTENNA,
 ) -> TwoStep:
     """Liu et al. 2023 sec. 3.2 on a validated epoch (see the module docstring)."""
     prior = NOMINAL_ATTITUDE if prior is None else prior
@@ -154,7 +154,7 @@ class DeterministicSolver(SnrSolver):
     sequence) only resolves two-fold ambiguities (``min_per_antenna = 2``).
     """
 
-    min_per_antenna: int = SEED000_MIN_PER_ANTENNA
+    min_per_antenna: int = LIU2023_MIN_PER_ANTENNA
     name: str = "deterministic"
     description: str = (
         "two-step: pattern inverse, boresight cones, QUEST (Liu et al. 2023 sec. 3.2)"
