@@ -505,9 +505,13 @@ def test_filter_options_change_their_filters_rows_alone():
         "filters": ["mekf_paper", "mekf_snr", "fg_batch_offsets"],
         "traffic": {"power_offset_sigma_db": 1.0},
     }
-    old = trial_rows(base)
     for option, value, method, (other, gyro) in FILTER_OPTIONS:
-        new = trial_rows(deep_merge(base, {option: value}))
+        # the SNR filters model no power offsets: with them, their consistency test flags
+        # every epoch (test_unmodelled_power_offsets_are_flagged), so their options are
+        # seen without offsets
+        world = base if method == "fg_batch_offsets" else {**base, "traffic": {}}
+        old = trial_rows(world)
+        new = trial_rows(deep_merge(world, {option: value}))
         changed, before = _method(new, method), _method(old, method)
         if option == "initial_sigma_deg":
             assert (changed[SIGMAS].iloc[0] < before[SIGMAS].iloc[0]).all()
@@ -518,6 +522,20 @@ def test_filter_options_change_their_filters_rows_alone():
         pd.testing.assert_frame_equal(
             _method(new, other, gyro)[ERRORS], _method(old, other, gyro)[ERRORS]
         )
+
+
+def test_unmodelled_power_offsets_are_flagged():
+    """Transmitter power offsets of 1 dB that the SNR filter does not model: its
+    innovations fail the consistency test and its epochs are flagged, not reported valid
+    with a covariance their error contradicts; the smoother that models them is valid."""
+    rows = trial_rows(
+        {"filters": ["mekf_snr", "fg_batch_offsets"], "traffic": {"power_offset_sigma_db": 1.0}}
+    )
+    mekf = _method(rows, "mekf_snr")
+    assert not mekf["valid"].any()
+    assert mekf["reason"].str.startswith("inconsistent").all()
+    assert _method(rows, "fg_batch_offsets")["valid"].all()
+    assert _method(trial_rows({"filters": ["mekf_snr"]}), "mekf_snr")["valid"].all()
 
 
 def test_every_parameter_is_overridden_by_a_test():

@@ -340,7 +340,9 @@ def check_restart() -> None:
     assert tight["sigma_x_deg"][k] < 1e-5 < base["sigma_x_deg"][k]
     assert tight["sigma_x_deg"][0] < 1e-5 < base["sigma_x_deg"][0]  # the first prior's too
     rate = method(case("restart_rate"), "usque_detect")
-    assert rate["sigma_z_deg"].iloc[-1] > 1.001 * base["sigma_z_deg"].iloc[-1]
+    # a wider rate sigma lets the yaw sigma grow further between the restarts (to 72 deg;
+    # 20 deg with the default), until an epoch's exceeds the 90 deg validity limit
+    assert rate["sigma_z_deg"].max() > 1.5 * base["sigma_z_deg"].max()
 
 
 CHECKS: dict[str, Callable[[], None]] = {
