@@ -45,12 +45,18 @@ is accepted; a monitor with an ``inflation`` then adds it to the covariance
 counted as ``recoveries`` (the gyro filters inflate the attitude by
 ``recover_sigma^2 I`` and the bias by the prior's bias covariance,
 :mod:`attopt.solvers.filters.common`).
+
+Consistency (:func:`inconsistent_epochs`): filters that record each update's
+normalised innovation squared and its rows (``nis``, ``nis_dof``) have the epochs
+whose last ``consistency_window`` updates fail the chi-square test flagged
+``inconsistent`` when the track is assembled; the test reads the recorded
+innovations, so the same rule serves the loop here and a filter whose epoch loop
+runs in CasADi (Yang et al. 2014's EKF on unit vectors).
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
@@ -157,8 +163,7 @@ def rejected_epoch(n_gated: float, n_used: float) -> bool:
 
 @dataclass
 class TrackMonitor:
-    """Detects a lost track and inflates the covariance to re-acquire, and tests the
-    innovations' consistency (module docstring).
+    """Detects a lost track and inflates the covariance to re-acquire (module docstring).
 
     Attributes:
         max_rejected_epochs: consecutive :func:`rejected_epoch` measurement
@@ -166,51 +171,22 @@ class TrackMonitor:
         inflation: added to the covariance every ``max_rejected_epochs`` such
             epochs (``recoveries`` is set in that epoch's counts); ``None``:
             never (the online smoother, which has no re-acquisition).
-        window: updates in the innovation test (0: no test).
-        false_alarm: the test's probability of flagging a consistent filter, per epoch.
         rejected: consecutive rejected epochs so far (an accepted one resets it).
         since_inflation: those since the last inflation.
-        recent: ``(nis, nis_dof)`` of the last ``window`` updates.
     """
 
     max_rejected_epochs: int
     inflation: Array | None = None
-    window: int = 0
-    false_alarm: float = 1e-6
     rejected: int = 0
     since_inflation: int = 0
-    recent: deque[tuple[float, float]] = field(default_factory=deque)
 
     @property
     def lost(self) -> bool:
         """Whether the track is lost (epochs without a measurement keep the state)."""
         return self.rejected >= self.max_rejected_epochs
 
-    @property
-    def p_value(self) -> float:
-        """``P(chi2(sum dof) >= sum nis)`` over the last ``window`` updates, the windowed
-        test of the normalised innovations squared (Bar-Shalom, Li and Kirubarajan 2001
-        sec. 5.4.2; ``nis = nu^T S^-1 nu``, ``S = H P H^T + R``, is chi-square with the
-        update's ``dof`` rows when the filter is consistent); NaN before any update."""
-        if not self.recent:
-            return float("nan")
-        nis, dof = np.sum(np.array(self.recent), axis=0)
-        return float(chi2.sf(nis, dof))
-
-    @property
-    def inconsistent(self) -> bool:
-        """Whether the last ``window`` updates' innovations fail the test: the filter's
-        covariance does not describe its errors (epochs without an update keep the
-        verdict)."""
-        return bool(self.p_value < self.false_alarm)
-
     def check(self, counts: dict[str, float], covariance: Array) -> Array:
         """The covariance to carry on with after an epoch's update ``counts``."""
-        nis, dof = counts.get("nis", np.nan), counts.get("nis_dof", 0.0)
-        if self.window and np.isfinite(nis) and dof > 0:
-            self.recent.append((nis, dof))
-            if len(self.recent) > self.window:
-                self.recent.popleft()
         n_used = counts.get("n_used", 0.0)
         if rejected_epoch(counts.get("n_gated", 0.0), n_used):
             self.rejected += 1
@@ -222,6 +198,41 @@ class TrackMonitor:
         self.since_inflation = 0
         counts["recoveries"] = 1.0
         return covariance + self.inflation
+
+
+def inconsistent_epochs(
+    nis: ArrayLike, dof: ArrayLike, window: int, false_alarm: float
+) -> NDArray[np.bool_]:
+    """The epochs whose last ``window`` updates' innovations fail the chi-square test.
+
+    ``nis`` is each epoch's normalised innovation squared ``nu^T S^-1 nu`` (``S = H P H^T
+    + R``; NaN: no update) and ``dof`` its rows: for a consistent filter their sums over
+    the updates are chi-square with the summed rows (Bar-Shalom, Li and Kirubarajan 2001
+    sec. 5.4.2).  An update epoch fails when ``P(chi2(sum dof) >= sum nis) < false_alarm``
+    over it and the ``window - 1`` updates before it (fewer at the start); an epoch
+    without an update keeps the verdict of the last update before it (none: passes).
+    The test reads the innovations only, so it flags without changing the estimates.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.sequential import inconsistent_epochs
+        >>> nis = np.array([3.1, 2.7, np.nan, 95.0, 3.2, 2.9, 3.0])
+        >>> inconsistent_epochs(nis, np.full(7, 3.0), window=2, false_alarm=1e-6).tolist()
+        [False, False, False, True, True, False, False]
+    """
+    nis, dof = np.asarray(nis, dtype=float), np.asarray(dof, dtype=float)
+    updates = np.flatnonzero(np.isfinite(nis) & (dof > 0))
+    flagged = np.zeros(nis.size, dtype=bool)
+    if not updates.size:
+        return flagged
+    sums = [np.concatenate([[0.0], np.cumsum(v[updates])]) for v in (nis, dof)]
+    first = np.maximum(np.arange(1, updates.size + 1) - window, 0)
+    total, rows = (c[1:] - c[first] for c in sums)
+    failed = chi2.sf(total, rows) < false_alarm
+    last = np.searchsorted(updates, np.arange(nis.size), side="right") - 1
+    flagged[last >= 0] = failed[last[last >= 0]]
+    return flagged
 
 
 @dataclass
@@ -358,7 +369,6 @@ def run_filter(
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
-    inconsistent = np.zeros(t.size, dtype=bool)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -367,19 +377,13 @@ def run_filter(
         if updated is not None:
             counts = _merged(counts, updated)
             filter.covariance = monitor.check(counts, filter.covariance)
-        lost[k], inconsistent[k] = monitor.lost, monitor.inconsistent
+        lost[k] = monitor.lost
         if not record.store(k, filter, counts):
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     return filter_result(
-        method,
-        record,
-        options,
-        t,
-        None if history is None else history.history(record),
-        lost,
-        inconsistent,
+        method, record, options, t, None if history is None else history.history(record), lost
     )
 
 
@@ -390,7 +394,6 @@ def filter_result(
     t: ArrayLike | None,
     history: FilterHistory | None = None,
     lost: NDArray[np.bool_] | None = None,
-    inconsistent: NDArray[np.bool_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -400,8 +403,8 @@ def filter_result(
       ``gyro_gap_s``);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
     * a lost track (``lost``, from the :class:`TrackMonitor`);
-    * inconsistent innovations (``inconsistent``, the monitor's windowed test over
-      ``options.consistency_window`` updates).
+    * inconsistent innovations (:func:`inconsistent_epochs` of the record's ``nis`` and
+      ``nis_dof``, when it has both, over ``options.consistency_window`` updates).
 
     The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
     normalised innovation squared of the epoch's update (``nis``; NaN without
@@ -426,7 +429,13 @@ def filter_result(
         reason[lost & (reason == "")] = (
             f"lost track: observations gated for {options.max_rejected_epochs} epochs"
         )
-    if inconsistent is not None:
+    if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
+        inconsistent = inconsistent_epochs(
+            record.diagnostics["nis"],
+            record.diagnostics["nis_dof"],
+            options.consistency_window,
+            options.consistency_false_alarm,
+        )
         reason[inconsistent & (reason == "")] = (
             f"inconsistent: the innovations of the last {options.consistency_window} updates "
             f"fail the chi-square test at {options.consistency_false_alarm:g}"

@@ -313,9 +313,14 @@ def test_the_prior_table_is_the_filters_start() -> None:
         0, first_rate_error
     ].to_numpy(float)
     np.testing.assert_allclose(shift, np.subtract(rate, 0.5), atol=1e-9)
-    tight = method(trial(prior={"sigma_deg": 5.0, "rate_sigma_deg_s": 0.05}), EKF)
+    # (from the truth's start: from the paper's, 98 deg off, a 5 deg sigma is flagged by
+    # the filter's consistency test)
+    near = {"euler_deg": [3.0, -2.0, 2.0]}
+    tight = method(trial(prior={**near, "sigma_deg": 5.0, "rate_sigma_deg_s": 0.05}), EKF)
     sigma = [f"sigma_{a}_deg" for a in "xyz"]
-    assert tight.loc[0, sigma].max() <= 5.0 and default.loc[0, sigma].max() > 30.0
+    assert tight.loc[0, sigma].max() <= 5.0 and truth.loc[0, sigma].max() > 30.0
+    flagged = method(trial(prior={"sigma_deg": 5.0, "rate_sigma_deg_s": 0.05}), EKF)
+    assert flagged.loc[0, "reason"].startswith("inconsistent")
     bound = [f"pbound_{a}_deg" for a in "xyz"]
     assert (tight[bound].to_numpy() < default[bound].to_numpy()).all()
     rate_only = method(trial(prior={"rate_sigma_deg_s": 0.05}), EKF)

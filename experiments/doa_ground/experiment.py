@@ -521,9 +521,12 @@ def _dynamics_rows(
     reason: str = "",
 ) -> pd.DataFrame:
     """Rows of an EKF, RTS or batch pass: the estimates at the row epochs (errors even
-    where ``reason`` flags the rows), rate errors, both bounds, wall time."""
+    where ``reason`` flags the rows; none where the track itself flags them, e.g. a
+    filter whose innovations fail its consistency test), rate errors, both bounds, wall
+    time."""
     track = run.run.track
-    estimates = _estimates(label, track.quaternion[rows], track.covariance[rows])
+    tracked = track.valid[rows]
+    estimates = _estimates(label, track.quaternion[rows], track.covariance[rows], tracked)
     rate_error = np.degrees(track.rate[rows] - geometry.rate[rows])
     return pd.DataFrame(
         {
@@ -534,8 +537,8 @@ def _dynamics_rows(
             **{f"rate_err_{a}_deg_s": rate_error[:, i] for i, a in enumerate("xyz")},
             **{f"pbound_{a}_deg": run.bound[rows, i] for i, a in enumerate("xyz")},
             **{f"crb_{a}_deg": run.crb[rows, i] for i, a in enumerate("xyz")},
-            "valid": not reason,
-            "reason": reason,
+            "valid": tracked & (not reason),
+            "reason": np.where(tracked, reason, track.reason[rows]),
             "runtime_s": run.run.seconds,
         }
     )
@@ -603,10 +606,15 @@ def _gyro_rows(
     truth, inputs = gyro_inputs(parameters, seed, geometry)
     simulated = inputs.gyro_pass(truth, doa_pass.snapshots)
     smoothed = start.run.track
-    inertial = stored_rotations(smoothed.quaternion) * geometry.eci_to_orbit
+    valid = smoothed.valid  # (the epochs it flags start by gyro integration)
+    inertial = np.full_like(smoothed.quaternion, np.nan)
+    inertial[valid] = (
+        stored_rotations(smoothed.quaternion[valid]) * geometry.eci_to_orbit[valid]
+    ).as_quat()
     first = Run(
         single_frame_initial(
-            _estimates("rts", inertial.as_quat(), smoothed.covariance), inputs.prior
+            _estimates("rts", inertial, smoothed.covariance, valid),
+            inputs.prior,
         ),
         start.run.seconds,
     )
@@ -680,15 +688,21 @@ def _prior(prior: FilterPrior) -> Prior:
     )
 
 
-def _estimates(method: str, quaternion: np.ndarray, covariance: np.ndarray) -> Track:
-    """A valid track of the estimates ``quaternion`` with their attitude covariances."""
+def _estimates(
+    method: str,
+    quaternion: np.ndarray,
+    covariance: np.ndarray,
+    valid: np.ndarray | None = None,
+) -> Track:
+    """A track of the estimates ``quaternion`` with their attitude covariances, valid where
+    ``valid`` (default: everywhere)."""
     n = len(quaternion)
     return Track(
         method=method,
         quaternion=quaternion,
         covariance=covariance,
         loss=np.full(n, np.nan),
-        valid=np.ones(n, dtype=bool),
+        valid=np.ones(n, dtype=bool) if valid is None else np.asarray(valid, dtype=bool),
         reason=np.full(n, "", dtype=object),
         error=np.full(n, None, dtype=object),
         diagnostics={},

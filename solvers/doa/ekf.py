@@ -349,14 +349,16 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     """One whole filter epoch on unit vectors: update, then predict (Yang et al. 2014 eqs. 27-33).
 
     ``(omega^-, A^-, P^-, body, reference, weight, h, orbit_turn, q) ->
-    (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle)``,
+    (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle, nis)``,
     composed of :func:`vector_information_function`, :func:`update_function`
-    and :func:`propagate_function`; ``step_angle = |omega+| dt``.
+    and :func:`propagate_function`; ``step_angle = |omega+| dt``, ``nis`` the update's
+    normalised innovation squared (:func:`normalised_innovation`).
     """
     x = epoch_symbols(slots)
-    information, residual, rows, _ = vector_information_function(slots)(
+    information, residual, rows, cost = vector_information_function(slots)(
         x.attitude, x.body, x.reference, x.weight
     )
+    nis = normalised_innovation(cost, information, residual, x.covariance[3:, 3:])
     filtered = update_function()(x.rate, x.attitude, x.covariance, information, residual)
     predicted = propagate_function(dt, inertia)(
         *filtered, x.momentum, x.orbit_turn, x.process_noise
@@ -366,7 +368,14 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
         list(x),
         [
             ca.densify(x)
-            for x in (*predicted[:3], *filtered, predicted[3], rows, ca.norm_2(filtered[0]) * dt)
+            for x in (
+                *predicted[:3],
+                *filtered,
+                predicted[3],
+                rows,
+                ca.norm_2(filtered[0]) * dt,
+                nis,
+            )
         ],
         {"cse": True},
     )
@@ -376,7 +385,7 @@ EKF_FAULTS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.inf)
 """The EKF's default fault handling: no innovation gate (as in Yang et al. 2014, so the
 lost-track monitor never fires) and no validity limit on the attitude sigma (the
 paper's prior is 60 deg)."""
-DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries")
+DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries", "nis", "nis_dof")
 """Per-epoch counts: measurement rows and blocks used, blocks gated, re-acquisitions."""
 PRIOR_ORDER = np.array([3, 4, 5, 0, 1, 2])
 """The filter's ``[delta_omega, delta]`` from a prior's ``[attitude, rate]``."""
@@ -490,9 +499,32 @@ def _measurement_information(
         noise_subset(noise, rows), np.column_stack([jacobian[rows], innovation[rows]])
     )
     information = jacobian[rows].T @ weighted[:, :3]
+    information = 0.5 * (information + information.T)
+    residual = jacobian[rows].T @ weighted[:, 3]
     counts = {"rows": float(rows.size), "n_used": float(np.unique(blocks[rows]).size)}
     counts["n_gated"] = float(gated)
-    return 0.5 * (information + information.T), jacobian[rows].T @ weighted[:, 3], counts
+    counts["nis"] = normalised_innovation(
+        innovation[rows] @ weighted[:, 3], information, residual, attitude_covariance
+    )
+    counts["nis_dof"] = float(rows.size)
+    return information, residual, counts
+
+
+def normalised_innovation(cost: Any, information: Any, residual: Any, covariance: Any) -> Any:
+    """``nu^T S^-1 nu`` with ``S = J P_aa J^T + R`` from the information form: ``cost -
+    z^T (I + P_aa M)^-1 P_aa z`` (the matrix-inversion lemma), ``cost = nu^T R^-1 nu``,
+    ``M = J^T R^-1 J``, ``z = J^T R^-1 nu``; numpy or CasADi (NaN, numpy: no rows)."""
+    if isinstance(information, np.ndarray):
+        if not np.any(information):
+            return np.nan
+        return float(
+            cost
+            - residual
+            @ np.linalg.solve(np.eye(3) + covariance @ information, covariance @ residual)
+        )
+    return cost - residual.T @ ca.solve(
+        ca.DM.eye(3) + covariance @ information, covariance @ residual
+    )
 
 
 class DoaEkfFilter(SequentialFilter):
@@ -627,6 +659,8 @@ def run_vectors(
     record.reason[stored:] = NON_FINITE
     rows = np.rint(outputs[7][:, 0, 0])
     record.diagnostics["rows"], record.diagnostics["n_used"] = rows, rows / 3.0
+    record.diagnostics["nis"] = np.where(rows > 0, outputs[9][:, 0, 0], np.nan)
+    record.diagnostics["nis_dof"] = rows
     history = FilterHistory(
         predicted_attitude=np.concatenate([initial[1][None], outputs[1][:-1]]),
         predicted_vector=np.concatenate([np.reshape(rate, (1, 3)), outputs[0][:-1, :, 0]]),

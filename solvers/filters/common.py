@@ -134,9 +134,10 @@ class FilterOptions:
             the bias covariance is inflated by the prior's).
         recover_sigma: that inflation (rad).
         consistency_window: updates whose normalised innovations squared are summed in
-            the consistency test (:class:`~attopt.solvers.sequential.TrackMonitor`): an
+            the consistency test (:func:`~attopt.solvers.sequential.inconsistent_epochs`): an
             epoch whose window's sum exceeds the chi-square quantile of its degrees of
-            freedom at ``consistency_false_alarm`` is flagged ``inconsistent``, since
+            freedom at ``consistency_false_alarm`` is flagged ``inconsistent``
+            (:func:`~attopt.solvers.sequential.inconsistent_epochs`), since
             the filter's covariance does not describe its errors there (a model that
             does not fit the data, a filter still converging from a wrong start); 0
             turns the test off.
@@ -306,12 +307,7 @@ def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
     inflation = np.zeros((STATE_SIZE, STATE_SIZE))
     inflation[:3, :3] = options.recover_sigma**2 * np.eye(3)
     inflation[3:, 3:] = prior.covariance[3:, 3:]
-    return TrackMonitor(
-        options.max_rejected_epochs,
-        inflation,
-        options.consistency_window,
-        options.consistency_false_alarm,
-    )
+    return TrackMonitor(options.max_rejected_epochs, inflation)
 
 
 class GyroStateFilter(SequentialFilter):

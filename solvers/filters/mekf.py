@@ -98,8 +98,8 @@ def update(
     H_i x_i``, the innovation relinearised at the last iterate (twice the MAP cost at
     its optimum, to Gauss-Newton accuracy: chi-square with ``nis_dof`` rows for a
     consistent filter, and not inflated by the first linearisation's error after a
-    large correction), summed over a window by the consistency test of
-    :class:`~attopt.solvers.sequential.TrackMonitor`.  It does not protect against a
+    large correction), summed over a window by the consistency test
+    (:func:`~attopt.solvers.sequential.inconsistent_epochs`).  It does not protect against a
     second basin of the cost: from a prior far off (a 2.5-sigma draw of the
     experiments' 10 deg) the first update of an ``adsb-snr`` pass can converge to
     a local minimum 50 deg away (measured in 1 of 100 trials; docs/filters.md).

@@ -71,7 +71,7 @@ first order for nonlinear ones such as the unit vectors').  Each block is first 
 P_nunu^-1 nu`` over the accepted rows, with ``nu`` relinearised at the last iterate
 (``nu + H dx``: the Gauss-Newton value of twice the update's cost at its optimum, robust
 to a large first innovation; ``nis_dof`` its rows), which the consistency test of
-:class:`~attopt.solvers.sequential.TrackMonitor` sums over a window.
+:func:`~attopt.solvers.sequential.inconsistent_epochs` sums over a window.
 
 Deviations from CM:
 
