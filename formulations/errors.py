@@ -25,6 +25,12 @@ class ConvergenceError(AttoptError):
     """An iterative or convex solver did not reach its optimum."""
 
 
+class ModelMismatchError(AttoptError):
+    """The measurements contradict their model at the estimate: its residuals fail the
+    chi-square test of the noise the model assumes, so its covariance cannot be trusted
+    (e.g. transmitter power offsets the SNR model does not have)."""
+
+
 class GyroRateMismatchError(InvalidObservationError):
     """A gyro record's sample spacing differs from the rate its model declares."""
 

@@ -11,6 +11,9 @@ estimate of one validated epoch from an optional start;
   flagged with its reason, never returned as an attitude; its diagnostics
   are kept (e.g. the iterations IPOPT spent before giving up), those of
   epochs rejected before solving are NaN;
+* an estimate whose residuals fail their chi-square test (:func:`residual_test`,
+  for estimators whose loss is a weighted least-squares one) is flagged ``model
+  mismatch`` by the estimator, also never returned as an attitude;
 * with :class:`WarmStart` enabled each epoch starts from the most recent
   valid estimate if it is at most ``max_prior_age`` epochs old (the caller's
   prior counts as one before epoch 0), else without a start; disabled, every
@@ -28,8 +31,14 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
-from attopt.formulations.errors import AttoptError, ConvergenceError, UnobservableError
+from attopt.formulations.errors import (
+    AttoptError,
+    ConvergenceError,
+    ModelMismatchError,
+    UnobservableError,
+)
 from attopt.formulations.snr_problem import EpochIssue
 from attopt.solvers.results import Track
 
@@ -39,6 +48,8 @@ Start = TypeVar("Start")
 DEFAULT_MAX_PRIOR_AGE = 10
 """Epochs a valid estimate stays usable as the next epochs' start."""
 NO_MEASUREMENT = EpochIssue("no measurement at this epoch", UnobservableError)
+MISMATCH_FALSE_ALARM = 1e-6
+"""Probability that :func:`residual_test` flags an epoch whose model is right."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +88,41 @@ class EpochEstimate:
         error: type[AttoptError] = ConvergenceError,
     ) -> EpochEstimate:
         return cls(None, np.full((3, 3), np.nan), np.nan, diagnostics, reason, error)
+
+
+def residual_test(loss: float, dof: int, false_alarm: float = MISMATCH_FALSE_ALARM) -> str | None:
+    """Why an estimate's residuals contradict the model's noise, or ``None``.
+
+    ``loss = (1/2) sum_k w_k r_k^2`` at the optimum of a weighted least-squares fit of
+    ``m`` measurements with ``w_k = 1 / sigma_k^2`` and ``p`` parameters: when the model
+    and its sigmas are right, ``2 loss`` is chi-square with ``dof = m - p`` degrees of
+    freedom (to first order in the noise), and an epoch where ``P(chi2(dof) >= 2 loss)
+    < false_alarm`` is a model mismatch (``false_alarm`` 0 or ``dof < 1``: no test).
+
+    Example::
+
+        >>> from attopt.solvers.snapshot_sequence import residual_test
+        >>> residual_test(0.5 * 310.0, 297) is None  # chi-square(297): 297 +/- 24
+        True
+        >>> residual_test(0.5 * 1480.0, 297)[:14]  # 2 dB offsets against 1 dB sigmas
+        'model mismatch'
+    """
+    if false_alarm <= 0.0 or dof < 1 or not np.isfinite(loss):
+        return None
+    p = float(chi2.sf(2.0 * loss, dof))
+    if p >= false_alarm:
+        return None
+    return (
+        f"model mismatch: the residuals' chi-square {2.0 * loss:.4g} with {dof} degrees of "
+        f"freedom has p = {p:.2g} < {false_alarm:g}"
+    )
+
+
+def mismatched(estimate: EpochEstimate, reason: str | None) -> EpochEstimate:
+    """``estimate`` flagged with the :func:`residual_test` ``reason`` (if any)."""
+    if reason is None or estimate.failure is not None:
+        return estimate
+    return EpochEstimate.failed(reason, estimate.diagnostics, ModelMismatchError)
 
 
 def solve_in_sequence(

@@ -42,7 +42,14 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
 from attopt.solvers.estimator import Estimator, SnapshotEstimator
 from attopt.solvers.results import Track
-from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
+from attopt.solvers.snapshot_sequence import (
+    MISMATCH_FALSE_ALARM,
+    EpochEstimate,
+    WarmStart,
+    mismatched,
+    residual_test,
+    solve_in_sequence,
+)
 
 
 def snr_epoch(snapshot: Snapshot) -> SnrEpoch | EpochIssue:
@@ -84,9 +91,15 @@ class SnrSolver(SnapshotEstimator):
     Attributes:
         warm_start: how a sequence starts its epochs
             (:class:`~attopt.solvers.snapshot_sequence.WarmStart`).
+        mismatch_false_alarm: the residual test's false-alarm probability
+            (:func:`~attopt.solvers.snapshot_sequence.residual_test`: an estimate whose
+            eq. 19 loss is beyond the chi-square quantile of ``m - 3`` degrees of freedom
+            is flagged ``model mismatch``, :class:`~attopt.formulations.errors.ModelMismatchError`;
+            0: no test; solvers of another loss, the truncated likelihood, are not tested).
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
+    mismatch_false_alarm: float = MISMATCH_FALSE_ALARM
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
     diagnostic_names: ClassVar[tuple[str, ...]]
 
@@ -97,6 +110,20 @@ class SnrSolver(SnapshotEstimator):
     @abstractmethod
     def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         """Estimate one validated epoch; ``prior`` is an a-priori attitude or ``None``."""
+
+    def residual_dof(self, problem: SnrEpoch) -> int | None:
+        """Degrees of freedom of twice the estimate's loss, a chi-square for the least
+        squares of eq. 19: ``m - 3``; ``None`` for a loss that is not one."""
+        return problem.m - 3
+
+    def tested_estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        """:meth:`estimate_epoch`, flagged ``model mismatch`` when its residuals fail the
+        test (class docstring)."""
+        estimate = self.estimate_epoch(problem, prior)
+        dof = self.residual_dof(problem)
+        if dof is None:
+            return estimate
+        return mismatched(estimate, residual_test(estimate.loss, dof, self.mismatch_false_alarm))
 
     def solve_sequence(
         self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None
@@ -116,5 +143,5 @@ class SnrSolver(SnapshotEstimator):
             self.warm_start,
             self.diagnostic_names,
             self.issue,
-            self.estimate_epoch,
+            self.tested_estimate,
         )

@@ -230,6 +230,11 @@ class NlpSolver(OneStepSolver):
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
 
+    def residual_dof(self, problem: SnrEpoch) -> int | None:
+        """``m - 3`` for the least squares; ``None`` for the truncated likelihood, whose loss
+        is not a chi-square."""
+        return problem.m - 3 if self.objective == "least_squares" else None
+
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         return solve_local(problem, start, self.options, self.objective)
 
