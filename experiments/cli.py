@@ -224,6 +224,9 @@ def _echo_worst_share(rows: pd.DataFrame, by: list[str]) -> float:
     from attopt.experiments.reporting.integrity import worst_share
 
     share, group = worst_share(rows, by)
+    if group and share == 0.0:
+        typer.echo("Integrity: no valid epoch beyond the chi-square 1 - 1e-4 quantile in any group")
+        return share
     if group:
         typer.echo(
             f"Integrity: worst share of valid epochs beyond the chi-square 1 - 1e-4 quantile "
