@@ -5,7 +5,9 @@ Each experiment maps its row labels (``mekf_snr``, ``wahba``,
 (:mod:`attopt.solvers.registry`) in one place; its ``methods`` and ``filters``
 parameters are checked here against the labels of the registered estimators
 (:func:`registered_labels`), so a name the registry does not have is a
-ValueError that lists the ones it has.
+ValueError that lists the ones it has.  Their options come from the
+``[estimator_options.NAME]`` tables of :data:`EstimatorOptions`, applied by
+:func:`configured` over the experiment's own defaults.
 """
 
 from __future__ import annotations
@@ -13,11 +15,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping
 from typing import Annotated, Any
 
-from pydantic import AfterValidator
+from pydantic import AfterValidator, Field
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.solvers import smoother
-from attopt.solvers.registry import estimators
+from attopt.solvers.estimator import Estimator
+from attopt.solvers.registry import estimator, estimators, with_options
 
 FACTOR_GRAPH = frozenset(e.name for e in smoother.ESTIMATORS)
 """The factor-graph smoothers of the registry: with one of them on a pass, its rows also
@@ -69,3 +72,56 @@ def label_field(labels: Callable[[], Mapping[str, str]], what: str) -> Any:
         return label
 
     return Annotated[str, AfterValidator(check)]
+
+
+Options = Mapping[str, Mapping[str, Any]]
+"""Registry name -> the options that replace its defaults (a TOML table per estimator)."""
+
+
+def _checked_options(options: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    for name, table in options.items():
+        try:
+            with_options(estimator(name), table)
+        except (KeyError, ValueError, TypeError) as error:
+            raise ValueError(f"{name}: {error}") from None
+    return options
+
+
+EstimatorOptions = Annotated[
+    dict[str, dict[str, Any]],
+    AfterValidator(_checked_options),
+    Field(
+        default_factory=dict,
+        description=(
+            "Options of the registry's estimators, by registry name, replacing their "
+            "defaults: a value per field, a table per options object (e.g. "
+            "[estimator_options.mekf.filter] gate_probability = 0.999; docs/api.md lists them)."
+        ),
+    ),
+]
+"""The ``estimator_options`` parameter of every experiment: ``[estimator_options.NAME]``
+tables, each checked by building the estimator with it."""
+
+
+def configured(name: str, options: Options, **defaults: Any) -> Estimator:
+    """Registry estimator ``name`` with the experiment's ``defaults``, then ``options``'
+    table for ``name`` (:func:`~attopt.solvers.registry.with_options`).
+
+    Example::
+
+        >>> from attopt.experiments.estimators import configured
+        >>> configured("nlp", {"nlp": {"options": {"max_iter": 50}}}).options.max_iter
+        50
+    """
+    return with_options(estimator(name, **defaults), options.get(name, {}))
+
+
+def configured_all(
+    labels: Mapping[str, str], options: Options, defaults: Options | None = None
+) -> dict[str, Estimator]:
+    """Row label -> :func:`configured` estimator of each registry name of ``labels``, with
+    the experiment's ``defaults`` for it (by registry name)."""
+    defaults = defaults or {}
+    return {
+        label: configured(name, options, **defaults.get(name, {})) for label, name in labels.items()
+    }

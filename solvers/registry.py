@@ -16,6 +16,7 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
@@ -58,6 +59,43 @@ def estimator(name: str, **options: Any) -> Estimator:
             f"unknown estimator {name!r}; registered: {', '.join(ESTIMATORS)}"
         ) from None
     return dataclasses.replace(found, **options) if options else found
+
+
+def with_options(found: Estimator, options: Mapping[str, Any]) -> Any:
+    """``found`` (an estimator or one of its options objects) with ``options`` replacing
+    its fields, a table (a mapping) replacing the fields of the options object a field
+    holds, recursively: the form a TOML configuration gives
+    (``docs/configuration.md``, Estimator options).
+
+    Raises:
+        ValueError: a field ``found`` does not have (naming the ones it has), or a table
+            for a field that does not hold an options object.
+
+    Example::
+
+        >>> from attopt.solvers.registry import estimator, with_options
+        >>> gated = with_options(estimator("mekf"), {"filter": {"gate_probability": 0.999}})
+        >>> gated.filter.gate_probability, gated.filter.max_gyro_gap_s
+        (0.999, 60.0)
+    """
+    fields = {f.name for f in dataclasses.fields(found) if f.init} - {"name", "description"}
+    unknown = sorted(set(options) - fields)
+    if unknown:
+        raise ValueError(
+            f"{type(found).__name__} has no option {', '.join(unknown)} "
+            f"(options: {', '.join(sorted(fields))})"
+        )
+    changes = {}
+    for key, value in options.items():
+        current = getattr(found, key)
+        if isinstance(value, Mapping):
+            if not dataclasses.is_dataclass(current):
+                raise ValueError(
+                    f"option {key} of {type(found).__name__} takes a value, not a table"
+                )
+            value = with_options(current, value)
+        changes[key] = value
+    return dataclasses.replace(found, **changes)
 
 
 def estimators(

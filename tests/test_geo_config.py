@@ -154,6 +154,10 @@ OVERRIDES: dict[str, dict[str, Any]] = {
     "restart_yaw": {**DETECTOR, "restart": {"yaw_sigma_deg": 40.0}},
     "restart_boresight": {**DETECTOR, "restart": {"boresight_sigma_deg": 1e-5}},
     "restart_rate": {**DETECTOR, "restart": {"rate_sigma_deg_h": 2_000.0}},
+    "estimator_options": {
+        **FILTERS,
+        "estimator_options": {"usque": {"filter": {"max_attitude_sigma": 1e-9}}},
+    },
 }
 """Each check's overrides of :data:`BASE` (flat ``{name: document}``, so that
 :func:`test_every_parameter_is_overridden` sees exactly what the checks use)."""
@@ -345,6 +349,13 @@ def check_restart() -> None:
     assert rate["sigma_z_deg"].max() > 1.5 * base["sigma_z_deg"].max()
 
 
+def check_estimator_options() -> None:
+    """``[estimator_options.usque.filter]`` reaches USQUE: no attitude within a 1e-9 rad
+    sigma, so every epoch is flagged (valid with the trial's own filter options)."""
+    assert not method(case("estimator_options"), "usque")["valid"].any()
+    assert method(rows(FILTERS), "usque")["valid"].all()
+
+
 CHECKS: dict[str, Callable[[], None]] = {
     name.removeprefix("check_"): value
     for name, value in dict(globals()).items()
@@ -358,6 +369,10 @@ def test_the_rows_reflect_the_parameter(name: str) -> None:
 
 
 def _leaf(path: str) -> str:
+    """A schema leaf's path; ``estimator_options`` is one free-form table (its keys are
+    the registry's estimators and their fields)."""
+    if path.startswith("estimator_options."):
+        return "estimator_options"
     return re.sub(r"\[\d+\]", "[]", re.sub(r"\(type=[^)]*\)", "", path))
 
 

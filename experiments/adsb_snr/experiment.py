@@ -132,7 +132,14 @@ from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_chunks
 from attopt.experiments.config.components import Gyro, gyro_model
-from attopt.experiments.estimators import label_field, registered_labels, resolve
+from attopt.experiments.estimators import (
+    EstimatorOptions,
+    configured,
+    configured_all,
+    label_field,
+    registered_labels,
+    resolve,
+)
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import attitude_columns, error_columns
 from attopt.experiments.reporting.statistics import (
@@ -150,7 +157,6 @@ from attopt.formulations.snr_model import cramer_rao_bound, predict_snr, unobser
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import truncated_information_factor
 from attopt.solvers.estimator import SnapshotEstimator
-from attopt.solvers.registry import estimator
 from attopt.solvers.results import AXES, Track, observable_sigma
 from attopt.solvers.smoother import OFFSET_PRIOR_SIGMA_DB
 from attopt.solvers.snr.deterministic import LIU2023_MIN_PER_ANTENNA
@@ -210,6 +216,7 @@ class AdsbSnrParameters(AdsbScenario):
     offset_prior_sigma_db: float = Field(
         OFFSET_PRIOR_SIGMA_DB, gt=0, description="Prior sigma of the estimated power offsets."
     )
+    estimator_options: EstimatorOptions
 
     @model_validator(mode="after")
     def _gyros_of_one_pass(self) -> AdsbSnrParameters:
@@ -545,12 +552,10 @@ def _method_rows(
 
 def method_estimators(parameters: AdsbSnrParameters) -> dict[str, SnapshotEstimator]:
     """Row label -> configured estimator of each of ``methods`` (the two-step method's
-    ``deterministic_min_per_antenna``)."""
-    options = {"deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}}
-    return {
-        label: estimator(name, **options.get(name, {}))
-        for label, name in resolve(parameters.methods, method_labels(), "methods").items()
-    }
+    ``deterministic_min_per_antenna``, then ``estimator_options``)."""
+    defaults = {"deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}}
+    methods = resolve(parameters.methods, method_labels(), "methods")
+    return configured_all(methods, parameters.estimator_options, defaults)
 
 
 def trial_pass(
@@ -588,7 +593,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         frames.append(frame)
     nlse = solutions.get(PAPER_SOURCE)
     if nlse is None and PAPER_FILTER in parameters.filters:
-        nlse = estimator(PAPER_SOURCE).solve_sequence(snapshots)
+        nlse = configured(PAPER_SOURCE, parameters.estimator_options).solve_sequence(snapshots)
     frames += filter_rows(parameters, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 

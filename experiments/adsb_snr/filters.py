@@ -57,7 +57,12 @@ from scipy.spatial.transform import Rotation
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry
 from attopt.experiments.config.components import GyroNumbers, gyro_model
-from attopt.experiments.estimators import FACTOR_GRAPH, registered_labels, resolve
+from attopt.experiments.estimators import (
+    FACTOR_GRAPH,
+    configured_all,
+    registered_labels,
+    resolve,
+)
 from attopt.experiments.metrics import (
     attitude_columns,
     error_columns,
@@ -80,7 +85,6 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.pipeline import Run, run_estimators
-from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
 
 if TYPE_CHECKING:
@@ -109,14 +113,12 @@ def filter_labels() -> dict[str, str]:
     return {PAPER_FILTER: "mekf", **registered_labels("pass", SnrMeasurement, filter_label)}
 
 
-def filter_estimators(filters: list[str], offset_prior_sigma_db: float) -> dict[str, Estimator]:
+def filter_estimators(parameters: AdsbSnrParameters) -> dict[str, Estimator]:
     """Row label -> configured estimator of each of ``filters`` (the offsets' prior of
-    ``fg_batch_offsets`` from ``offset_prior_sigma_db``)."""
-    options = {"fg_batch_offsets": {"offset_sigma": offset_prior_sigma_db}}
-    return {
-        label: estimator(name, **options.get(name, {}))
-        for label, name in resolve(filters, filter_labels(), "filters").items()
-    }
+    ``fg_batch_offsets`` from ``offset_prior_sigma_db``, then ``estimator_options``)."""
+    defaults = {"fg_batch_offsets": {"offset_sigma": parameters.offset_prior_sigma_db}}
+    filters = resolve(parameters.filters, filter_labels(), "filters")
+    return configured_all(filters, parameters.estimator_options, defaults)
 
 
 def gyro_label(gyro: str | GyroNumbers | Mapping[str, Any]) -> str:
@@ -207,7 +209,7 @@ def filter_rows(
 ) -> list[pd.DataFrame]:
     """Rows of every requested filter for every gyro (module docstring; the parameters'
     gyros are validated to share one rate)."""
-    methods = filter_estimators(parameters.filters, parameters.offset_prior_sigma_db)
+    methods = filter_estimators(parameters)
     if not methods:
         return []
     paper_filter = methods.pop(PAPER_FILTER, None)

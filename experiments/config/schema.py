@@ -228,6 +228,11 @@ def _table_lines(model: BaseModel, path: list[str]) -> list[str]:
             tables += ["", *comment]
             for item in value:
                 tables += [f"[[{'.'.join([*path, name])}]]", *_table_lines(item, [*path, name])]
+        elif isinstance(value, dict):  # a free-form table: after the scalars, as TOML needs
+            nested: Any = _plain(value)
+            for key in reversed([*path, name]):
+                nested = {key: nested}
+            tables += ["", *comment, tomli_w.dumps(nested).rstrip("\n")]
         else:
             scalars += [*comment, tomli_w.dumps({name: _plain(value)}).rstrip("\n")]
     return scalars + tables

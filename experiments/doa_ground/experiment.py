@@ -113,7 +113,15 @@ from attopt.experiments.doa_ground.parameters import (
 )
 from attopt.experiments.doa_ground.report import report
 from attopt.experiments.doa_ground.scenario import DoaGroundGeometry, build_geometry
-from attopt.experiments.estimators import FACTOR_GRAPH, label_field, resolve
+from attopt.experiments.estimators import (
+    FACTOR_GRAPH,
+    EstimatorOptions,
+    Options,
+    configured,
+    configured_all,
+    label_field,
+    resolve,
+)
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
     attitude_columns,
@@ -212,6 +220,7 @@ class DoaGroundParameters(DoaScenario):
     filter_trials: int = Field(
         FILTER_TRIALS, ge=0, description="Trials per setting that also run the costly rows."
     )
+    estimator_options: EstimatorOptions
 
     @field_validator("music")
     @classmethod
@@ -399,7 +408,11 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     ]
     if trial_index(seed) < parameters.filter_trials:
         lowest = passes[min(passes)][rts_method(min(passes))]
-        frames.append(_batch_ls_rows(doa_pass, geometry, row_epochs, common, lowest))
+        frames.append(
+            _batch_ls_rows(
+                doa_pass, geometry, row_epochs, common, lowest, parameters.estimator_options
+            )
+        )
         frames += _gyro_rows(parameters, seed, geometry, doa_pass, row_epochs, common, lowest)
     frames.append(
         pd.DataFrame([_doa_row(geometry, epochs, stations, doas, setting, parameters.array)])
@@ -422,7 +435,9 @@ def _dynamics_passes(
 ) -> dict[str, DynamicsPass]:
     """The paper's EKF and its RTS pass with ``Q = process_noise E_6``, by row label: each
     run (the RTS's time includes the EKF's), the model's bound and the ``Q = 0`` bound."""
-    runs = run_estimators(doa_pass, dynamics_estimators(process_noise))
+    runs = run_estimators(
+        doa_pass, dynamics_estimators(process_noise, parameters.estimator_options)
+    )
     keys = (
         parameters.scenario().model_dump_json(),
         parameters.array.array(),
@@ -488,6 +503,7 @@ def _batch_ls_rows(
     rows: np.ndarray,
     common: Mapping[str, Any],
     start: DynamicsPass,
+    options: Options,
 ) -> pd.DataFrame:
     """Rows of the whole-pass batch least squares (module docstring, 5), started from the
     lowest-``Q`` RTS pass at epoch 0; its bound is the ``Q = 0`` CRB, its time includes the
@@ -495,7 +511,9 @@ def _batch_ls_rows(
     began = time.perf_counter()
     try:
         runs = run_estimators(
-            doa_pass, {BATCH_LS: batch_ls_estimator()}, starts={BATCH_LS: start.run}
+            doa_pass,
+            {BATCH_LS: batch_ls_estimator(options)},
+            starts={BATCH_LS: start.run},
         )
     except (UnobservableError, ConvergenceError) as error:
         return pd.DataFrame(
@@ -621,7 +639,8 @@ def _gyro_rows(
     starts = {
         label: first for label, name in filters.items() if "rts" in estimator(name).starts_from
     }
-    runs = run_estimators(simulated.pass_, filters, starts=starts)
+    chosen = configured_all(filters, parameters.estimator_options)
+    runs = run_estimators(simulated.pass_, chosen, starts=starts)
     bound = {}
     if FACTOR_GRAPH & set(filters.values()):
         bound = {k: v[rows] for k, v in posterior_bound_columns(simulated).items()}
@@ -723,7 +742,7 @@ def _wahba_rows(
     epochs, with the single-epoch CRB."""
     body, reference, sigma = (v[rows] for v in vectors)
     present = np.isfinite(body).all(axis=-1)
-    track = estimator(name).solve_batch(
+    track = configured(name, parameters.estimator_options).solve_batch(
         np.where(present[..., None], body, reference), reference, sigma**-2.0, present
     )
     array = parameters.array.array()

@@ -15,17 +15,17 @@ One place maps each row label to a registry estimator with its options
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from attopt.experiments.estimators import registered_labels
+from attopt.experiments.estimators import Options, configured, registered_labels
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.solvers.doa.batch_ls import BatchLsOptions
 from attopt.solvers.doa.ekf import PROCESS_NOISE
 from attopt.solvers.estimator import Estimator
-from attopt.solvers.registry import estimator
 
 GYRO_FILTERS = ("mekf", "fg_batch")
 """Default ``filters``: the gyro-aided MEKF and the factor-graph smoother."""
@@ -48,16 +48,19 @@ def rts_method(q: float) -> str:
     return f"rts_yang2014_q{q:.0e}"
 
 
-def dynamics_estimators(q: float) -> dict[str, Estimator]:
-    """The EKF with ``Q = q E_6`` and the RTS pass over it, by row label."""
-    ekf = estimator("ekf_yang2014", process_noise=q)
-    return {ekf_method(q): ekf, rts_method(q): estimator("rts_yang2014", forward=ekf)}
+def dynamics_estimators(q: float, options: Options | None = None) -> dict[str, Estimator]:
+    """The EKF with ``Q = q E_6`` and the RTS pass over it, by row label, each with its
+    ``estimator_options`` (``options``) but for ``Q`` (the ``process_noise`` parameter's)
+    and the RTS pass's forward filter (this EKF)."""
+    ekf = replace(configured("ekf_yang2014", options or {}), process_noise=q)
+    rts = replace(configured("rts_yang2014", options or {}), forward=ekf)
+    return {ekf_method(q): ekf, rts_method(q): rts}
 
 
-def batch_ls_estimator() -> Estimator:
+def batch_ls_estimator(options: Options | None = None) -> Estimator:
     """``bls_yang2014`` with an unconverged pass's estimates kept (its rows are flagged with
-    the report's reason)."""
-    return estimator(BATCH_LS, batch=BatchLsOptions(flag_unconverged=False))
+    the report's reason), then its ``estimator_options`` (``options``)."""
+    return configured(BATCH_LS, options or {}, batch=BatchLsOptions(flag_unconverged=False))
 
 
 def filter_labels() -> dict[str, str]:

@@ -93,7 +93,15 @@ from pydantic import Field, ValidationInfo, field_validator
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.config import Parameters
-from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
+from attopt.experiments.estimators import (
+    FACTOR_GRAPH,
+    EstimatorOptions,
+    Options,
+    label_field,
+    registered_labels,
+    resolve,
+)
+from attopt.experiments.estimators import configured as configured_estimator
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.geo_snr_stations.parameters import GeoWorld
 from attopt.experiments.geo_snr_stations.pointing import (
@@ -211,6 +219,7 @@ class GeoSnrStationsParameters(GeoWorld):
         default_factory=AssumedRate, description="The filters' assumed-rate gyro."
     )
     restart: Restart = Field(default_factory=Restart, description="Restart after a detection.")
+    estimator_options: EstimatorOptions
 
     @field_validator("filters")
     @classmethod
@@ -288,12 +297,13 @@ def assumed_rates(scenario: GeoSnrScenario) -> GyroSamples:
     return GyroSamples(scenario.t, mean_rates(scenario.nominal, dt), dt)
 
 
-def configured(name: str) -> Estimator:
-    """Registry estimator ``name`` with :data:`FILTER_OPTIONS` where it has filter options."""
-    found = estimator(name)
-    if "filter" in {f.name for f in dataclasses.fields(found)}:
-        return estimator(name, filter=FILTER_OPTIONS)
-    return found
+def configured(name: str, options: Options | None = None) -> Estimator:
+    """Registry estimator ``name`` with :data:`FILTER_OPTIONS` where it has filter options,
+    then ``options``' table for it (``estimator_options``,
+    :func:`attopt.experiments.estimators.configured`)."""
+    has_filter = "filter" in {f.name for f in dataclasses.fields(estimator(name))}
+    defaults = {"filter": FILTER_OPTIONS} if has_filter else {}
+    return configured_estimator(name, options or {}, **defaults)
 
 
 def filter_prior(
@@ -388,15 +398,17 @@ def filter_pass(
     )
 
 
-def pass_run(pass_: Pass, label: str, name: str, detected: Run | None) -> Run:
-    """Registry pass estimator ``name`` on ``pass_`` (:func:`configured`); a batch smoother
-    starts from ``detected`` (the detecting USQUE's run), another estimator that starts
-    from a track from the first of its ``starts_from``, configured."""
-    chosen = configured(name)
+def pass_run(
+    pass_: Pass, label: str, name: str, detected: Run | None, options: Options | None = None
+) -> Run:
+    """Registry pass estimator ``name`` on ``pass_`` (:func:`configured` with ``options``);
+    a batch smoother starts from ``detected`` (the detecting USQUE's run), another
+    estimator that starts from a track from the first of its ``starts_from``, configured."""
+    chosen = configured(name, options)
     starts_from = getattr(chosen, "starts_from", ())
     if name in FACTOR_GRAPH and starts_from:
         return run_estimators(pass_, {label: chosen}, starts={label: detected})[label]
-    start = {f"{label} start": configured(starts_from[0])} if starts_from else {}
+    start = {f"{label} start": configured(starts_from[0], options)} if starts_from else {}
     return run_estimators(pass_, {**start, label: chosen})[label]
 
 
@@ -415,6 +427,7 @@ def filter_pointings(
     n_stations = np.isfinite(filter_snr).sum(axis=1)
     pass_ = filter_pass(parameters, seed, scenario, filter_snr, start)
     filters = resolve(parameters.filters, filter_labels(), "filters")
+    options = parameters.estimator_options
     needs_detection = DETECT in filters or any(
         name in FACTOR_GRAPH and configured(name).starts_from for name in filters.values()
     )
@@ -423,7 +436,7 @@ def filter_pointings(
         boresight: Callable[[int], Array] = _cone_or_lsq(cone, lsq)
         began = time.perf_counter()
         detection = detect_and_reinitialise(
-            pass_, boresight, detection_options(parameters), FILTER_OPTIONS
+            pass_, boresight, detection_options(parameters), configured("usque", options).filter
         )
         detected = Run(detection.result, time.perf_counter() - began)
     pointings = {}
@@ -435,7 +448,7 @@ def filter_pointings(
             pointing.extra["since_manoeuvre_s"] = scenario.t - parameters.attitude.manoeuvre.start_s
         else:
             try:
-                track = pass_run(pass_, label, name, detected).track
+                track = pass_run(pass_, label, name, detected, options).track
             except AttoptError as error:
                 pointing = Pointing.failed(n_stations, f"{type(error).__name__}: {error}")
             else:
@@ -482,7 +495,13 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     pointings = {
         label: snapshot[name]
         if name in snapshot
-        else one_step_pointing(name, scenario, snr, heard, snapshot["geo_lsq"])
+        else one_step_pointing(
+            configured(name, parameters.estimator_options),
+            scenario,
+            snr,
+            heard,
+            snapshot["geo_lsq"],
+        )
         for label, name in resolve(parameters.methods, method_labels(), "methods").items()
     }
     if parameters.filters:

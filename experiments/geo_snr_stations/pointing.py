@@ -30,6 +30,7 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.geo.boresight import check_elevations, estimated_boresight
 from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track, attitude_errors, normalised_errors, observable_sigma
+from attopt.solvers.snr.one_step import OneStepSolver
 
 Array = NDArray[np.float64]
 POINTING_DOF = 2
@@ -198,19 +199,18 @@ def boresight_pointing(
 
 
 def one_step_pointing(
-    name: str,
+    solver: OneStepSolver,
     scenario: GeoSnrScenario,
     snr: Array,
     heard: list[NDArray[np.intp]],
     lsq: Pointing,
 ) -> Pointing:
-    """Registry one-step SNR solver ``name`` (e.g. the NLP) on every heard station's SNR,
+    """One-step SNR solver ``solver`` (e.g. the NLP, configured) on every heard station's SNR,
     each epoch started from ``lsq``'s boresight (its epoch-level estimate: one antenna, so
     the one-step solvers' observability rule, which needs two, is not applied), with
     ``lsq``'s bound.  The solver moves freely about the boresight (its variance there is
     infinite): the stored attitude is the smallest rotation taking its boresight to body
     ``+z``, as for :func:`boresight_pointing`; its NEES uses its own attitude."""
-    solver = estimator(name)
     pointing = Pointing.empty(station_counts(heard))
     for k, stations in enumerate(heard):
         if not np.isfinite(lsq.boresight[k]).all():

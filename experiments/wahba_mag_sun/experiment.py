@@ -65,7 +65,15 @@ from attopt.experiments.config.components import (
     repeated,
 )
 from attopt.experiments.environment.orbit import checked_window
-from attopt.experiments.estimators import FACTOR_GRAPH, label_field, registered_labels, resolve
+from attopt.experiments.estimators import (
+    FACTOR_GRAPH,
+    EstimatorOptions,
+    configured,
+    configured_all,
+    label_field,
+    registered_labels,
+    resolve,
+)
 from attopt.experiments.experiment import Experiment, Setting
 from attopt.experiments.metrics import (
     attitude_columns,
@@ -105,7 +113,6 @@ from attopt.formulations.wahba_covariance import quest_covariance
 from attopt.solvers import wahba
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.pipeline import run_estimators
-from attopt.solvers.registry import estimator
 from attopt.solvers.results import Track
 
 
@@ -177,6 +184,7 @@ class WahbaMagSunParameters(Parameters):
         le=180.0,
         description="Per-axis sigma of the filters' prior.",
     )
+    estimator_options: EstimatorOptions
 
     @field_validator("step_s")
     @classmethod
@@ -285,8 +293,9 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     vectors = simulate_pass(geometry, seed, parameters)
     common = epoch_columns(geometry, vectors)
     methods = resolve(parameters.methods, method_labels(), "methods")
+    options = parameters.estimator_options
     frames = [
-        _method_rows(label, snapshot_track(estimator(name), vectors), geometry, common)
+        _method_rows(label, snapshot_track(configured(name, options), vectors), geometry, common)
         for label, name in methods.items()
     ]
     if parameters.filters:
@@ -366,7 +375,7 @@ def _filter_rows(
     truth, inputs = filter_inputs(parameters, seed)
     simulated = inputs.gyro_pass(truth, vectors.pass_.snapshots)
     filters = resolve(parameters.filters, filter_labels(), "filters")
-    runs = run_estimators(simulated.pass_, filters)
+    runs = run_estimators(simulated.pass_, configured_all(filters, parameters.estimator_options))
     bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & set(filters.values()) else {}
     frames = []
     for label, run in runs.items():
