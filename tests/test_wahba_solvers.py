@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
@@ -114,9 +114,11 @@ SDP_OPTIONS = [SdpOptions(), SdpOptions(solver="SCS", tolerance=1e-10)]
 @given(problem=wahba_problems())
 def test_sdp_is_tight_and_equals_lambda_max(options, problem):
     truth, _, reference, weights = problem
-    # SCS is a first-order method: to 1e-10 only on moderately conditioned weights (with a
-    # ratio of 6e5 it ends "optimal_inaccurate" or not, by its start)
-    assume(options.solver != "SCS" or weights.max() / weights.min() < 1e4)
+    if options.solver == "SCS":
+        # a first-order method: to 1e-10 only on moderately conditioned weights (with a
+        # ratio of 6e5 it ends "optimal_inaccurate" or not, by its start), so SCS gets
+        # the weights floored at 1e-4 of the largest, still a Wahba problem
+        weights = np.maximum(weights, 1e-4 * weights.max())
     body = noisy_body(truth, reference, weights**-0.5, np.random.default_rng(5))
     k = davenport_matrix(attitude_profile_matrix(body[None], reference[None], weights[None]))[0]
     k /= weights.sum()
