@@ -143,6 +143,15 @@ def test_cli_show_lists_every_parameter_and_prints_a_starter_config():
     assert starter.exit_code == 0 and starter.stdout.startswith("# attopt run wahba-mag-sun")
 
 
+def test_cli_show_lists_the_fields_of_tables_inside_a_list():
+    """adsb-snr's ``gyros`` holds presets or ``[[gyros]]`` tables: both are listed, the
+    table's fields with their units."""
+    listing = CliRunner().invoke(app, ["show", "adsb-snr"]).stdout
+    assert "gyros " in listing
+    rate = next(line for line in listing.splitlines() if line.startswith("gyros[](table).rate_hz"))
+    assert "Hz" in rate.split()
+
+
 def test_default_out_includes_the_config_name(tmp_path):
     from pathlib import Path
 

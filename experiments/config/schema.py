@@ -130,6 +130,9 @@ def _leaves(
             yield ParameterInfo(path, _plain(value), unit_of(name), description)
             for variant in model_classes(info.annotation):
                 yield from _variant_leaves(variant, path)
+            if isinstance(value, list | tuple):  # a list that may hold tables, e.g. gyros
+                for variant in model_classes(info.annotation, items=True):
+                    yield from _variant_leaves(variant, f"{path}[]")
 
 
 def _variant_leaves(variant: type[BaseModel], path: str) -> Iterator[ParameterInfo]:
