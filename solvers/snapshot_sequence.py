@@ -90,30 +90,33 @@ class EpochEstimate:
         return cls(None, np.full((3, 3), np.nan), np.nan, diagnostics, reason, error)
 
 
-def residual_test(loss: float, dof: int, false_alarm: float = MISMATCH_FALSE_ALARM) -> str | None:
+def residual_test(
+    chi_square: float, dof: int, false_alarm: float = MISMATCH_FALSE_ALARM
+) -> str | None:
     """Why an estimate's residuals contradict the model's noise, or ``None``.
 
-    ``loss = (1/2) sum_k w_k r_k^2`` at the optimum of a weighted least-squares fit of
-    ``m`` measurements with ``w_k = 1 / sigma_k^2`` and ``p`` parameters: when the model
-    and its sigmas are right, ``2 loss`` is chi-square with ``dof = m - p`` degrees of
-    freedom (to first order in the noise), and an epoch where ``P(chi2(dof) >= 2 loss)
-    < false_alarm`` is a model mismatch (``false_alarm`` 0 or ``dof < 1``: no test).
+    ``chi_square`` is the sum of the squared standardised residuals at the estimate of
+    ``m`` measurements (``sum_k w_k r_k^2 = 2 loss`` for a weighted least-squares fit,
+    ``w_k = 1 / sigma_k^2``) with ``p`` parameters fitted: when the model and its sigmas
+    are right it is chi-square with ``dof = m - p`` degrees of freedom (to first order
+    in the noise), and an epoch where ``P(chi2(dof) >= chi_square) < false_alarm`` is a
+    model mismatch (``false_alarm`` 0 or ``dof < 1``: no test).
 
     Example::
 
         >>> from attopt.solvers.snapshot_sequence import residual_test
-        >>> residual_test(0.5 * 310.0, 297) is None  # chi-square(297): 297 +/- 24
+        >>> residual_test(310.0, 297) is None  # chi-square(297): 297 +/- 24
         True
-        >>> residual_test(0.5 * 1480.0, 297)[:14]  # 2 dB offsets against 1 dB sigmas
+        >>> residual_test(1480.0, 297)[:14]  # 2 dB offsets against 1 dB sigmas
         'model mismatch'
     """
-    if false_alarm <= 0.0 or dof < 1 or not np.isfinite(loss):
+    if false_alarm <= 0.0 or dof < 1 or not np.isfinite(chi_square):
         return None
-    p = float(chi2.sf(2.0 * loss, dof))
+    p = float(chi2.sf(chi_square, dof))
     if p >= false_alarm:
         return None
     return (
-        f"model mismatch: the residuals' chi-square {2.0 * loss:.4g} with {dof} degrees of "
+        f"model mismatch: the residuals' chi-square {chi_square:.4g} with {dof} degrees of "
         f"freedom has p = {p:.2g} < {false_alarm:g}"
     )
 

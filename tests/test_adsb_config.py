@@ -546,6 +546,31 @@ def test_unmodelled_power_offsets_are_flagged(offset_db):
     assert clean["valid"].all()
 
 
+def test_a_burst_of_outlier_snrs_is_flagged_and_its_end_recovered():
+    """Every SNR 20 dB off for 10 s (``[receiver.outliers]``, a receiver fault): each
+    snapshot method's residual test flags exactly the burst's epochs (``model mismatch``)
+    and is valid from the first epoch after it; the SNR filters and the smoother gate the
+    outliers, carry the attitude on the gyro through the burst and stay consistent."""
+    burst = {"start_s": 10.0, "duration_s": 10.0, "offset_db": 20.0}
+    snapshot = ["deterministic", "nlse", "nlp", "nlp_truncated"]
+    rows = trial_rows(
+        {
+            "duration_s": 40.0,
+            "methods": snapshot,
+            "filters": ["mekf_snr", "rts_snr", "fg_batch"],
+            "receiver": {"outliers": burst},
+        }
+    )
+    for method in snapshot:
+        epochs = _method(rows, method, NO_GYRO)
+        inside = (epochs["t_s"] >= 10.0) & (epochs["t_s"] < 20.0)
+        assert epochs.loc[inside, "reason"].str.startswith("model mismatch").all(), method
+        assert epochs.loc[~inside, "valid"].all(), method
+    for method in ("mekf_snr", "rts_snr", "fg_batch"):
+        epochs = _method(rows, method)
+        assert epochs["valid"].all() and (epochs["nees"] < 21.1).all(), method
+
+
 def test_every_parameter_is_overridden_by_a_test():
     """The key paths of the defaults, a circular orbit and the other gain patterns and gyro
     tables, each set to another value by one of the tests above."""

@@ -373,11 +373,15 @@ def simulate_pass(
     sigma_db: float,
     threshold_db: float,
     offset_db: NDArray[np.float64] | None = None,
+    fault_db: NDArray[np.float64] | None = None,
 ) -> NoisyPass:
     """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
-    3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset."""
+    3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset, ``fault_db``
+    ``(M,)`` an error of the receiver's measurement (``receiver.outliers``)."""
     true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
     measured = true_snr + sigma_db * rng.standard_normal(true_snr.size)
+    if fault_db is not None:
+        measured = measured + fault_db
     received = measured >= threshold_db
     rows = np.flatnonzero(received)
     bounds = np.searchsorted(scenario.epoch_index[rows], np.arange(scenario.n_epochs + 1))
@@ -563,16 +567,19 @@ def trial_pass(
 ) -> tuple[NoiseFreePass, NoisyPass]:
     """The scenario's noise-free pass and trial ``seed``'s measurements of it (module
     docstring, 1-4): the SNR noise from ``default_rng(seed)``, the power offsets from
-    :func:`power_offsets`."""
+    :func:`power_offsets`, a burst of outliers (``receiver.outliers``) if there is one."""
     scenario = noise_free_pass(parameters)
     receiver = parameters.receiver
     offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
+    burst = receiver.outliers
+    fault = None if burst is None else burst.offsets(scenario.t[scenario.epoch_index])
     noisy = simulate_pass(
         scenario,
         np.random.default_rng(seed),
         receiver.snr_sigma_db,
         receiver.threshold_db,
         offsets,
+        fault,
     )
     return scenario, noisy
 

@@ -181,6 +181,20 @@ class TrafficParameters(Parameters):
         )
 
 
+class OutlierBurst(Parameters):
+    """``[receiver.outliers]``: a receiver fault, every SNR it measures over a window
+    ``offset_db`` off (before the reception threshold), a mismatch no estimator models."""
+
+    start_s: float = Field(ge=0.0, description="Start of the burst from the pass start.")
+    duration_s: float = Field(30.0, gt=0.0, description="Length of the burst.")
+    offset_db: float = Field(20.0, description="Error added to every measured SNR in it.")
+
+    def offsets(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``offset_db`` at the times ``t`` inside the burst, 0 elsewhere."""
+        inside = (t >= self.start_s) & (t < self.start_s + self.duration_s)
+        return np.where(inside, self.offset_db, 0.0)
+
+
 class ReceiverParameters(Parameters):
     """The satellite's ADS-B receiver: noise power (Liu et al. 2023 eq. 2), polarisation
     loss, SNR measurement noise and reception threshold (sec. 5.1)."""
@@ -196,6 +210,9 @@ class ReceiverParameters(Parameters):
     polarisation_loss_db: float = Field(
         _LINK.polarisation_loss_db,
         description="Loss of the vertically polarised aircraft signal on the receive antennas.",
+    )
+    outliers: OutlierBurst | None = Field(
+        None, description="A burst of outlier SNRs (a receiver fault); none by default."
     )
 
     def link_budget(self, traffic: TrafficParameters) -> LinkBudget:

@@ -95,7 +95,8 @@ class SnrSolver(SnapshotEstimator):
             (:func:`~attopt.solvers.snapshot_sequence.residual_test`: an estimate whose
             eq. 19 loss is beyond the chi-square quantile of ``m - 3`` degrees of freedom
             is flagged ``model mismatch``, :class:`~attopt.formulations.errors.ModelMismatchError`;
-            0: no test; solvers of another loss, the truncated likelihood, are not tested).
+            the truncated likelihood's residuals are standardised by the truncated
+            moments, :func:`~attopt.solvers.snr.fit.truncated_chi_square`; 0: no test).
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
@@ -111,19 +112,20 @@ class SnrSolver(SnapshotEstimator):
     def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         """Estimate one validated epoch; ``prior`` is an a-priori attitude or ``None``."""
 
-    def residual_dof(self, problem: SnrEpoch) -> int | None:
-        """Degrees of freedom of twice the estimate's loss, a chi-square for the least
-        squares of eq. 19: ``m - 3``; ``None`` for a loss that is not one."""
-        return problem.m - 3
+    def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
+        """The residuals' chi-square at ``estimate`` (``m - 3`` degrees of freedom):
+        twice its eq. 19 loss, ``sum_k (y_k - f_k)^2 / sigma_k^2``."""
+        return 2.0 * estimate.loss
 
     def tested_estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         """:meth:`estimate_epoch`, flagged ``model mismatch`` when its residuals fail the
         test (class docstring)."""
         estimate = self.estimate_epoch(problem, prior)
-        dof = self.residual_dof(problem)
-        if dof is None:
+        if estimate.failure is not None or estimate.attitude is None:
             return estimate
-        return mismatched(estimate, residual_test(estimate.loss, dof, self.mismatch_false_alarm))
+        chi_square = self.residual_chi_square(problem, estimate)
+        reason = residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
+        return mismatched(estimate, reason)
 
     def solve_sequence(
         self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None

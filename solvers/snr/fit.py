@@ -36,6 +36,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
+from scipy.special import log_ndtr, ndtri_exp
 
 from attopt.formulations.snr_model import (
     cramer_rao_bound,
@@ -106,6 +107,24 @@ def model_at(problem: SnrEpoch, attitude: Rotation) -> tuple[Array, Array]:
         np.zeros(3), a, *padded.model_inputs
     )
     return snr.full().ravel()[: problem.m], jac.full()[: problem.m]
+
+
+def truncated_chi_square(problem: SnrEpoch, attitude: Rotation) -> float:
+    """``sum_k z_k^2`` at ``attitude``, ``z_k`` the normal score of measurement ``y_k``
+    under the truncated model: ``z_k = Phi^-1(F_k(y_k))`` with ``F_k`` the CDF of
+    ``N(f_k, sigma_k^2)`` truncated below at the threshold (the law of a received SNR,
+    :mod:`attopt.formulations.snr_truncation`).  The scores are exactly standard normal
+    when the model is right, so the sum is about chi-square with ``m - 3`` degrees of
+    freedom: the residual test of ``nlp_truncated``.  Computed from the upper tail, ``z_k
+    = -Phi^-1(Phi(-r_k) / Phi(-a_k))`` with ``r_k = (y_k - f_k) / sigma_k`` and ``a_k =
+    (tau - f_k) / sigma_k``, in logarithms (``scipy.special.log_ndtr``, ``ndtri_exp``), so
+    a far outlier keeps its score."""
+    predicted, _ = model_at(problem, attitude)
+    sigma = np.asarray(problem.sigma_db, dtype=float)
+    r = (problem.snr_db - predicted) / sigma
+    a = (problem.threshold_db - predicted) / sigma
+    z = -ndtri_exp(log_ndtr(-r) - log_ndtr(-a))
+    return float(np.sum(z * z))
 
 
 @dataclass(frozen=True)

@@ -104,7 +104,13 @@ from attopt.formulations.snr_model import Pattern, snr_function
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.ipopt import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, IpoptOptions
 from attopt.solvers.snapshot_sequence import EpochEstimate
-from attopt.solvers.snr.fit import OBJECTIVES, Objective, fit_at, objective_loss
+from attopt.solvers.snr.fit import (
+    OBJECTIVES,
+    Objective,
+    fit_at,
+    objective_loss,
+    truncated_chi_square,
+)
 from attopt.solvers.snr.initialisation import LocalResult
 from attopt.solvers.snr.one_step import OneStepSolver
 from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
@@ -230,10 +236,13 @@ class NlpSolver(OneStepSolver):
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
 
-    def residual_dof(self, problem: SnrEpoch) -> int | None:
-        """``m - 3`` for the least squares; ``None`` for the truncated likelihood, whose loss
-        is not a chi-square."""
-        return problem.m - 3 if self.objective == "least_squares" else None
+    def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
+        """Twice the eq. 19 loss for the least squares; for the truncated likelihood, whose
+        loss is not a chi-square, the residuals standardised by the moments of the
+        truncated measurements (:func:`~attopt.solvers.snr.fit.truncated_chi_square`)."""
+        if self.objective == "least_squares":
+            return super().residual_chi_square(problem, estimate)
+        return truncated_chi_square(problem, estimate.attitude)
 
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         return solve_local(problem, start, self.options, self.objective)
