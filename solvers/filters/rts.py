@@ -157,9 +157,10 @@ def rts_backward(
 
 
 def rts_smooth(filtered: Track, options: FilterOptions, method: str) -> Track:
-    """Smoothed estimates at a smoothable filter's epochs: :func:`rts_backward` up to the
-    last finite epoch (epochs after a divergence stay invalid, and so do the epochs the
-    filter flagged), with ``options``' validity rules.
+    """Smoothed estimates at a smoothable filter's epochs: :func:`rts_backward` over each
+    run of epochs the filter reports valid (:func:`valid_segments`; epochs after a
+    divergence stay invalid, and so do the epochs the filter flagged), with ``options``'
+    validity rules.
 
     Raises:
         InvalidObservationError: ``filtered`` has no history (not a smoothable filter's).
@@ -185,17 +186,37 @@ def rts_smooth(filtered: Track, options: FilterOptions, method: str) -> Track:
     correction = np.zeros((end, 3 * len(filtered.state)))
     correction[:, attitude] = error_vector(after, rotations(history.predicted_attitude[:end]))
     correction[:, vector] = history.filtered_vector[:end] - history.predicted_vector[:end]
-    offset, covariance = rts_backward(
-        history.filtered_covariance[:end],
-        history.predicted_covariance[:end],
-        history.transition[1:end],
-        correction,
-        attitude_start=attitude.start,
-    )
     record.quaternion = filtered.quaternion.copy()
-    record.quaternion[: end - 1] = apply_error(offset[:-1, attitude], after[:-1]).as_quat()
     record.vector = np.array(getattr(filtered, other), dtype=float)
-    record.vector[:end] += offset[:, vector]
     record.covariance = np.array(filtered.state_covariance, dtype=float)
-    record.covariance[:end] = covariance
+    for a, b in valid_segments(filtered.valid[:end]):
+        offset, covariance = rts_backward(
+            history.filtered_covariance[a:b],
+            history.predicted_covariance[a:b],
+            history.transition[a + 1 : b],
+            correction[a:b],
+            attitude_start=attitude.start,
+        )
+        record.quaternion[a : b - 1] = apply_error(
+            offset[:-1, attitude], after[a : b - 1]
+        ).as_quat()
+        record.vector[a:b] += offset[:, vector]
+        record.covariance[a:b] = covariance
     return filter_result(method, record, options, filtered.t)
+
+
+def valid_segments(valid: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """The ``[start, stop)`` runs of consecutive valid epochs: the backward pass smooths
+    each on its own, so that the state of a flagged stretch (a lost track, innovations
+    that contradict the covariance) never reaches the epochs before it.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.filters.rts import valid_segments
+        >>> valid_segments(np.array([True, True, False, True, False, False, True]))
+        [(0, 2), (3, 4), (6, 7)]
+    """
+    edges = np.diff(np.concatenate([[0], np.asarray(valid, dtype=np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()
+    return list(zip(starts, stops, strict=True))
