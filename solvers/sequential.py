@@ -67,7 +67,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
-from attopt.formulations.errors import ConvergenceError
+from attopt.formulations.errors import ConvergenceError, ModelMismatchError
 from attopt.solvers.results import Track
 
 if TYPE_CHECKING:
@@ -404,7 +404,9 @@ def filter_result(
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
     * a lost track (``lost``, from the :class:`TrackMonitor`);
     * inconsistent innovations (:func:`inconsistent_epochs` of the record's ``nis`` and
-      ``nis_dof``, when it has both, over ``options.consistency_window`` updates).
+      ``nis_dof``, when it has both, over ``options.consistency_window`` updates), whose
+      error is :class:`~attopt.formulations.errors.ModelMismatchError` (the others'
+      :class:`~attopt.formulations.errors.ConvergenceError`).
 
     The track has the ``3 x 3`` attitude covariance; its ``loss`` is the
     normalised innovation squared of the epoch's update (``nis``; NaN without
@@ -429,20 +431,22 @@ def filter_result(
         reason[lost & (reason == "")] = (
             f"lost track: observations gated for {options.max_rejected_epochs} epochs"
         )
+    inconsistent = np.zeros(record.n, dtype=bool)
     if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
         inconsistent = inconsistent_epochs(
             record.diagnostics["nis"],
             record.diagnostics["nis_dof"],
             options.consistency_window,
             options.consistency_false_alarm,
-        )
-        reason[inconsistent & (reason == "")] = (
+        ) & (reason == "")
+        reason[inconsistent] = (
             f"inconsistent: the innovations of the last {options.consistency_window} updates "
             f"fail the chi-square test at {options.consistency_false_alarm:g}"
         )
     valid = reason == ""
     error = np.full(record.n, None, dtype=object)
     error[~valid] = ConvergenceError
+    error[inconsistent] = ModelMismatchError
     quaternion = np.where(valid[:, None], record.quaternion, np.nan)
     covariance = np.where(valid[:, None, None], record.covariance, np.nan)
     nis = record.diagnostics.get("nis", np.full(record.n, np.nan))

@@ -16,6 +16,7 @@ from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
 from attopt.formulations.conventions import attitude_error
+from attopt.formulations.errors import ModelMismatchError
 from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
 from attopt.formulations.passes import Prior
 from attopt.solvers.filters import FilterOptions, Mekf, Usque
@@ -226,6 +227,7 @@ def test_gated_outlier_leaves_the_estimate_as_without_it() -> None:
     # ... and, ungated, the innovation test flags the epoch it enters
     monitored = run(data, prior, with_outlier, FilterOptions(gate_probability=1.0))
     assert not monitored.valid[k] and monitored.reason[k].startswith("inconsistent")
+    assert monitored.error[k] is ModelMismatchError
     assert monitored.valid[:k].all()
 
 
