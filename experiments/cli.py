@@ -204,8 +204,9 @@ def check(
     ] = None,
 ) -> None:
     """Print the integrity of the estimates in OUT: per group, the share of valid epochs
-    whose NEES exceeds the chi-square 1 - 1e-4 quantile, the mean NEES, the valid share."""
-    from attopt.experiments.reporting.integrity import integrity_table
+    whose NEES exceeds the chi-square 1 - 1e-4 quantile, the mean NEES, the valid share,
+    and the share of epochs flagged for each kind of reason."""
+    from attopt.experiments.reporting.integrity import flagged_table, integrity_table
     from attopt.experiments.sweep.check import ResultsError, results_rows
 
     try:
@@ -214,6 +215,8 @@ def check(
         typer.echo(f"error: {error}", err=True)
         raise typer.Exit(EXIT_USAGE) from None
     typer.echo(integrity_table(rows, by).to_string(index=False, float_format="{:.4g}".format))
+    typer.echo("\nShare of the epochs flagged, by kind of reason:")
+    typer.echo(flagged_table(rows, by).to_string(index=False, float_format="{:.3g}".format))
     share = _echo_worst_share(rows, by)
     if max_share is not None and share > max_share:
         raise typer.Exit(EXIT_INTEGRITY)

@@ -98,6 +98,37 @@ def with_options(found: Estimator, options: Mapping[str, Any]) -> Any:
     return dataclasses.replace(found, **changes)
 
 
+INTEGRITY_TESTS: dict[str, Any] = {"consistency_window": 0, "mismatch_false_alarm": 0.0}
+"""The options fields of the integrity tests and the value that turns each off: the
+filters' windowed innovation test
+(:func:`attopt.solvers.sequential.inconsistent_epochs`) and the snapshot estimators'
+residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`)."""
+
+
+def integrity_tests_off(found: Any) -> dict[str, Any]:
+    """The options table (the form :func:`with_options` takes) that turns off every
+    integrity test of ``found``, an estimator or one of its options objects
+    (:data:`INTEGRITY_TESTS`, looked for in its options objects recursively); empty
+    when it has none.  With it, an estimate is flagged only by its solver's own checks,
+    which measures what the tests cost in accuracy and valid epochs.
+
+    Example::
+
+        >>> from attopt.solvers.registry import estimator, integrity_tests_off
+        >>> integrity_tests_off(estimator("mekf")), integrity_tests_off(estimator("quest"))
+        ({'filter': {'consistency_window': 0}}, {})
+    """
+    table: dict[str, Any] = {}
+    for field in dataclasses.fields(found):
+        value = getattr(found, field.name)
+        if field.name in INTEGRITY_TESTS:
+            table[field.name] = INTEGRITY_TESTS[field.name]
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            if inner := integrity_tests_off(value):
+                table[field.name] = inner
+    return table
+
+
 def estimators(
     kind: str | None = None, accepts: type[AttitudeMeasurement] | None = None
 ) -> list[str]:

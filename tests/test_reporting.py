@@ -17,6 +17,7 @@ from attopt.experiments.reporting.paper_values import paper_label, paper_table, 
 from attopt.experiments.reporting.statistics import (
     INTEGRITY_PROBABILITY,
     inside_3_sigma,
+    flagged_by_reason,
     integrity,
     nees_interval,
     nees_threshold,
@@ -130,6 +131,54 @@ def test_integrity_share_is_the_count_beyond_the_quantile(entries):
             assert share == np.mean(judged > nees_threshold())
         else:
             assert np.isnan(share)
+
+
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from("pq"),
+            st.sampled_from(["", "lost track: 5 epochs", "lost track: 9", "model mismatch: 40"]),
+        ),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_flagged_shares_count_each_kind_of_reason_once(entries):
+    method, reason = zip(*entries, strict=True)
+    rows = pd.DataFrame({"method": method, "reason": reason, "err_x_deg": 0.0}).assign(
+        valid=lambda r: r["reason"] == "", err_y_deg=0.0, err_z_deg=0.0
+    )
+    result = flagged_by_reason(rows, ["method"])
+    kinds = {r.split(":")[0] for r in reason if r}
+    assert set(result.columns) == kinds | {"flagged"}
+    for name, group in rows.groupby("method"):
+        assert result.loc[name, "flagged"] == pytest.approx(1.0 - group["valid"].mean())
+        for kind in kinds:
+            expected = group["reason"].str.startswith(kind).mean()
+            assert result.loc[name, kind] == pytest.approx(expected)
+
+
+def test_integrity_section_shows_the_flagged_epochs_by_reason():
+    rows = pd.DataFrame(
+        {
+            "method": ["a", "a", "b", "b"],
+            "valid": [True, False, False, False],
+            "reason": ["", "lost track: gated", "inconsistent: NIS", "lost track: gated"],
+            "err_x_deg": [0.1, np.nan, np.nan, np.nan],
+            "err_y_deg": 0.0,
+            "err_z_deg": 0.0,
+            "nees": [1.0, np.nan, np.nan, np.nan],
+        }
+    )
+    text = integrity_section(rows, ["method"])
+    flagged = table(text, "Integrity", index=1)
+    assert row(flagged, {"method": "a"}).to_dict() == {
+        "method": "a",
+        "lost track": "0.5",
+        "inconsistent": "0",
+        "flagged": "0.5",
+    }
+    assert row(flagged, {"method": "b"})["flagged"] == "1"
 
 
 def test_rms_ratios_maxima_and_the_3_sigma_share():

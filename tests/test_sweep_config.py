@@ -152,6 +152,15 @@ def test_cli_show_lists_the_fields_of_tables_inside_a_list():
     assert "Hz" in rate.split()
 
 
+def test_cli_show_marks_a_field_without_a_default_as_required():
+    """A burst's start has no default; a table gain's angles default to an empty list."""
+    listing = CliRunner().invoke(app, ["show", "adsb-snr"]).stdout
+    lines = {line.split()[0]: line.split()[1] for line in listing.splitlines() if line.strip()}
+    assert lines["receiver.outliers(table).start_s"] == "(required)"
+    assert lines["antennas[0].gain(type=table).angle_deg"] == "[]"
+    assert "Undefined" not in listing
+
+
 def test_default_out_includes_the_config_name(tmp_path):
     from pathlib import Path
 

@@ -1,5 +1,7 @@
-"""The integrity section every report ends its tables with
-(:func:`attopt.experiments.reporting.statistics.integrity` as markdown)."""
+"""The integrity section every report ends its tables with: the integrity statistic
+(:func:`attopt.experiments.reporting.statistics.integrity`) and the epochs flagged by
+kind of reason (:func:`~attopt.experiments.reporting.statistics.flagged_by_reason`),
+as markdown."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import pandas as pd
 
 from attopt.experiments.reporting.statistics import (
     INTEGRITY_PROBABILITY,
+    flagged_by_reason,
     integrity,
     nees_threshold,
 )
@@ -29,6 +32,13 @@ def integrity_table(rows: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
             "mean_nees": "mean NEES",
         }
     )
+
+
+def flagged_table(rows: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
+    """:func:`~attopt.experiments.reporting.statistics.flagged_by_reason` with the group
+    columns ``by`` as columns: per group, the share of its epochs flagged for each kind of
+    reason, and in all."""
+    return flagged_by_reason(rows, by).reset_index()
 
 
 def worst_share(rows: pd.DataFrame, by: Sequence[str]) -> tuple[float, str]:
@@ -76,4 +86,17 @@ def integrity_section(rows: pd.DataFrame, by: Sequence[str], command: str = "") 
         f"share beyond {threshold:.1f}": ".3g",
         "mean NEES": ".3g",
     }
-    return section("Integrity", caption, markdown_table(table, formats, missing=NOT_AVAILABLE))
+    flagged = flagged_table(rows, by)
+    reasons = [c for c in flagged.columns if c not in by]
+    flagged_caption = (
+        "Epochs flagged, by kind of reason: the share of each group's epochs that the "
+        "estimator reports as not valid (the reason's text before its details; the rows' "
+        "`reason` column has it whole)."
+    )
+    return section(
+        "Integrity",
+        caption,
+        markdown_table(table, formats, missing=NOT_AVAILABLE),
+        flagged_caption,
+        markdown_table(flagged, dict.fromkeys(reasons, ".3g")),
+    )

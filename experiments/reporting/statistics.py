@@ -189,6 +189,45 @@ def integrity(
     )
 
 
+def reason_class(reason: str) -> str:
+    """The kind of a flag: a reason's text before its first ``": "`` (the details after it,
+    thresholds and counts, vary), e.g. ``"lost track"`` or ``"model mismatch"``."""
+    return reason.split(": ", 1)[0].strip() or "(no reason given)"
+
+
+def flagged_by_reason(rows: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
+    """Per group of the columns ``by``: the share of its epochs flagged (not valid,
+    :func:`valid_mask`) for each kind of reason (:func:`reason_class` of the ``reason``
+    column); one column per kind, ordered by how many epochs it flags in all, and
+    ``flagged``, their sum.  Groups without a flagged epoch have zeros.
+
+    Example::
+
+        >>> import pandas as pd
+        >>> from attopt.experiments.reporting.statistics import flagged_by_reason
+        >>> rows = pd.DataFrame({
+        ...     "method": ["a", "a", "a", "b"], "valid": [True, False, False, False],
+        ...     "err_x_deg": 0.1, "err_y_deg": 0.1, "err_z_deg": 0.1,
+        ...     "reason": ["", "lost track: 5 epochs", "lost track: 6 epochs", "model mismatch: x"],
+        ... })
+        >>> flagged_by_reason(rows, ["method"]).round(3).to_dict("index")
+        {'a': {'lost track': 0.667, 'model mismatch': 0.0, 'flagged': 0.667}, \
+'b': {'lost track': 0.0, 'model mismatch': 1.0, 'flagged': 1.0}}
+    """
+    by = list(by)
+    flagged = ~valid_mask(rows)
+    reasons = rows["reason"] if "reason" in rows else pd.Series("", index=rows.index)
+    kinds = reasons[flagged].fillna("").astype(str).map(reason_class).rename("_kind")
+    counts = rows.loc[flagged, by].assign(_kind=kinds)
+    counts = counts.groupby([*by, "_kind"], dropna=False).size().unstack("_kind")
+    epochs = rows.groupby(by, sort=False, dropna=False).size()
+    counts = counts.reindex(epochs.index).fillna(0)
+    order = counts.sum().sort_values(ascending=False, kind="stable").index
+    shares = counts[order].div(epochs, axis=0).astype(float)
+    shares.columns = list(shares.columns)
+    return shares.assign(flagged=shares.sum(axis=1))
+
+
 def nees_interval(
     trials: int, dimension: int = NEES_DOF, probability: float = 0.95
 ) -> tuple[float, float]:
