@@ -64,6 +64,17 @@ class Parameters(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, strict=True)
 
 
+class _Required:
+    """The default of a field that its table must set (``attopt show`` prints ``required``)."""
+
+    def __repr__(self) -> str:
+        return "required"
+
+
+REQUIRED = _Required()
+"""The :attr:`ParameterInfo.default` of a table's field without a default."""
+
+
 @dataclass(frozen=True)
 class ParameterInfo:
     """One leaf of a parameter model: its key path, default, unit and meaning."""
@@ -110,7 +121,10 @@ def _leaves(
 ) -> Iterator[ParameterInfo]:
     for name, info in schema.model_fields.items():
         path = f"{prefix}{name}"
-        value = getattr(instance, name) if instance is not None else info.default
+        if instance is not None:
+            value = getattr(instance, name)
+        else:
+            value = REQUIRED if info.is_required() else info.default
         description = info.description or ""
         if isinstance(value, BaseModel):
             yield from _leaves(type(value), value, f"{path}.")
