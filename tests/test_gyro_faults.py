@@ -151,15 +151,20 @@ def test_the_faults_apply_in_order_scale_stuck_offset():
 
 CASES = {
     "scale_factor": {"scale_factor": {"error": 0.01}},
-    "stuck_axis": {"stuck_axis": {"axis": "z", "start_s": 100.0}},
+    "stuck_axis": {"stuck_axis": {"axis": "y", "start_s": 100.0}},
     "time_offset": {"time_offset": {"offset_s": 0.5}},
 }
 WINDOW = {"start_utc": "2026-05-10T23:26:20", "duration_s": 400.0}
-"""400 s of the default pass from 200 s: sunlit, before the eclipse."""
+"""400 s of the default orbit from 200 s into the default pass (sunlit, before the
+eclipse) with the first 400 s of the attitude profile: the body turns at 0.01-0.03 deg/s,
+the MEMS gyro's bias is about 0.1 deg/s per axis."""
+FAST = {**WINDOW, "attitude": {"pitch_peak_s": -1500.0}}
+"""The same with the pitch profile of the default pass's 2500-2900 s: the body turns at
+0.14-0.16 deg/s about y."""
 
 
-def _parameters(overrides: dict):
-    return resolve_parameters(EXPERIMENT, overrides={**WINDOW, **overrides})
+def _parameters(overrides: dict, window: dict = WINDOW):
+    return resolve_parameters(EXPERIMENT, overrides={**window, **overrides})
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -232,7 +237,7 @@ def test_bad_fault_values_are_refused(fault):
 
 # --- integrity under each fault ---------------------------------------------------------------
 
-FILTERS = ["mekf", "usque", "rts"]
+FILTERS = ["mekf", "rts"]
 
 
 @functools.cache
@@ -242,10 +247,103 @@ def _rows(document: str) -> pd.DataFrame:
     return trial(parameters.model_dump(mode="json"), SEED)
 
 
-def _case_rows(fault: dict | None) -> pd.DataFrame:
-    return _rows(json.dumps({} if fault is None else {"gyro_fault": fault}, sort_keys=True))
+def _case_rows(fault: dict, window: dict = WINDOW) -> pd.DataFrame:
+    return _rows(json.dumps({**window, "gyro_fault": fault}, sort_keys=True))
 
 
 def _share_beyond(rows: pd.DataFrame) -> float:
     valid = rows[rows["valid"]]
     return float((valid["nees"] > nees_threshold()).mean())
+
+
+def _method(rows: pd.DataFrame, method: str) -> pd.DataFrame:
+    return rows[rows["method"] == method].reset_index(drop=True)
+
+
+def test_a_one_percent_scale_factor_is_absorbed_as_a_bias():
+    """At the pass's slowly varying rate, ``s omega`` looks like a bias: the filters carry
+    it in their bias estimate (its error follows ``s omega``, about 5.7 deg/h about y
+    here, to within 4 of its sigmas) and stay consistent, so nothing needs flagging."""
+    fault = CASES["scale_factor"]
+    rows = _case_rows(fault, FAST)
+    truth, inputs = filter_inputs(_parameters({"gyro_fault": fault}, FAST), SEED)
+    rate = inputs.gyro.true_rates[truth.epoch_samples[:-1]]
+    for method in FILTERS:
+        epochs = _method(rows, method)
+        assert epochs["valid"].all(), method
+        assert _share_beyond(epochs) <= 1e-3, method
+        settled = epochs.index[epochs["t_s"] >= 200.0][:-1]
+        expected = np.degrees(0.01 * rate[settled]) * 3600.0  # deg/h
+        error = epochs.loc[settled, [f"bias_err_{a}_deg_h" for a in "xyz"]].to_numpy()
+        sigma = epochs.loc[settled, [f"bias_sigma_{a}_deg_h" for a in "xyz"]].to_numpy()
+        assert np.all(np.abs(error - expected) < 4.0 * sigma), method
+        assert np.all(np.abs(expected[:, 1]) > 2.0 * sigma[:, 1]), "the fault is seen"
+
+
+def test_a_time_tag_offset_of_half_a_second_is_absorbed():
+    """0.5 s late gyro stamps: the rate error ``omega(t - 0.5) - omega(t)`` at this pass's
+    angular accelerations (below 1e-4 deg/s^2) is far below the gyro's noise; the first
+    0.5 s are a gap at the start. Every epoch stays valid and consistent."""
+    rows = _case_rows(CASES["time_offset"])
+    for method in FILTERS:
+        epochs = _method(rows, method)
+        assert epochs["valid"].all(), method
+        assert _share_beyond(epochs) <= 1e-3, method
+        assert epochs["nees"].mean() < 4.0, method
+
+
+STUCK = CASES["stuck_axis"]["stuck_axis"]
+
+
+def test_an_axis_stuck_at_its_reading_leaves_the_filter_consistent():
+    """The y axis frozen at its reading for 60 s (100-160 s): on this window the rate error
+    (that reading's noise and the bias's and rate's change) keeps the MEKF's error within
+    its covariance (measured: share 0, mean NEES 4.4), so nothing needs flagging.  Not so
+    everywhere: at 600 s into the default pass the same fault puts 100 valid epochs beyond
+    the quantile, none flagged (``docs/filters.md``, Faults)."""
+    epochs = _method(_case_rows(CASES["stuck_axis"]), "mekf")
+    assert epochs["valid"].all()
+    assert _share_beyond(epochs) <= 1e-3
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured: RTS smooths across the stuck interval, which the forward filter "
+    "leaves valid; its smaller covariance puts 9 epochs (91-101 s) beyond the quantile, "
+    "a share of 0.0225 on this window; no test flags a smoother's epochs",
+)
+def test_rts_over_an_axis_stuck_at_its_reading_is_consistent():
+    assert _share_beyond(_method(_case_rows(CASES["stuck_axis"]), "rts")) <= 1e-3
+
+
+DEAD = {"stuck_axis": {**STUCK, "value_deg_s": 0.0}}
+"""The y axis reading 0 for 60 s (100-160 s): a rate error of the body's 0.06-0.16 deg/s."""
+
+
+def test_an_axis_stuck_at_zero_is_flagged_and_the_filter_recovers():
+    """The filter's consistency test and its lost-track rule flag the fault (measured: 11 s
+    after it begins, to 124 s, then again for one epoch at 184 s, when the bias it learnt
+    during the fault is wrong again); from 60 s after the fault's end every epoch is valid
+    and inside the quantile."""
+    epochs = _method(_case_rows(DEAD), "mekf")
+    start, end = STUCK["start_s"], STUCK["start_s"] + 60.0
+    flagged = epochs[~epochs["valid"]]
+    assert len(flagged) and flagged["t_s"].between(start, end + 60.0).all()
+    reasons = flagged["reason"].str.split(":").str[0]
+    assert set(reasons) <= {"inconsistent", "lost track"}
+    after = epochs[epochs["t_s"] >= end + 60.0]
+    assert after["valid"].all() and (after["nees"] <= nees_threshold()).all()
+    before = epochs[epochs["t_s"] < start]
+    assert before["valid"].all() and (before["nees"] <= nees_threshold()).all()
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured: the MEKF's sigma about y (0.08 deg) is far below what one epoch's "
+    "vectors resolve (magnetometer 0.46 deg, Sun sensor 0.11 deg), so its innovations fail "
+    "their test only once the error is many of its own sigmas: 29 valid epochs (102-110 s "
+    "and, with the bias learnt during the fault, 164-183 s) lie beyond the quantile, a "
+    "share of 0.075 on this window",
+)
+def test_an_axis_stuck_at_zero_leaves_no_valid_epoch_beyond_the_quantile():
+    assert _share_beyond(_method(_case_rows(DEAD), "mekf")) <= 1e-3
