@@ -22,21 +22,31 @@ at its epochs (:class:`GyroPass`), which the metrics
 Random streams of a trial: the scenario's measurement noise uses the trial's
 seed; the gyro and the prior draw from a child stream (:func:`child_rng`), so
 adding gyro-aided estimators does not change the single-frame methods' data.
+
+Gyro faults (``[gyro_fault]``,
+:class:`~attopt.experiments.config.components.GyroFault`) are applied here, once, to
+the samples drawn: they change :attr:`FilterInputs.measured`, the record the
+estimators get, never the truth (:attr:`FilterInputs.gyro`: the true rates and
+bias, the fault-free samples) nor a random draw.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, ReferencedMeasurement
-from attopt.formulations.gyro import GyroModel, SimulatedGyro, simulate_gyro
+from attopt.formulations.gyro import GyroModel, GyroSamples, SimulatedGyro, simulate_gyro
 from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
 from attopt.formulations.snapshot import Snapshot
+
+if TYPE_CHECKING:
+    from attopt.experiments.config.components import GyroFault
 
 Array = NDArray[np.float64]
 
@@ -105,11 +115,25 @@ class GyroPass:
 
 @dataclass(frozen=True)
 class FilterInputs:
-    """One trial's gyro record and prior (drawn from :func:`child_rng`)."""
+    """One trial's gyro record and prior (drawn from :func:`child_rng`).
+
+    Attributes:
+        gyro: the simulated gyro: the true rates and bias and the fault-free samples.
+        prior: the estimators' prior.
+        model: the gyro's noise model.
+        measured: the samples the estimators are given: ``gyro.samples`` with the
+            trial's gyro fault, if any (module docstring).
+    """
 
     gyro: SimulatedGyro
     prior: Prior
     model: GyroModel
+    measured: GyroSamples
+
+    @property
+    def record(self) -> GyroRecord:
+        """:attr:`measured` as the record of a :class:`~attopt.formulations.passes.Pass`."""
+        return GyroRecord(self.measured.t, self.measured.rates, self.model)
 
     def gyro_pass(
         self,
@@ -121,10 +145,8 @@ class FilterInputs:
         epochs."""
         t = truth.t[truth.epoch_samples]
         inertial = referenced(measurements, truth.epoch_frames)
-        samples = self.gyro.samples
-        gyro = GyroRecord(samples.t, samples.rates, self.model)
         return GyroPass(
-            Pass(t, epoch_snapshots(inertial, t), gyro, self.prior),
+            Pass(t, epoch_snapshots(inertial, t), self.record, self.prior),
             truth.attitude[truth.epoch_samples],
             self.gyro.bias[truth.epoch_samples],
             truth.epoch_frames,
@@ -136,11 +158,14 @@ def simulate_filter_inputs(
     model: GyroModel,
     rng: np.random.Generator,
     initial_sigma_deg: float = INITIAL_ATTITUDE_SIGMA_DEG,
+    fault: GyroFault | None = None,
 ) -> FilterInputs:
     """Gyro samples, then the prior: attitude error ``~ N(0, sigma0^2 I3)``, bias estimate 0.
 
     The prior covariance is ``diag(sigma0^2 I3, initial_bias_sigma^2 I3)``, the
-    statistics the truth was drawn from, so the estimators start consistent.
+    statistics the truth was drawn from, so the estimators start consistent.  A
+    ``fault`` changes the measured samples after every draw
+    (:meth:`~attopt.experiments.config.components.GyroFault.measured`).
     """
     gyro = simulate_gyro(truth.t, truth.attitude, model, rng)
     sigma0 = np.radians(initial_sigma_deg)
@@ -150,7 +175,8 @@ def simulate_filter_inputs(
         covariance=np.diag([sigma0**2] * 3 + [model.initial_bias_sigma**2] * 3),
         bias=np.zeros(3),
     )
-    return FilterInputs(gyro, prior, model)
+    measured = gyro.samples if fault is None else fault.measured(gyro)
+    return FilterInputs(gyro, prior, model, measured)
 
 
 def referenced(

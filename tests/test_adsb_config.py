@@ -571,6 +571,24 @@ def test_a_burst_of_outlier_snrs_is_flagged_and_its_end_recovered():
         assert epochs["valid"].all() and (epochs["nees"] < 21.1).all(), method
 
 
+def test_a_gyro_fault_changes_every_gyros_filter_rows_alone():
+    """``[gyro_fault]`` corrupts the samples of each gyro of ``gyros`` that the filters get
+    (here one axis stuck at zero for 4 s); the single-frame rows do not see it."""
+    chosen = {"methods": ["nlp"], "filters": ["mekf_snr"], "gyros": ["mems", FOG]}
+    fault = {"stuck_axis": {"axis": "x", "start_s": 2.0, "duration_s": 4.0, "value_deg_s": 0.0}}
+    old, new = trial_rows(chosen), trial_rows({**chosen, "gyro_fault": fault})
+    for gyro in ("mems", "fog"):
+        changed, before = _method(new, "mekf_snr", gyro), _method(old, "mekf_snr", gyro)
+        assert changed.loc[changed["t_s"] <= 2.0, ERRORS].equals(
+            before.loc[before["t_s"] <= 2.0, ERRORS]
+        )
+        assert not changed["err_x_deg"].equals(before["err_x_deg"]), gyro
+    pd.testing.assert_frame_equal(
+        _method(new, "nlp", NO_GYRO).drop(columns="runtime_s"),
+        _method(old, "nlp", NO_GYRO).drop(columns="runtime_s"),
+    )
+
+
 def test_every_parameter_is_overridden_by_a_test():
     """The key paths of the defaults, a circular orbit and the other gain patterns and gyro
     tables, each set to another value by one of the tests above."""

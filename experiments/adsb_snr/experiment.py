@@ -131,7 +131,7 @@ from attopt.experiments.adsb_snr.filters import (
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_chunks
-from attopt.experiments.config.components import Gyro, gyro_model
+from attopt.experiments.config.components import Gyro, GyroFault, gyro_model
 from attopt.experiments.estimators import (
     EstimatorOptions,
     configured,
@@ -203,6 +203,9 @@ class AdsbSnrParameters(AdsbScenario):
     gyros: list[Gyro] = Field(
         default_factory=lambda: ["liu2023", "mems"],
         description="Gyros, each a preset name or a table of its numbers.",
+    )
+    gyro_fault: GyroFault | None = Field(
+        None, description="Faults of every gyro's samples the filters get; none by default."
     )
     initial_sigma_deg: float = Field(
         INITIAL_ATTITUDE_SIGMA_DEG, gt=0, description="Per-axis sigma of the filters' prior."

@@ -56,7 +56,6 @@ from attopt.experiments.recorded.records import (
     snr_table,
     truth_table,
 )
-from attopt.formulations.passes import GyroRecord
 
 
 def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
@@ -103,10 +102,9 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
         ),
         prior=prior_entry(inputs.prior, INERTIAL),
     )
-    samples = inputs.gyro.samples
     tables = {
         "epochs": epochs_table(scenario.t),
-        "gyro": gyro_table(GyroRecord(samples.t, samples.rates, inputs.model)),
+        "gyro": gyro_table(inputs.record),
         "snr": snr_table(
             t=scenario.t[epoch],
             antenna=scenario.antenna[received],

@@ -41,7 +41,9 @@ Every filter starts from the prior of
 with ``initial_sigma_deg`` per axis, bias estimate 0) and works in ECI
 (:mod:`attopt.experiments.simulation`); errors are reported in the orbit frame like
 the single-frame rows.  The gyro of the ``i``-th entry of ``gyros`` and the
-prior are drawn from child stream ``1 + i`` of the trial's seed.
+prior are drawn from child stream ``1 + i`` of the trial's seed; ``[gyro_fault]``
+(:class:`attopt.experiments.config.components.GyroFault`) corrupts the samples of
+every gyro the filters get, after the draws.
 """
 
 from __future__ import annotations
@@ -147,13 +149,16 @@ def gyro_inputs(
     index: int,
     truth: GyroTruth | None = None,
 ) -> FilterInputs:
-    """The samples of gyro ``index`` of ``gyros`` and the filters' prior, from child stream
-    ``1 + index`` of the trial's seed (module docstring); ``truth``: the scenario's
+    """The samples of gyro ``index`` of ``gyros`` (with ``gyro_fault``) and the filters'
+    prior, from child stream ``1 + index`` of the trial's seed (module docstring);
+    ``truth``: the scenario's
     (:func:`adsb_gyro_truth`) at the gyros' rate, computed when not given."""
     model = gyro_model(parameters.gyros[index])
     truth = truth or adsb_gyro_truth(parameters, model.rate_hz)
     rng = child_rng(seed, 1 + index)
-    return simulate_filter_inputs(truth, model, rng, parameters.initial_sigma_deg)
+    return simulate_filter_inputs(
+        truth, model, rng, parameters.initial_sigma_deg, parameters.gyro_fault
+    )
 
 
 def paper_measurements(solution: Track, sigma_deg: float) -> list[AttitudeMeasurement | None]:

@@ -5,6 +5,8 @@
   ascending node (:class:`CircularOrbit`);
 * ``[gyro]``: a named preset (:data:`attopt.formulations.gyro.GYRO_MODELS`) or
   the datasheet numbers (:class:`GyroNumbers`);
+* ``[gyro_fault]``: faults of the measured gyro samples, a scale-factor error, an axis
+  stuck at a constant and a time-tag offset (:class:`GyroFault`);
 * ``[[antennas]]``: a boresight in the body frame and a gain pattern
   (:class:`CosinePowerGain`, :class:`ParabolicGain`, :class:`TableGain`);
 * ``[[stations]]``: a named geodetic site (:class:`Station`).
@@ -32,7 +34,7 @@ from attopt.formulations.gain_patterns import (
     ParabolicPattern,
     TabulatedPattern,
 )
-from attopt.formulations.gyro import GYRO_MODELS, GyroModel
+from attopt.formulations.gyro import GYRO_MODELS, GyroModel, GyroSamples, SimulatedGyro
 
 DEG = math.pi / 180.0
 J2 = 1.08262668e-3
@@ -180,6 +182,119 @@ def gyro_model(gyro: str | GyroNumbers | dict) -> GyroModel:
     if isinstance(gyro, dict):
         gyro = GyroNumbers.model_validate(gyro)
     return gyro.model()
+
+
+AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+"""Body axis name -> column of the gyro's rates."""
+
+
+class ScaleFactorFault(Parameters):
+    """``[gyro_fault.scale_factor]``: the true rates scaled by ``1 + s`` before the bias
+    and the noise are added, ``omega_measured = (1 + s) omega + beta + eta_v`` (the
+    scale-factor term of Markley and Crassidis 2014 sec. 4.7.1's gyro model), over the
+    whole pass."""
+
+    error: float | list[float] = Field(
+        description="Scale-factor error s: one for every axis or one per body axis (x, y, z).",
+    )
+
+    @field_validator("error")
+    @classmethod
+    def _finite_per_axis(cls, error: float | list[float]) -> float | list[float]:
+        values = error if isinstance(error, list) else [error]
+        if isinstance(error, list) and len(error) != 3:
+            raise ValueError(f"one error per axis needs 3 values, got {len(error)}")
+        if not all(math.isfinite(v) and v > -1.0 for v in values):
+            raise ValueError("scale-factor errors must be finite and above -1")
+        return error
+
+    def apply(self, gyro: SimulatedGyro, rates: np.ndarray) -> np.ndarray:
+        """``rates`` (the measured samples) plus ``s omega_bar_j``: with the same bias and
+        noise draws, ``(1 + s) omega_bar_j + beta + eta_v``."""
+        return rates + np.asarray(self.error, dtype=float) * gyro.true_rates
+
+
+class StuckAxisFault(Parameters):
+    """``[gyro_fault.stuck_axis]``: one gyro axis reads a constant over a window: the
+    samples ``j`` with ``start_s <= t_j < start_s + duration_s`` (``t_j`` the start of the
+    sample's interval, seconds from the pass start) read ``value_deg_s`` on ``axis``, or
+    without it the reading of the window's first sample held (an output frozen at its last
+    value)."""
+
+    axis: Literal["x", "y", "z"] = Field(description="The body axis that sticks.")
+    start_s: float = Field(ge=0.0, allow_inf_nan=False, description="Start of the fault.")
+    duration_s: float = Field(
+        60.0, gt=0.0, allow_inf_nan=False, description="How long the axis stays stuck."
+    )
+    value_deg_s: float | None = Field(
+        None,
+        allow_inf_nan=False,
+        description="The stuck reading; leave out to hold the reading at the start.",
+    )
+
+    def inside(self, t: np.ndarray) -> np.ndarray:
+        """Which samples starting at ``t`` lie in the window."""
+        return (t >= self.start_s) & (t < self.start_s + self.duration_s)
+
+    def apply(self, gyro: SimulatedGyro, rates: np.ndarray) -> np.ndarray:
+        """``rates`` with ``axis`` stuck over the window (unchanged if no sample is in it)."""
+        inside = np.flatnonzero(self.inside(gyro.samples.t[:-1]))
+        out = rates.copy()
+        if inside.size:
+            column = AXIS_INDEX[self.axis]
+            held = rates[inside[0], column]
+            out[inside, column] = held if self.value_deg_s is None else self.value_deg_s * DEG
+        return out
+
+
+class TimeOffsetFault(Parameters):
+    """``[gyro_fault.time_offset]``: the gyro's time tags ``offset_s`` late against the
+    measurement epochs: the sample of the true interval ``[t_j, t_j + dt)`` is stamped
+    ``t_j + offset_s``.  Where the shifted record no longer reaches an epoch, it is
+    extended by missing (NaN) samples, which the estimators treat as a gyro gap."""
+
+    offset_s: float = Field(
+        allow_inf_nan=False, description="Gyro time tag minus true time (positive: late)."
+    )
+
+    def stamps(self, samples: GyroSamples) -> GyroSamples:
+        """The record re-stamped, padded with NaN samples so that it still spans
+        ``samples.t[0]`` to ``samples.t[-1]``."""
+        t, dt = samples.t + self.offset_s, samples.dt
+        pad = math.ceil(abs(self.offset_s) / dt - 1e-6)
+        if pad == 0:
+            return GyroSamples(t, samples.rates, dt)
+        gap = np.full((pad, 3), np.nan)
+        if self.offset_s > 0:
+            before = t[0] - dt * np.arange(pad, 0, -1)
+            return GyroSamples(np.concatenate([before, t]), np.vstack([gap, samples.rates]), dt)
+        after = t[-1] + dt * np.arange(1, pad + 1)
+        return GyroSamples(np.concatenate([t, after]), np.vstack([samples.rates, gap]), dt)
+
+
+class GyroFault(Parameters):
+    """``[gyro_fault]``: faults of the gyro samples the estimators are given (the truth,
+    the bias and the noise draws are unchanged), each optional, applied in this order:
+    the scale factor, the stuck axis, the time offset."""
+
+    scale_factor: ScaleFactorFault | None = Field(
+        None, description="A scale-factor error; none by default."
+    )
+    stuck_axis: StuckAxisFault | None = Field(
+        None, description="An axis stuck at a constant; none by default."
+    )
+    time_offset: TimeOffsetFault | None = Field(
+        None, description="A time-tag offset against the measurements; none by default."
+    )
+
+    def measured(self, gyro: SimulatedGyro) -> GyroSamples:
+        """The faulty samples of ``gyro`` (class docstring)."""
+        rates = gyro.samples.rates
+        for fault in (self.scale_factor, self.stuck_axis):
+            if fault is not None:
+                rates = fault.apply(gyro, rates)
+        samples = GyroSamples(gyro.samples.t, rates, gyro.samples.dt)
+        return samples if self.time_offset is None else self.time_offset.stamps(samples)
 
 
 class CosinePowerGain(Parameters):

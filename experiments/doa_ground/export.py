@@ -71,7 +71,6 @@ from attopt.experiments.recorded.records import (
     truth_table,
     vector_table,
 )
-from attopt.formulations.passes import GyroRecord
 
 
 def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
@@ -109,8 +108,7 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     gyro = None
     if parameters.filters:
         _, inputs = gyro_inputs(parameters, seed, geometry)
-        samples = inputs.gyro.samples
-        tables["gyro"] = gyro_table(GyroRecord(samples.t, samples.rates, inputs.model))
+        tables["gyro"] = gyro_table(inputs.record)
         gyro = gyro_entry(inputs.model)
         priors.append(prior_entry(inputs.prior, INERTIAL))
     metadata = PassMetadata(

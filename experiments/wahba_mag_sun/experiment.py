@@ -19,7 +19,9 @@ eclipse).  Every estimator sees the same measurements:
   simulated gyro (``gyro``: a :data:`attopt.formulations.gyro.GYRO_MODELS`
   name or a ``[gyro]`` table of datasheet numbers; Cilden Guler et al. 2017 has
   none, so the default is the MEMS unit) and a prior with ``initial_sigma_deg``
-  attitude error per axis (:mod:`attopt.experiments.simulation`).  The gyro and
+  attitude error per axis (:mod:`attopt.experiments.simulation`), its samples
+  corrupted by ``[gyro_fault]`` if given
+  (:class:`~attopt.experiments.config.components.GyroFault`).  The gyro and
   the prior draw from a child stream of the trial's seed
   (:func:`attopt.experiments.simulation.child_rng`), so the single-frame rows do
   not depend on the filters.
@@ -58,6 +60,7 @@ from attopt.experiments.config import Parameters
 from attopt.experiments.config.components import (
     CircularOrbit,
     Gyro,
+    GyroFault,
     Orbit,
     TleOrbit,
     UtcTime,
@@ -178,6 +181,9 @@ class WahbaMagSunParameters(Parameters):
         description="Gyro-aided filters and smoothers (registry names).",
     )
     gyro: Gyro = Field("mems", description="The filters' gyro: a preset or a [gyro] table.")
+    gyro_fault: GyroFault | None = Field(
+        None, description="Faults of the filters' gyro samples; none by default."
+    )
     initial_sigma_deg: float = Field(
         INITIAL_ATTITUDE_SIGMA_DEG,
         gt=0,
@@ -360,7 +366,11 @@ def filter_inputs(
     model = gyro_model(parameters.gyro)
     truth = filter_truth(parameters, model.rate_hz)
     inputs = simulate_filter_inputs(
-        truth, model, child_rng(seed, GYRO_STREAM), parameters.initial_sigma_deg
+        truth,
+        model,
+        child_rng(seed, GYRO_STREAM),
+        parameters.initial_sigma_deg,
+        parameters.gyro_fault,
     )
     return truth, inputs
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from attopt.experiments.config.components import gyro_model
 from attopt.experiments.experiment import Setting
 from attopt.experiments.recorded.metadata import INERTIAL, ORBIT, PassMetadata, gyro_entry
 from attopt.experiments.recorded.recorded_pass import RecordedPass
@@ -32,7 +31,6 @@ from attopt.experiments.wahba_mag_sun.experiment import (
     geometry_of,
     simulate_pass,
 )
-from attopt.formulations.passes import GyroRecord
 
 SENSORS = ("sun", "magnetometer")
 """The sensors of the ``vectors`` table, in the experiment's order."""
@@ -55,18 +53,16 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     geometry = geometry_of(parameters)
     vectors = simulate_pass(geometry, seed, parameters)
     _, inputs = filter_inputs(parameters, seed)
-    model = gyro_model(parameters.gyro)
-    samples = inputs.gyro.samples
     metadata = PassMetadata(
         description="wahba-mag-sun: a simulated pass of TIMED (Cilden Guler et al. 2017)",
         start_utc=geometry.start_utc,
         attitude_frame=ORBIT,
         position_frame=INERTIAL,
-        gyro=gyro_entry(model),
+        gyro=gyro_entry(inputs.model),
         prior=prior_entry(inputs.prior, INERTIAL),
     )
     tables = {
-        "gyro": gyro_table(GyroRecord(samples.t, samples.rates, model)),
+        "gyro": gyro_table(inputs.record),
         "vectors": vector_table(
             geometry.t, SENSORS, vectors.body, vectors.reference, vectors.sigma
         ),
