@@ -490,13 +490,14 @@ def run_filter(
     At each epoch: :meth:`~SequentialFilter.predict` to ``t[k]``, the
     prediction recorded (smoothable filters), :meth:`~SequentialFilter.update`
     with ``measurements[k]`` (unless the ``recovery``'s
-    :meth:`~Recovery.before_update` (re)starts the filter there), the ``monitor``'s
-    verdict on its counts (:meth:`TrackMonitor.due`, or :data:`STILL_LOST` at any
-    other epoch of a lost track): a restart by the ``recovery``, else, at
-    :data:`LOST` and unless the ``recovery`` waits for a single frame, the monitor's
-    inflation; the estimate recorded.  A non-finite state flags that epoch and all
-    later ones and stops the loop.  The track (:func:`filter_result` with ``options``' validity rules)
-    keeps a :class:`FilterHistory` for smoothable filters.
+    :meth:`~Recovery.before_update` (re)starts the filter there), the
+    ``monitor``'s verdict on its counts (:meth:`TrackMonitor.due`, or
+    :data:`STILL_LOST` at any other epoch of a lost track): a restart by the
+    ``recovery``, else, at :data:`LOST` and unless the ``recovery`` waits for a
+    single frame, the monitor's inflation; the estimate recorded.  A non-finite
+    state flags that epoch and all later ones and stops the loop.  The track
+    (:func:`filter_result` with ``options``' validity rules) keeps a
+    :class:`FilterHistory` for smoothable filters.
     """
     t = np.asarray(t, dtype=float)
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
