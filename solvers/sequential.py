@@ -85,6 +85,7 @@ DIAGNOSTICS = (
     "gyro_gap_s",
     "update_iterations",
     "recoveries",
+    "restarts",
     "covariance_repairs",
 )
 """Per-epoch counts of the gyro-aided filters (:func:`filter_result`)."""
@@ -161,47 +162,130 @@ def rejected_epoch(n_gated: float, n_used: float) -> bool:
     return n_gated > 0 and n_gated >= n_used
 
 
+LOST = "lost"
+"""A :meth:`TrackMonitor.due` verdict: the track is lost (every ``max_rejected_epochs``
+rejected epochs)."""
+STILL_LOST = "still lost"
+"""The verdict at the other measurement epochs of a lost track: a restart is tried at
+each (the covariance is inflated only at :data:`LOST`)."""
+INCONSISTENT = "inconsistent"
+"""A :meth:`TrackMonitor.due` verdict: the consistency window has failed for
+``max_rejected_epochs`` consecutive updates."""
+
+
 @dataclass
 class TrackMonitor:
-    """Detects a lost track and inflates the covariance to re-acquire (module docstring).
+    """Detects a lost track and persistently inconsistent innovations (module docstring).
 
     Attributes:
         max_rejected_epochs: consecutive :func:`rejected_epoch` measurement
-            epochs after which the track counts as lost.
-        inflation: added to the covariance every ``max_rejected_epochs`` such
-            epochs (``recoveries`` is set in that epoch's counts); ``None``:
-            never (the online smoother, which has no re-acquisition).
+            epochs after which the track counts as lost; also the consecutive
+            updates with a failing consistency window that count as persistent.
+        inflation: added to the covariance by :meth:`check` every
+            ``max_rejected_epochs`` rejected epochs (``recoveries`` is set in that
+            epoch's counts); ``None``: never (the online smoother, which has no
+            re-acquisition).
+        consistency_window: updates in the online consistency test (the window of
+            :func:`inconsistent_epochs`, restarted by :meth:`restarted`); 0: none.
+        consistency_false_alarm: that test's false-alarm probability.
         rejected: consecutive rejected epochs so far (an accepted one resets it).
-        since_inflation: those since the last inflation.
+        since_inflation: those since the last inflation (or restart attempt).
+        failing: consecutive updates whose window failed, since the last verdict.
     """
 
     max_rejected_epochs: int
     inflation: Array | None = None
+    consistency_window: int = 0
+    consistency_false_alarm: float = 1e-6
     rejected: int = 0
     since_inflation: int = 0
+    failing: int = 0
+    window: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def lost(self) -> bool:
         """Whether the track is lost (epochs without a measurement keep the state)."""
         return self.rejected >= self.max_rejected_epochs
 
-    def check(self, counts: dict[str, float], covariance: Array) -> Array:
-        """The covariance to carry on with after an epoch's update ``counts``."""
+    def due(self, counts: dict[str, float]) -> str | None:
+        """Count an epoch's update ``counts``; :data:`LOST` every ``max_rejected_epochs``
+        rejected epochs, :data:`INCONSISTENT` after ``max_rejected_epochs`` consecutive
+        updates whose window fails the chi-square test, else ``None``."""
         n_used = counts.get("n_used", 0.0)
         if rejected_epoch(counts.get("n_gated", 0.0), n_used):
             self.rejected += 1
             self.since_inflation += 1
         elif n_used > 0:
             self.rejected = self.since_inflation = 0
-        if self.inflation is None or self.since_inflation < self.max_rejected_epochs:
+        self._observe(counts.get("nis", np.nan), counts.get("nis_dof", 0.0))
+        if self.since_inflation >= self.max_rejected_epochs:
+            self.since_inflation = 0
+            return LOST
+        if self.failing >= self.max_rejected_epochs:
+            self.failing = 0
+            return INCONSISTENT
+        return None
+
+    def _observe(self, nis: float, dof: float) -> None:
+        """Add an update to the window and test it (:func:`inconsistent_epochs`' rule)."""
+        if not (self.consistency_window and np.isfinite(nis) and dof > 0):
+            return
+        self.window = [*self.window[1 - self.consistency_window :], (nis, dof)]
+        total, rows = np.sum(self.window, axis=0)
+        failed = chi2.sf(total, rows) < self.consistency_false_alarm
+        self.failing = self.failing + 1 if failed else 0
+
+    def check(self, counts: dict[str, float], covariance: Array) -> Array:
+        """The covariance to carry on with after an epoch's update ``counts``: inflated
+        when :meth:`due` finds the track lost."""
+        if self.due(counts) != LOST or self.inflation is None:
             return covariance
-        self.since_inflation = 0
         counts["recoveries"] = 1.0
         return covariance + self.inflation
 
+    def restarted(self) -> None:
+        """Forget the counts and the window: the filter was restarted."""
+        self.rejected = self.since_inflation = self.failing = 0
+        self.window = []
+
+
+RESTARTED, WAIT, INFLATE = "restarted", "wait", "inflate"
+"""Outcomes of :meth:`Recovery.restart`: the state was replaced; no restart now but
+one is possible later (no inflation); none possible (the monitor's inflation)."""
+
+
+class Recovery(ABC):
+    """Starts and restarts a filter from outside its own steps (the gyro filters'
+    :class:`~attopt.solvers.filters.recovery.SingleFrameRecovery`).
+
+    :func:`run_filter` calls :meth:`before_update` at every epoch with a
+    measurement and :meth:`restart` when the :class:`TrackMonitor` gives a verdict;
+    an epoch at which either replaces the state has ``restarts = 1`` in its counts,
+    its ``nis`` is NaN (the epoch's update no longer describes the state) and the
+    consistency window starts again (:func:`filter_result`).
+    """
+
+    @abstractmethod
+    def before_update(
+        self, filter: SequentialFilter, measurement: AttitudeMeasurement
+    ) -> dict[str, float] | None:
+        """``None``: update as usual; else the counts replacing the update's (the epoch
+        (re)started the filter, or it has no start yet)."""
+
+    @abstractmethod
+    def restart(
+        self, filter: SequentialFilter, measurement: AttitudeMeasurement, verdict: str
+    ) -> str:
+        """After the monitor's ``verdict`` (:data:`LOST`, :data:`STILL_LOST` or
+        :data:`INCONSISTENT`): :data:`RESTARTED`, :data:`WAIT` or :data:`INFLATE`."""
+
 
 def inconsistent_epochs(
-    nis: ArrayLike, dof: ArrayLike, window: int, false_alarm: float
+    nis: ArrayLike,
+    dof: ArrayLike,
+    window: int,
+    false_alarm: float,
+    restarts: ArrayLike | None = None,
 ) -> NDArray[np.bool_]:
     """The epochs whose last ``window`` updates' innovations fail the chi-square test.
 
@@ -209,9 +293,11 @@ def inconsistent_epochs(
     + R``; NaN: no update) and ``dof`` its rows: for a consistent filter their sums over
     the updates are chi-square with the summed rows (Bar-Shalom, Li and Kirubarajan 2001
     sec. 5.4.2).  An update epoch fails when ``P(chi2(sum dof) >= sum nis) < false_alarm``
-    over it and the ``window - 1`` updates before it (fewer at the start); an epoch
-    without an update keeps the verdict of the last update before it (none: passes).
-    The test reads the innovations only, so it flags without changing the estimates.
+    over it and the ``window - 1`` updates before it (fewer at the start, and never
+    before the last of the ``restarts`` epochs at or before it: a restarted filter's
+    window starts again); an epoch without an update keeps the verdict of the last
+    update before it (none: passes).  The test reads the innovations only, so it flags
+    without changing the estimates.
 
     Example::
 
@@ -227,11 +313,53 @@ def inconsistent_epochs(
     if not updates.size:
         return flagged
     sums = [np.concatenate([[0.0], np.cumsum(v[updates])]) for v in (nis, dof)]
-    first = np.maximum(np.arange(1, updates.size + 1) - window, 0)
+    first = np.maximum(
+        np.arange(1, updates.size + 1) - window, _segment_starts(updates, restarts, nis.size)
+    )
     total, rows = (c[1:] - c[first] for c in sums)
     failed = chi2.sf(total, rows) < false_alarm
     last = np.searchsorted(updates, np.arange(nis.size), side="right") - 1
     flagged[last >= 0] = failed[last[last >= 0]]
+    return flagged
+
+
+def _segment_starts(
+    updates: NDArray[np.intp], restarts: ArrayLike | None, n: int
+) -> NDArray[np.intp]:
+    """For each update (epoch indices ``updates``), the index into ``updates`` of the first
+    update at or after the last restart at or before it (0 without one)."""
+    restart = np.flatnonzero(np.zeros(n) if restarts is None else np.asarray(restarts) > 0)
+    if not restart.size:
+        return np.zeros(updates.size, dtype=np.intp)
+    last = np.searchsorted(restart, updates, side="right") - 1
+    begin = np.where(last >= 0, restart[np.maximum(last, 0)], 0)
+    return np.searchsorted(updates, begin, side="left")
+
+
+def converging_epochs(
+    nis: ArrayLike, dof: ArrayLike, restarts: ArrayLike, window: int
+) -> NDArray[np.bool_]:
+    """The epochs from each restart (``restarts > 0``) to its ``window``-th update after it:
+    the restarted filter has not yet passed a whole window of the consistency test
+    (:func:`inconsistent_epochs`); none with ``window = 0``.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.sequential import converging_epochs
+        >>> nis = np.array([3.0, np.nan, 2.0, np.nan, 3.5, 2.5, 3.0])
+        >>> converging_epochs(nis, np.full(7, 3.0), [0, 1, 0, 0, 0, 0, 0], window=2).tolist()
+        [False, True, True, True, True, False, False]
+    """
+    nis, dof = np.asarray(nis, dtype=float), np.asarray(dof, dtype=float)
+    flagged = np.zeros(nis.size, dtype=bool)
+    if not window:
+        return flagged
+    updates = np.flatnonzero(np.isfinite(nis) & (dof > 0))
+    for k in np.flatnonzero(np.asarray(restarts) > 0):
+        after = updates[updates > k]
+        stop = after[window - 1] + 1 if after.size >= window else nis.size
+        flagged[k:stop] = True
     return flagged
 
 
@@ -355,15 +483,21 @@ def run_filter(
     monitor: TrackMonitor,
     options: FilterOptions,
     method: str,
+    recovery: Recovery | None = None,
 ) -> Track:
     """Walk the epochs ``t`` with ``filter`` (module docstring) and assemble the track.
 
     At each epoch: :meth:`~SequentialFilter.predict` to ``t[k]``, the
     prediction recorded (smoothable filters), :meth:`~SequentialFilter.update`
-    with ``measurements[k]``, the ``monitor``'s check of its counts, the
-    estimate recorded; a non-finite state flags that epoch and all later ones
-    and stops the loop.  The track (:func:`filter_result` with ``options``'
-    validity rules) keeps a :class:`FilterHistory` for smoothable filters.
+    with ``measurements[k]`` (unless the ``recovery``'s
+    :meth:`~Recovery.before_update` (re)starts the filter there), the
+    ``monitor``'s verdict on its counts (:meth:`TrackMonitor.due`, or
+    :data:`STILL_LOST` at any other epoch of a lost track): a restart by the
+    ``recovery``, else, at :data:`LOST` and unless the ``recovery`` waits for a
+    single frame, the monitor's inflation; the estimate recorded.  A non-finite
+    state flags that epoch and all later ones and stops the loop.  The track
+    (:func:`filter_result` with ``options``' validity rules) keeps a
+    :class:`FilterHistory` for smoothable filters.
     """
     t = np.asarray(t, dtype=float)
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
@@ -373,10 +507,9 @@ def run_filter(
         counts = filter.predict(float(time))
         if history is not None:
             history.predicted(k, filter)
-        updated = filter.update(measurement)
+        updated = _update(filter, measurement, monitor, recovery)
         if updated is not None:
             counts = _merged(counts, updated)
-            filter.covariance = monitor.check(counts, filter.covariance)
         lost[k] = monitor.lost
         if not record.store(k, filter, counts):
             break
@@ -385,6 +518,37 @@ def run_filter(
     return filter_result(
         method, record, options, t, None if history is None else history.history(record), lost
     )
+
+
+def _update(
+    filter: SequentialFilter,
+    measurement: AttitudeMeasurement | None,
+    monitor: TrackMonitor,
+    recovery: Recovery | None,
+) -> dict[str, float] | None:
+    """One epoch's update and recovery (:func:`run_filter`); its counts."""
+    if measurement is not None and recovery is not None:
+        replaced = recovery.before_update(filter, measurement)
+        if replaced is not None:
+            if replaced.get("restarts"):
+                monitor.restarted()
+            return replaced
+    counts = filter.update(measurement)
+    if counts is None:
+        return None
+    verdict = monitor.due(counts)
+    if verdict is None and monitor.lost:
+        verdict = STILL_LOST
+    if verdict is None:
+        return counts
+    outcome = INFLATE if recovery is None else recovery.restart(filter, measurement, verdict)
+    if outcome == RESTARTED:
+        monitor.restarted()
+        return counts | {"restarts": 1.0, "nis": np.nan, "nis_dof": 0.0}
+    if outcome == INFLATE and verdict == LOST and monitor.inflation is not None:
+        counts["recoveries"] = 1.0
+        filter.covariance = filter.covariance + monitor.inflation
+    return counts
 
 
 def filter_result(
@@ -403,8 +567,11 @@ def filter_result(
       ``gyro_gap_s``);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
     * a lost track (``lost``, from the :class:`TrackMonitor`);
+    * a restarted filter still converging (:func:`converging_epochs` of the record's
+      ``restarts``, when it has them and ``options.consistency_window`` is not 0);
     * inconsistent innovations (:func:`inconsistent_epochs` of the record's ``nis`` and
-      ``nis_dof``, when it has both, over ``options.consistency_window`` updates), whose
+      ``nis_dof``, when it has both, over ``options.consistency_window`` updates, the
+      window starting again at each restart), whose
       error is :class:`~attopt.formulations.errors.ModelMismatchError` (the others'
       :class:`~attopt.formulations.errors.ConvergenceError`).
 
@@ -433,11 +600,16 @@ def filter_result(
         )
     inconsistent = np.zeros(record.n, dtype=bool)
     if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
+        nis, dof = record.diagnostics["nis"], record.diagnostics["nis_dof"]
+        restarts = record.diagnostics.get("restarts")
+        if restarts is not None:
+            converging = converging_epochs(nis, dof, restarts, options.consistency_window)
+            reason[converging & (reason == "")] = (
+                f"converging: restarted from a single-frame solution, fewer than "
+                f"{options.consistency_window} updates since"
+            )
         inconsistent = inconsistent_epochs(
-            record.diagnostics["nis"],
-            record.diagnostics["nis_dof"],
-            options.consistency_window,
-            options.consistency_false_alarm,
+            nis, dof, options.consistency_window, options.consistency_false_alarm, restarts
         ) & (reason == "")
         reason[inconsistent] = (
             f"inconsistent: the innovations of the last {options.consistency_window} updates "

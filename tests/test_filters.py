@@ -637,8 +637,9 @@ def test_non_finite_update_is_flagged_not_raised():
 
 @pytest.mark.parametrize("estimator", [Mekf, Usque], ids=["mekf", "usque"])
 def test_lost_track_is_flagged_and_recovered(estimator):
-    """A prior 60 deg off that claims 0.1 deg: every vector is gated, so after
-    ``max_rejected_epochs`` epochs they are flagged "lost track" and the
+    """A prior 60 deg off that claims 0.1 deg, with the inflation alone (``recovery =
+    "inflate"``; the restart is in ``tests/test_filter_recovery.py``): every vector is
+    gated, so after ``max_rejected_epochs`` epochs they are flagged "lost track" and the
     attitude covariance is inflated by ``recover_sigma`` (repeatedly) until the
     vectors are accepted; the filter then converges and is valid again."""
     run = simulate_pass(np.random.default_rng(11), duration=120.0)
@@ -648,7 +649,7 @@ def test_lost_track_is_flagged_and_recovered(estimator):
         prior_covariance(np.radians(0.1)),
         bias=np.zeros(3),
     )
-    options = FilterOptions()
+    options = FilterOptions(recovery="inflate")
     result = solve_with(estimator(filter=options), run.gyro, run.t, run.measurements, prior)
     lost = np.char.startswith(result.reason.astype(str), "lost track")
     first = options.max_rejected_epochs - 1
@@ -668,9 +669,9 @@ def test_lost_track_recovery_reacquires_the_bias(estimator):
     filter settles on a bias about 0.2 deg/s wrong with a small covariance.
     From 150 s (the false attitude is 30 deg off) the true vectors are gated,
     the track is lost, and the recovery inflates the bias covariance by the
-    prior's as well as the attitude's, so the filter re-estimates the bias and
-    converges.  With the attitude inflated alone it re-acquires the attitude
-    at each recovery and drifts off again with the wrong bias (measured: 30
+    prior's as well as the attitude's (``recovery = "inflate"``), so the filter
+    re-estimates the bias and converges.  With the attitude inflated alone it
+    re-acquires the attitude at each recovery and drifts off again with the wrong bias (measured: 30
     recoveries, valid epochs up to 2 deg off in the last 60 s, the bias still
     0.2 deg/s wrong; with the bias inflated too: 4 recoveries, 0.04 deg)."""
     run = simulate_pass(np.random.default_rng(12), duration=400.0)
@@ -683,7 +684,7 @@ def test_lost_track_recovery_reacquires_the_bias(estimator):
         VectorMeasurement(attitude.apply(REFERENCES), REFERENCES, SIGMA) for attitude in false_truth
     ] + run.measurements[switch:]
     prior = Prior(run.truth[0], prior_covariance(np.radians(1.0)), bias=run.bias[0])
-    options = FilterOptions()
+    options = FilterOptions(recovery="inflate")
     result = solve_with(estimator(filter=options), run.gyro, run.t, measurements, prior)
     assert result.diagnostics["recoveries"][switch:].sum() >= 1
     assert result.valid[-60:].all()

@@ -35,18 +35,24 @@ Faults, all counted in the result's diagnostics:
 * a lost track (:class:`~attopt.solvers.sequential.TrackMonitor`): after
   ``max_rejected_epochs`` consecutive measurement epochs with at least as
   many gated observation blocks as used ones, epochs are flagged until one is
-  accepted, the attitude covariance is inflated by ``recover_sigma^2 I`` and
-  the bias covariance by the prior's bias covariance to re-acquire (counted
-  as ``recoveries``; :func:`gyro_monitor`): the updates that led the
-  attitude astray have corrupted the bias estimate too, and with its
-  covariance left small the filter would re-acquire the attitude at the next
-  accepted measurement and then drift off again with the wrong bias.
+  accepted; by default (``FilterOptions.recovery = "restart"``) the attitude
+  restarts from a single-frame solution of the epoch's measurement (counted
+  as ``restarts``; :mod:`attopt.solvers.filters.recovery`, which also starts
+  a filter without a prior and restarts one whose innovations persistently
+  contradict it), and where there is none, or with ``recovery = "inflate"``,
+  the attitude covariance is inflated by ``recover_sigma^2 I`` and the bias
+  covariance by the prior's bias covariance to re-acquire (counted as
+  ``recoveries``; :func:`gyro_monitor`): the updates that led the attitude
+  astray have corrupted the bias estimate too, and with its covariance left
+  small the filter would re-acquire the attitude at the next accepted
+  measurement and then drift off again with the wrong bias.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Literal
 
 import casadi as ca
 import numpy as np
@@ -72,6 +78,8 @@ CONSISTENCY_WINDOW = 10
 """Updates in the innovation consistency test (:class:`FilterOptions`)."""
 CONSISTENCY_FALSE_ALARM = 1e-6
 """The consistency test's false-alarm probability per epoch (:class:`FilterOptions`)."""
+RECOVERIES = ("restart", "inflate", "none")
+"""The values of ``FilterOptions.recovery``."""
 
 
 def error_vector(estimate: Rotation, reference: Rotation) -> Array:
@@ -128,10 +136,10 @@ class FilterOptions:
             with at least as many gated observations as used ones
             (:func:`~attopt.solvers.sequential.rejected_epoch`), epochs are
             flagged as a lost track until an observation is accepted again,
-            and the attitude covariance is inflated by ``recover_sigma^2 I``
-            (repeatedly, every ``max_rejected_epochs`` such epochs) so that the
-            filter can re-acquire (:class:`~attopt.solvers.sequential.TrackMonitor`;
-            the bias covariance is inflated by the prior's).
+            and, every ``max_rejected_epochs`` such epochs, the filter is restarted
+            or its covariance inflated (``recovery``): the attitude by
+            ``recover_sigma^2 I`` and the bias by the prior's
+            (:class:`~attopt.solvers.sequential.TrackMonitor`).
         recover_sigma: that inflation (rad).
         consistency_window: updates whose normalised innovations squared are summed in
             the consistency test (:func:`~attopt.solvers.sequential.inconsistent_epochs`): an
@@ -142,7 +150,17 @@ class FilterOptions:
             does not fit the data, a filter still converging from a wrong start); 0
             turns the test off.
         consistency_false_alarm: the test's probability of flagging an epoch of a
-            consistent filter.
+            consistent filter (also the false alarm of the restart's tests,
+            :mod:`attopt.solvers.filters.recovery`).
+        recovery: what the MEKF and USQUE do to re-acquire
+            (:mod:`attopt.solvers.filters.recovery`): ``"restart"``, restart the
+            attitude from a single-frame solution of the epoch's measurement when the
+            track is lost or the consistency window fails for
+            ``max_rejected_epochs`` consecutive updates (and at the first measurement
+            epoch when it contradicts the prior), falling back to the inflation by
+            ``recover_sigma`` for a lost track where no single frame passes its tests;
+            ``"inflate"``, the inflation alone; ``"none"``, flag only.  Without a
+            prior the filters start from a single-frame solution whatever this is.
 
     Example::
 
@@ -164,6 +182,13 @@ class FilterOptions:
     recover_sigma: float = np.radians(20.0)
     consistency_window: int = CONSISTENCY_WINDOW
     consistency_false_alarm: float = CONSISTENCY_FALSE_ALARM
+    recovery: Literal["restart", "inflate", "none"] = "restart"
+
+    def __post_init__(self) -> None:
+        if self.recovery not in RECOVERIES:
+            raise ValueError(
+                f"recovery must be one of {', '.join(RECOVERIES)}, not {self.recovery!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -245,14 +270,15 @@ class GyroPass:
     Attributes:
         gyro: the prepared timeline of the pass's gyro record cut at its epochs.
         model: the gyro's noise model.
-        prior: ``[attitude, bias]`` at the first gyro sample.
+        prior: ``[attitude, bias]`` at the first gyro sample (``None``: the pass has
+            none and the estimator allows that).
         t: ``(N,)`` epoch times.
         measurements: one measurement (or ``None``) per epoch.
     """
 
     gyro: PreparedGyro
     model: GyroModel
-    prior: Prior
+    prior: Prior | None
     t: Array
     measurements: list[AttitudeMeasurement | None]
 
@@ -271,30 +297,33 @@ def gyro_prior(prior: Prior, model: GyroModel) -> Prior:
     return prior.with_bias_covariance(model.initial_bias_sigma)
 
 
-def check_gyro_pass(pass_: Pass, estimator: Estimator) -> None:
+def check_gyro_pass(pass_: Pass, estimator: Estimator, needs_prior: bool = True) -> None:
     """Raise unless ``pass_`` suits a gyro-aided ``estimator``.
 
     Raises:
         UnsupportedMeasurementError: a measurement type ``estimator`` does not accept.
-        InvalidObservationError: no gyro record or no prior.
+        InvalidObservationError: no gyro record, or no prior when ``needs_prior``.
     """
     estimator.check_types(pass_.types())
     if pass_.gyro is None:
         raise InvalidObservationError(f"{estimator.name} needs a gyro record: the pass has none")
-    if pass_.prior is None:
+    if needs_prior and pass_.prior is None:
         raise InvalidObservationError(f"{estimator.name} needs a prior: the pass has none")
 
 
-def gyro_pass(pass_: Pass, estimator: Estimator, options: FilterOptions) -> GyroPass:
+def gyro_pass(
+    pass_: Pass, estimator: Estimator, options: FilterOptions, needs_prior: bool = True
+) -> GyroPass:
     """Check ``pass_`` for a gyro-aided ``estimator`` (:func:`check_gyro_pass`) and
-    prepare its gyro timeline."""
-    check_gyro_pass(pass_, estimator)
+    prepare its gyro timeline; ``prior`` is ``None`` for a pass without one (allowed
+    unless ``needs_prior``)."""
+    check_gyro_pass(pass_, estimator, needs_prior)
     model = pass_.gyro.model
     timeline = gyro_timeline(pass_.gyro.samples, pass_.t)
     return GyroPass(
         prepare_gyro(timeline, options),
         model,
-        gyro_prior(pass_.prior, model),
+        None if pass_.prior is None else gyro_prior(pass_.prior, model),
         pass_.t,
         pass_.measurements(),
     )
@@ -303,11 +332,18 @@ def gyro_pass(pass_: Pass, estimator: Estimator, options: FilterOptions) -> Gyro
 def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
     """The gyro filters' :class:`~attopt.solvers.sequential.TrackMonitor`: re-acquisition
     inflates the attitude covariance by ``recover_sigma^2 I`` and the bias covariance by
-    the prior's (module docstring)."""
+    the prior's (module docstring; none with ``recovery = "none"``), and the monitor runs
+    the consistency window of ``options`` for the restarts
+    (:mod:`attopt.solvers.filters.recovery`)."""
     inflation = np.zeros((STATE_SIZE, STATE_SIZE))
     inflation[:3, :3] = options.recover_sigma**2 * np.eye(3)
     inflation[3:, 3:] = prior.covariance[3:, 3:]
-    return TrackMonitor(options.max_rejected_epochs, inflation)
+    return TrackMonitor(
+        options.max_rejected_epochs,
+        None if options.recovery == "none" else inflation,
+        options.consistency_window,
+        options.consistency_false_alarm,
+    )
 
 
 class GyroStateFilter(SequentialFilter):

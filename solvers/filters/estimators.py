@@ -41,6 +41,7 @@ from attopt.solvers.filters.common import (
     gyro_pass,
 )
 from attopt.solvers.filters.mekf import MekfFilter
+from attopt.solvers.filters.recovery import SingleFrameRecovery, unknown_prior
 from attopt.solvers.filters.rts import rts_smooth
 from attopt.solvers.filters.usque import UsqueFilter
 from attopt.solvers.results import Track
@@ -61,16 +62,20 @@ class GyroFilter(PassEstimator):
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (AttitudeMeasurement,)
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
-        """The filtered track (``initial`` unused); a smoothable filter's keeps the
-        history an RTS pass needs."""
-        inputs = gyro_pass(pass_, self, self.filter)
+        """The filtered track (``initial`` unused), started and restarted from single-frame
+        solutions as ``filter.recovery`` says (:mod:`attopt.solvers.filters.recovery`;
+        without a prior from the first one); a smoothable filter's keeps the history an
+        RTS pass needs."""
+        inputs = gyro_pass(pass_, self, self.filter, needs_prior=False)
+        start = inputs.prior if inputs.prior is not None else unknown_prior(inputs.model)
         return run_filter(
-            self.steps(inputs.gyro, inputs.model, inputs.prior, self.filter),
+            self.steps(inputs.gyro, inputs.model, start, self.filter),
             inputs.t,
             inputs.measurements,
-            gyro_monitor(self.filter, inputs.prior),
+            gyro_monitor(self.filter, start),
             self.filter,
             self.name,
+            SingleFrameRecovery.of(self.filter, inputs.prior, inputs.model),
         )
 
 
@@ -121,7 +126,7 @@ class Rts(PassEstimator):
             InvalidObservationError: no gyro record or prior, or ``initial`` has another
                 number of epochs or no history.
         """
-        check_gyro_pass(pass_, self)
+        check_gyro_pass(pass_, self, needs_prior=False)
         if initial is None:
             initial = self.forward.solve(pass_)
         if len(initial) != len(pass_):

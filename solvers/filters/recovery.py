@@ -1,0 +1,205 @@
+"""Start and re-acquisition of the gyro filters from a single-frame solution.
+
+The MEKF and USQUE (:mod:`attopt.solvers.filters.estimators`) run through
+:func:`attopt.solvers.sequential.run_filter` with a :class:`SingleFrameRecovery`:
+
+* **Start without a prior** (``Pass.prior is None``): the filter propagates
+  from the first gyro sample with an unknown attitude (``sigma = pi`` per
+  axis, so its epochs are flagged "attitude not determined") and zero bias
+  with the gyro model's initial bias sigma; at the first epoch whose
+  measurement has a :func:`single_frame` solution, the attitude and its
+  covariance are set to it.
+* **Start against a prior** (``recovery = "restart"``): at the first epoch with
+  a measurement, the predicted attitude is compared with that epoch's
+  single-frame solution; if they contradict each other (:func:`contradicts`),
+  the filter starts from the single frame.  A prior far off can otherwise put
+  the first update into a second basin of the MAP cost and keep it there while
+  every SNR is accepted (Markley and Crassidis 2014 sec. 6.2 on the MEKF's
+  small-error assumption).
+* **Re-acquisition** (``recovery = "restart"``): at every measurement epoch of
+  a track the :class:`~attopt.solvers.sequential.TrackMonitor` finds lost, and
+  when it finds the consistency window failing for ``max_rejected_epochs``
+  consecutive updates (if the single frame contradicts the estimate), the
+  attitude restarts from the single frame of that epoch's measurement.  While
+  the single frame fails its residual test (outliers), the next epoch tries
+  again with the covariance left as it is: an inflated covariance would let
+  the filter accept the first clean epoch from wherever it has drifted to
+  (measured in a 20 dB outlier burst: accepted 73 deg off, NEES 599).  Where
+  the measurement cannot determine the attitude at all, the lost track falls
+  back to the covariance inflation (every ``max_rejected_epochs`` rejected
+  epochs).
+
+A restart keeps the bias estimate and resets its covariance to the prior's
+(the gyro model's initial bias sigma without a prior), with no attitude-bias
+correlation: the updates that lost the track, or were made against a wrong
+attitude, also corrupted the bias, and its covariance then claims a precision
+the estimate does not have (``docs/filters.md``, Faults: the lost-track
+measurement in ``doa-ground``).  The reset is conservative: the bias is
+re-learnt from the following updates.
+
+The single-frame solver is the registry's generic ``map_nlp``
+(:mod:`attopt.solvers.map_nlp`): it accepts every measurement type with a
+symbolic model, the very models the filters use, starts without a prior from
+the 24 rotations of the octahedral group (no attitude farther than 62.8 deg
+from one of them) and returns the inverse Fisher information as covariance.
+A solution is used only if it converged, its covariance determines every axis
+(largest sigma at most ``max_attitude_sigma``) and its residuals pass the
+chi-square test of ``m - 3`` degrees of freedom at ``consistency_false_alarm``
+(``2 L``, ``L`` the MAP loss at the estimate; ``m`` the measurement's rows,
+lenient for unit vectors whose three rows carry two independent components):
+a measurement the model does not fit (a burst of outliers) gives no restart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.errors import UnsupportedMeasurementError
+from attopt.formulations.gyro import GyroModel
+from attopt.formulations.passes import Prior
+from attopt.formulations.snapshot import Snapshot
+from attopt.solvers.filters.common import FilterOptions, error_vector
+from attopt.solvers.sequential import (
+    INCONSISTENT,
+    INFLATE,
+    RESTARTED,
+    WAIT,
+    Recovery,
+    SequentialFilter,
+)
+
+Array = NDArray[np.float64]
+
+UNKNOWN_ATTITUDE_SIGMA = np.pi
+"""Per-axis attitude sigma (rad) of a filter that has no start yet."""
+
+
+@dataclass(frozen=True)
+class SingleFrame:
+    """A single-frame attitude and its ``3 x 3`` covariance (body frame, rad^2)."""
+
+    attitude: Rotation
+    covariance: Array
+
+
+def single_frame(measurement: AttitudeMeasurement, options: FilterOptions) -> SingleFrame | str:
+    """The ``map_nlp`` solution of one epoch's ``measurement`` without a prior, or why
+    there is none (module docstring): :data:`~attopt.solvers.sequential.INFLATE` when
+    the measurement cannot determine the attitude (no symbolic model, no converged
+    solution, an axis above ``max_attitude_sigma``), :data:`~attopt.solvers.sequential.WAIT`
+    when its residuals fail the chi-square test (a later epoch may fit)."""
+    from attopt.solvers.map_nlp import MAP_NLP  # here: map_nlp imports the bounds, which import us
+
+    try:
+        track = MAP_NLP.solve_sequence([Snapshot.of(measurement)])
+    except UnsupportedMeasurementError:  # no symbolic model: no single frame
+        return INFLATE
+    covariance = track.covariance[0]
+    if not (track.valid[0] and np.all(np.isfinite(covariance))):
+        return INFLATE
+    if np.sqrt(np.max(np.diag(covariance))) > options.max_attitude_sigma:
+        return INFLATE
+    dof = measurement.size - 3
+    if dof > 0 and chi2.sf(2.0 * track.loss[0], dof) < options.consistency_false_alarm:
+        return WAIT
+    return SingleFrame(track.attitude()[0], covariance)
+
+
+def contradicts(filter: SequentialFilter, frame: SingleFrame, false_alarm: float) -> bool:
+    """Whether the filter's attitude and a single-frame solution contradict each other:
+    ``d^T (P_a + P_s)^-1 d`` (``d`` their error vector, ``P_a`` the filter's attitude
+    covariance, ``P_s`` the frame's) beyond the chi-square(3) quantile ``1 - false_alarm``,
+    the innovation test of an attitude observation (Bar-Shalom, Li and Kirubarajan 2001
+    sec. 5.4.2)."""
+    d = error_vector(frame.attitude, filter.attitude)
+    s = filter.covariance[:3, :3] + frame.covariance
+    with np.errstate(invalid="ignore", over="ignore"):
+        statistic = float(d @ np.linalg.solve(s, d))
+    return not chi2.sf(statistic, 3) >= false_alarm
+
+
+def unknown_prior(model: GyroModel) -> Prior:
+    """The start of a filter without a prior: unknown attitude (:data:`UNKNOWN_ATTITUDE_SIGMA`),
+    zero bias with the model's initial bias sigma."""
+    variances = [UNKNOWN_ATTITUDE_SIGMA**2] * 3 + [model.initial_bias_sigma**2] * 3
+    return Prior(Rotation.identity(), np.diag(variances), bias=np.zeros(3))
+
+
+@dataclass
+class SingleFrameRecovery(Recovery):
+    """Start and restarts of a gyro filter from single-frame solutions (module docstring).
+
+    Attributes:
+        options: the filter's options (``recovery``, the tests' limits).
+        bias_covariance: ``(3, 3)`` the bias covariance a restart resets to.
+        started: whether the filter has an attitude (a prior, or a single frame).
+        checked: whether the first measurement epoch has been checked against the
+            prior.
+    """
+
+    options: FilterOptions
+    bias_covariance: Array
+    started: bool = True
+    checked: bool = False
+
+    @classmethod
+    def of(
+        cls, options: FilterOptions, prior: Prior | None, model: GyroModel
+    ) -> SingleFrameRecovery:
+        """The recovery of a filter started from ``prior`` (``None``: :func:`unknown_prior`)."""
+        start = prior if prior is not None else unknown_prior(model)
+        checked = options.recovery != "restart"
+        return cls(options, np.asarray(start.covariance)[3:, 3:], prior is not None, checked)
+
+    def before_update(
+        self, filter: SequentialFilter, measurement: AttitudeMeasurement
+    ) -> dict[str, float] | None:
+        """Without a start: start from the epoch's single frame (or wait for one); at the
+        first measurement epoch: restart if the prior contradicts its single frame."""
+        if self.started and self.checked:
+            return None
+        frame = single_frame(measurement, self.options)
+        if not self.started:
+            if not isinstance(frame, SingleFrame):
+                return {}
+            self.started = self.checked = True
+            return self._apply(filter, frame)
+        self.checked = True
+        if not isinstance(frame, SingleFrame) or not contradicts(
+            filter, frame, self.options.consistency_false_alarm
+        ):
+            return None
+        return self._apply(filter, frame)
+
+    def restart(
+        self, filter: SequentialFilter, measurement: AttitudeMeasurement, verdict: str
+    ) -> str:
+        """Restart after a lost track, or after persistently inconsistent innovations when
+        the single frame contradicts the estimate (``recovery = "restart"``; else
+        :data:`~attopt.solvers.sequential.INFLATE`)."""
+        if self.options.recovery != "restart":
+            return INFLATE
+        frame = single_frame(measurement, self.options)
+        if not isinstance(frame, SingleFrame):
+            return frame
+        if verdict == INCONSISTENT and not contradicts(
+            filter, frame, self.options.consistency_false_alarm
+        ):
+            return WAIT
+        self._apply(filter, frame)
+        return RESTARTED
+
+    def _apply(self, filter: SequentialFilter, frame: SingleFrame) -> dict[str, float]:
+        """Set the attitude and covariance from ``frame``, keep the bias (module docstring;
+        the error state's attitude block first, as the gyro filters')."""
+        covariance = np.zeros_like(filter.covariance)
+        covariance[:3, :3] = frame.covariance
+        covariance[3:, 3:] = self.bias_covariance
+        filter.attitude, filter.covariance = frame.attitude, covariance
+        return {"restarts": 1.0, "nis": np.nan, "nis_dof": 0.0}

@@ -1,0 +1,182 @@
+"""Start and re-acquisition of the gyro filters from single-frame solutions
+(:mod:`attopt.solvers.filters.recovery`).
+
+Scenario: the vector passes of :mod:`tests.filter_passes` (a body turning at a
+constant rate, a 2 Hz MEMS-class gyro, two unit vectors at 1 s epochs with 1 mrad
+noise).  Integrity is the share of valid epochs whose attitude NEES exceeds the
+chi-square(3) 1 - 1e-4 quantile.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from attopt.formulations.attitude_measurement import VectorMeasurement
+from attopt.formulations.conventions import attitude_error
+from attopt.formulations.passes import GyroRecord, Pass, Prior, epoch_snapshots
+from attopt.solvers.filters import FilterOptions, Mekf, Usque
+from attopt.solvers.filters.recovery import SingleFrame, single_frame
+from attopt.solvers.sequential import INCONSISTENT, LOST, WAIT, TrackMonitor
+from tests.filter_passes import (
+    GYRO,
+    REFERENCES,
+    SIGMA,
+    SimulatedPass,
+    prior_covariance,
+    simulate_pass,
+    solve_with,
+)
+
+QUANTILE = chi2.ppf(1.0 - 1e-4, 3)
+FILTERS = pytest.mark.parametrize("estimator", [Mekf, Usque], ids=["mekf", "usque"])
+WINDOW = FilterOptions().consistency_window
+
+
+def integrity_share(track, run: SimulatedPass) -> float:
+    """Share of the valid epochs whose attitude NEES exceeds :data:`QUANTILE`."""
+    valid = track.valid
+    estimate = Rotation.from_quat(track.quaternion[valid])
+    error = attitude_error(estimate, run.truth_at_epochs[valid])
+    nees = np.einsum("ei,eij,ej->e", error, np.linalg.inv(track.covariance[valid]), error)
+    return float(np.mean(nees > QUANTILE))
+
+
+def outliers(run: SimulatedPass, start: int, stop: int) -> list:
+    """The pass's measurements with the Sun vector of epochs ``[start, stop)`` turned by
+    20 deg: no attitude fits both vectors there."""
+    turn = Rotation.from_rotvec(np.radians(20.0) * np.array([0.0, 0.0, 1.0]))
+    measurements = list(run.measurements)
+    for k in range(start, stop):
+        body = measurements[k].z.reshape(-1, 3).copy()
+        body[0] = turn.apply(body[0])
+        measurements[k] = VectorMeasurement(body, REFERENCES, SIGMA)
+    return measurements
+
+
+@FILTERS
+def test_restart_reacquires_after_an_outlier_burst(estimator):
+    """30 s of outlier vectors from 50 s, and from 60 s (the track already lost) a gyro
+    rate 1 deg/s off until the burst ends (the attitude drifts 20 deg): the vectors are
+    gated, the track is lost after ``max_rejected_epochs`` epochs, the outliers' single
+    frames fail their residual test (no restart, no inflation), and at the first clean
+    epoch the filter, 20 deg off, restarts from its single frame.  It is valid again
+    ``consistency_window + 1`` epochs after the burst, with no valid epoch beyond the
+    quantile."""
+    run = simulate_pass(np.random.default_rng(31), duration=150.0)
+    start, stop = 50, 80
+    rates = run.gyro.rates.copy()
+    rates[(start + 10) * 2 : stop * 2] += np.radians(1.0) * np.array([1.0, 0.0, 0.0])
+    gyro = dataclasses.replace(run.gyro, rates=rates)
+    prior = Prior(run.truth[0], prior_covariance(np.radians(1.0)), bias=run.bias[0])
+    track = solve_with(estimator(), gyro, run.t, outliers(run, start, stop), prior)
+    assert np.flatnonzero(track.diagnostics["restarts"]).tolist() == [stop]
+    assert track.diagnostics["recoveries"].sum() == 0
+    back = stop + WINDOW + 1
+    assert track.valid[: start + 9].all()
+    assert not track.valid[start + 9 : back].any()
+    assert track.valid[back:].all()
+    assert integrity_share(track, run) <= 0.001
+
+
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 2**16))
+def test_a_pass_without_a_prior_starts_from_a_single_frame(seed):
+    """No prior: the filters start at the first epoch from its single-frame solution
+    and covariance (``restarts`` there), flag the first window of updates as
+    converging, and are valid after it, with no more valid epochs beyond the quantile
+    than the same filter started from the truth with a consistent 1 deg prior."""
+    run = simulate_pass(np.random.default_rng(seed), duration=40.0)
+    gyro = GyroRecord(run.gyro.t, run.gyro.rates, GYRO)
+    pass_ = Pass(run.t, epoch_snapshots(run.measurements, run.t), gyro)
+    truth = Prior(run.truth[0], prior_covariance(np.radians(1.0)), bias=np.zeros(3))
+    for estimator in (Mekf(), Usque()):
+        track = estimator.solve(pass_)
+        assert track.diagnostics["restarts"].tolist() == [1.0] + [0.0] * (len(run.t) - 1)
+        assert all(r.startswith("converging") for r in track.reason[: WINDOW + 1])
+        assert track.valid[WINDOW + 1 :].all()
+        reference = solve_with(estimator, run.gyro, run.t, run.measurements, truth)
+        assert integrity_share(track, run) <= integrity_share(reference, run) + 0.001
+
+
+@settings(max_examples=3, deadline=None)
+@given(
+    angle=st.floats(60.0, 90.0),
+    axis=st.tuples(*[st.floats(-1.0, 1.0)] * 3).filter(lambda a: np.linalg.norm(a) > 0.1),
+)
+def test_a_wrong_basin_prior_is_detected_and_restarted(angle, axis):
+    """A prior 60-90 deg off that claims 10 deg: its prediction contradicts the first
+    epoch's single frame, so the filters restart from it at epoch 0 and are valid and
+    consistent after the first window of updates."""
+    run = simulate_pass(np.random.default_rng(41), duration=40.0)
+    axis = np.asarray(axis) / np.linalg.norm(axis)
+    wrong = Rotation.from_rotvec(np.radians(angle) * axis) * run.truth[0]
+    prior = Prior(wrong, prior_covariance(np.radians(10.0)), bias=np.zeros(3))
+    for estimator in (Mekf(), Usque()):
+        track = solve_with(estimator, run.gyro, run.t, run.measurements, prior)
+        assert track.diagnostics["restarts"][0] == 1.0
+        assert track.valid[WINDOW + 1 :].all()
+        assert integrity_share(track, run) <= 0.001
+
+
+@FILTERS
+def test_restart_never_changes_a_run_where_nothing_fails(estimator):
+    """A clean pass from a consistent prior: ``restart``, ``inflate`` and ``none`` give
+    the same track bit for bit, with no restart and no recovery."""
+    run = simulate_pass(np.random.default_rng(51), duration=120.0)
+    error = Rotation.from_rotvec(np.radians([2.0, -3.0, 1.0]))
+    prior = Prior(error * run.truth[0], prior_covariance(np.radians(5.0)), bias=np.zeros(3))
+    tracks = [
+        solve_with(
+            estimator(filter=FilterOptions(recovery=mode)), run.gyro, run.t, run.measurements, prior
+        )
+        for mode in ("restart", "inflate", "none")
+    ]
+    for track in tracks[1:]:
+        np.testing.assert_array_equal(track.quaternion, tracks[0].quaternion)
+        np.testing.assert_array_equal(track.state_covariance, tracks[0].state_covariance)
+        np.testing.assert_array_equal(track.valid, tracks[0].valid)
+    assert tracks[0].valid.all()
+    assert tracks[0].diagnostics["restarts"].sum() == 0
+    assert tracks[0].diagnostics["recoveries"].sum() == 0
+
+
+def test_single_frame_fails_on_outliers_and_is_the_map_solution_otherwise():
+    """The single frame of a clean epoch is within 5 sigma of the truth; an epoch whose
+    vectors no attitude fits fails the residual test (wait for a later epoch)."""
+    run = simulate_pass(np.random.default_rng(61), duration=2.0)
+    frame = single_frame(run.measurements[0], FilterOptions())
+    assert isinstance(frame, SingleFrame)
+    error = attitude_error(frame.attitude, run.truth_at_epochs[0])
+    assert error @ np.linalg.solve(frame.covariance, error) < QUANTILE
+    assert single_frame(outliers(run, 0, 1)[0], FilterOptions()) == WAIT
+
+
+@settings(max_examples=40, deadline=None)
+@given(nis=st.lists(st.one_of(st.none(), st.floats(0.0, 200.0)), max_size=40))
+def test_monitor_gives_inconsistent_after_a_persistently_failing_window(nis):
+    """Updates with ``nis`` (3 rows each; ``None``: no update): the monitor's verdict is
+    ``inconsistent`` at each ``max_rejected_epochs``-th consecutive update whose window
+    (the last ``window`` updates) fails the chi-square test, and never ``lost``."""
+    limit, window, false_alarm = 3, 2, 1e-6
+    monitor = TrackMonitor(limit, None, window, false_alarm)
+    updates: list[float] = []
+    failing = 0
+    for value in nis:
+        if value is None:
+            assert monitor.due({}) is None
+            continue
+        updates = [*updates[-(window - 1) :], value]
+        failed = chi2.sf(sum(updates), 3 * len(updates)) < false_alarm
+        failing = failing + 1 if failed else 0
+        expected = INCONSISTENT if failing == limit else None
+        failing = 0 if failing == limit else failing
+        verdict = monitor.due({"n_used": 1.0, "nis": value, "nis_dof": 3.0})
+        assert verdict == expected
+        assert verdict != LOST
