@@ -712,7 +712,9 @@ def test_rts_smooths_each_valid_stretch_on_its_own():
     forward = solve_with(Mekf(filter=options), run.gyro, run.t, measurements, prior)
     flagged = np.flatnonzero(~forward.valid)
     assert flagged.size and flagged[0] >= 100
-    assert all(reason.startswith("inconsistent") for reason in forward.reason[flagged])
+    # flagged inconsistent, then (once the restart from a single frame follows) converging
+    assert all(r.startswith(("inconsistent", "converging")) for r in forward.reason[flagged])
+    assert forward.reason[flagged[0]].startswith("inconsistent")
     first = int(flagged[0])
     whole = rts_smooth(forward, options, "rts")
     before = solve_with(Mekf(filter=options), run.gyro, run.t[:first], measurements[:first], prior)
