@@ -60,6 +60,33 @@ class GyroTimeline:
         return np.diff(self.t[nodes])
 
 
+def repeated_readings(rates: ArrayLike, limit: int) -> NDArray[np.bool_]:
+    """The samples in a run of more than ``limit`` consecutive samples whose reading of one
+    axis is exactly the same: a stuck axis.  A sensor with white rate noise
+    (``sigma_v > 0``) repeats a reading with probability zero, so such a run is a fault,
+    not a measurement; ``limit = 0`` finds none.  Quantised records repeat readings
+    legitimately when the noise is below the quantum: there ``limit`` must exceed the
+    longest repetition expected.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.gyro_timeline import repeated_readings
+        >>> rates = np.random.default_rng(0).normal(size=(8, 3))
+        >>> rates[2:7, 1] = 0.25  # the y axis stuck for five samples
+        >>> repeated_readings(rates, limit=4).astype(int).tolist()
+        [0, 0, 1, 1, 1, 1, 1, 0]
+    """
+    rates = np.asarray(rates, dtype=float)
+    stuck = np.zeros(rates.shape[0], dtype=bool)
+    if not limit or rates.shape[0] <= limit:
+        return stuck
+    for axis in rates.T:
+        run = np.cumsum(np.concatenate([[True], axis[1:] != axis[:-1]])) - 1
+        stuck |= np.bincount(run)[run] > limit
+    return stuck
+
+
 def gyro_timeline(samples: GyroSamples, epochs: ArrayLike) -> GyroTimeline:
     """The steps of ``samples`` cut at ``epochs`` (module docstring).
 

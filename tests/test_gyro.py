@@ -349,3 +349,25 @@ def test_mems_gyro_is_the_documented_mems_class():
 
 def test_gyro_registry():
     assert GYRO_MODELS == {"liu2023": LIU2023_GYRO, "mems": MEMS_GYRO}
+
+
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 12),
+    st.integers(1, 20),
+    st.integers(0, 2),
+    st.integers(0, 30),
+)
+def test_repeated_readings_are_the_runs_longer_than_the_limit(seed, limit, length, axis, at):
+    """Noisy readings never repeat; a run of one axis's reading is stuck exactly when it is
+    longer than the limit, and then every sample of it is."""
+    from attopt.solvers.gyro_timeline import repeated_readings
+
+    rates = np.random.default_rng(seed).normal(size=(60, 3))
+    assert not repeated_readings(rates, limit).any()
+    rates[at : at + length, axis] = 0.125
+    stuck = repeated_readings(rates, limit)
+    expected = np.zeros(60, dtype=bool)
+    expected[at : at + length] = length > limit
+    np.testing.assert_array_equal(stuck, expected)
+    assert not repeated_readings(rates, 0).any()

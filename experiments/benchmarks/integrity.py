@@ -46,6 +46,10 @@ from attopt.solvers.registry import ESTIMATORS, integrity_tests_off
 
 SHORT_ADSB_PASS = {"duration_s": 300.0}
 """Five minutes of ``adsb-snr``: long enough for the filters to settle and a fault to pass."""
+SUNLIT_WAHBA_PASS = {"duration_s": 1000.0}
+"""The first 1000 s of ``wahba-mag-sun``, in sunlight (the eclipse begins at 1001 s)."""
+STUCK_Y = {"axis": "y", "start_s": 600.0, "duration_s": 60.0}
+"""The gyro's y axis stuck for a minute, after the filters have settled."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,43 @@ CASES = (
             "receiver": {"outliers": {"start_s": 100.0, "duration_s": 30.0, "offset_db": 20.0}},
         },
         what="every SNR measured from 100 s to 130 s is 20 dB off",
+    ),
+    MismatchCase(
+        "scale-factor",
+        "wahba-mag-sun",
+        {**SUNLIT_WAHBA_PASS, "gyro_fault": {"scale_factor": {"error": 0.01}}},
+        trials=1,
+        what="the gyro's scale factor 1 % off on every axis",
+    ),
+    MismatchCase(
+        "time-offset",
+        "wahba-mag-sun",
+        {**SUNLIT_WAHBA_PASS, "gyro_fault": {"time_offset": {"offset_s": 0.5}}},
+        trials=1,
+        what="the gyro's time tags 0.5 s late against the measurements",
+    ),
+    MismatchCase(
+        "stuck-axis",
+        "wahba-mag-sun",
+        {**SUNLIT_WAHBA_PASS, "gyro_fault": {"stuck_axis": STUCK_Y}},
+        trials=1,
+        what="the gyro's y axis frozen at its reading for 60 s from 600 s",
+    ),
+    MismatchCase(
+        "dead-axis",
+        "wahba-mag-sun",
+        {**SUNLIT_WAHBA_PASS, "gyro_fault": {"stuck_axis": {**STUCK_Y, "value_deg_s": 0.0}}},
+        trials=1,
+        what="the gyro's y axis reading 0 for 60 s from 600 s",
+    ),
+    MismatchCase(
+        "dead-axis-snr",
+        "adsb-snr",
+        {
+            **SHORT_ADSB_PASS,
+            "gyro_fault": {"stuck_axis": {**STUCK_Y, "start_s": 100.0, "value_deg_s": 0.0}},
+        },
+        what="the gyro's y axis reading 0 for 60 s from 100 s",
     ),
     MismatchCase(
         "literal-gyro-eclipse",

@@ -50,7 +50,7 @@ Faults, all counted in the result's diagnostics:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Literal
 
@@ -63,10 +63,20 @@ from scipy.stats import chi2
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.attitude_model import increment_matrix
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gyro import GyroModel, attitude_increment, error_state_transition
-from attopt.formulations.passes import Pass, Prior
+from attopt.formulations.gyro import (
+    GyroModel,
+    GyroSamples,
+    attitude_increment,
+    error_state_transition,
+)
+from attopt.formulations.passes import GyroRecord, Pass, Prior
 from attopt.solvers.estimator import Estimator
-from attopt.solvers.gyro_timeline import COINCIDENCE, GyroTimeline, gyro_timeline
+from attopt.solvers.gyro_timeline import (
+    COINCIDENCE,
+    GyroTimeline,
+    gyro_timeline,
+    repeated_readings,
+)
 from attopt.solvers.sequential import SequentialFilter, TrackMonitor
 
 Array = NDArray[np.float64]
@@ -161,6 +171,13 @@ class FilterOptions:
             ``recover_sigma`` for a lost track where no single frame passes its tests;
             ``"inflate"``, the inflation alone; ``"none"``, flag only.  Without a
             prior the filters start from a single-frame solution whatever this is.
+        max_repeated_readings: a gyro whose noise model has white rate noise
+            (``sigma_v > 0``) is stuck where one axis reads exactly the same value for
+            more than this many consecutive samples
+            (:func:`~attopt.solvers.gyro_timeline.repeated_readings`): those samples are
+            treated as missing (held, with the variance growth of ``hold_rate_sigma``,
+            and flagged beyond ``max_gyro_gap_s``); 0 turns the check off (a quantised
+            record whose noise is below its quantum).
 
     Example::
 
@@ -183,6 +200,7 @@ class FilterOptions:
     consistency_window: int = CONSISTENCY_WINDOW
     consistency_false_alarm: float = CONSISTENCY_FALSE_ALARM
     recovery: Literal["restart", "inflate", "none"] = "restart"
+    max_repeated_readings: int = 10
 
     def __post_init__(self) -> None:
         if self.recovery not in RECOVERIES:
@@ -311,6 +329,18 @@ def check_gyro_pass(pass_: Pass, estimator: Estimator, needs_prior: bool = True)
         raise InvalidObservationError(f"{estimator.name} needs a prior: the pass has none")
 
 
+def working_samples(record: GyroRecord, options: FilterOptions) -> GyroSamples:
+    """The record's samples with those of a stuck axis missing (NaN; ``max_repeated_readings``
+    of ``options``, checked only for a gyro model with white rate noise)."""
+    samples = record.samples
+    if record.model.sigma_v <= 0.0:
+        return samples
+    stuck = repeated_readings(samples.rates, options.max_repeated_readings)
+    if not stuck.any():
+        return samples
+    return replace(samples, rates=np.where(stuck[:, None], np.nan, samples.rates))
+
+
 def gyro_pass(
     pass_: Pass, estimator: Estimator, options: FilterOptions, needs_prior: bool = True
 ) -> GyroPass:
@@ -319,7 +349,7 @@ def gyro_pass(
     unless ``needs_prior``)."""
     check_gyro_pass(pass_, estimator, needs_prior)
     model = pass_.gyro.model
-    timeline = gyro_timeline(pass_.gyro.samples, pass_.t)
+    timeline = gyro_timeline(working_samples(pass_.gyro, options), pass_.t)
     return GyroPass(
         prepare_gyro(timeline, options),
         model,
