@@ -16,8 +16,8 @@ from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.reporting.paper_values import paper_label, paper_table, paper_values
 from attopt.experiments.reporting.statistics import (
     INTEGRITY_PROBABILITY,
-    inside_3_sigma,
     flagged_by_reason,
+    inside_3_sigma,
     integrity,
     nees_interval,
     nees_threshold,
