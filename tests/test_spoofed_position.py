@@ -30,6 +30,7 @@ from attopt.experiments.config import resolve_parameters
 from attopt.experiments.config.loading import deep_merge
 from attopt.experiments.environment.traffic import geodetic_normals, horizontal_offsets_km
 from attopt.experiments.metrics import error_columns
+from attopt.solvers.snapshot_sequence import residual_test
 from attopt.solvers.snr.exclusion import exclusion_statistics, parity_projection
 from attopt.solvers.snr.fit import Residuals
 from tests.test_adsb_config import SEED, TINY
@@ -333,3 +334,26 @@ def test_an_epoch_that_passes_its_test_is_not_touched(name):
     for field in ("quaternion", "covariance", "loss"):
         assert np.array_equal(getattr(on, field), getattr(off, field)), field
     assert np.all(on.diagnostics["n_excluded"] == 0)
+
+
+def test_a_chi_square_that_is_not_finite_is_a_mismatch():
+    """A residual the model cannot predict at the estimate makes the chi-square NaN: that
+    is a mismatch, not an epoch without a test."""
+    assert residual_test(float("nan"), 20).startswith("model mismatch")
+    assert residual_test(float("nan"), 0) is None
+
+
+def test_a_message_from_behind_the_antenna_is_excluded_by_the_two_step_method():
+    """One line of sight turned away from its antenna (a position far off): the two-step
+    method's eq. 19 loss is NaN at its attitude; the epoch is repaired by excluding that
+    transmitter, or flagged without the exclusion."""
+    problem = _faulty_epoch(3, [], 0.0)
+    los = problem.los_orbit.copy()
+    los[4] = -los[4]
+    problem = replace(problem, los_orbit=los)
+    solver = SOLVERS["deterministic"]
+    off = replace(solver, fault_exclusion=False).solve_sequence(_snapshots([problem]), TRUTH)
+    assert off.reason[0].startswith("model mismatch"), off.reason[0]
+    track = solver.solve_sequence(_snapshots([problem]), prior=TRUTH)
+    assert track.valid[0], track.reason[0]
+    assert track.diagnostics["excluded_transmitter"][0] == 104

@@ -97,15 +97,19 @@ def parity_projection(jacobian: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def exclusion_statistics(residuals: Residuals, group: NDArray[np.intp], n_groups: int) -> NDArray:
     """``T_g = e_g^T (P_gg)^-1 e_g`` per group of rows (``group`` ``(m,)`` the group of each
-    row), NaN where ``P_gg`` is singular (module docstring, 1-2)."""
-    projection = parity_projection(residuals.jacobian)
-    e = projection @ residuals.scores
-    statistics = np.full(n_groups, np.nan)
-    for g in range(n_groups):
-        rows = np.flatnonzero(group == g)
+    row), NaN where ``P_gg`` is singular (module docstring, 1-2).  A group with a residual
+    the model cannot predict (not finite) gets ``inf``: the others' are those of the
+    finite rows."""
+    finite = np.isfinite(residuals.scores) & np.isfinite(residuals.jacobian).all(axis=1)
+    projection = parity_projection(residuals.jacobian[finite])
+    e = projection @ residuals.scores[finite]
+    kept = group[finite]
+    statistics = np.full(n_groups, np.inf)
+    for g in np.unique(kept[np.isin(kept, group[~finite], invert=True)]):
+        rows = np.flatnonzero(kept == g)
         block = projection[np.ix_(rows, rows)]
-        if np.linalg.eigvalsh(block).min() > SEPARABILITY_TOLERANCE:
-            statistics[g] = float(e[rows] @ np.linalg.solve(block, e[rows]))
+        separable = np.linalg.eigvalsh(block).min() > SEPARABILITY_TOLERANCE
+        statistics[g] = float(e[rows] @ np.linalg.solve(block, e[rows])) if separable else np.nan
     return statistics
 
 
