@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import functools
 import json
+import re
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -357,3 +359,15 @@ def test_a_message_from_behind_the_antenna_is_excluded_by_the_two_step_method():
     track = solver.solve_sequence(_snapshots([problem]), prior=TRUTH)
     assert track.valid[0], track.reason[0]
     assert track.diagnostics["excluded_transmitter"][0] == 104
+
+
+def test_the_faults_example_of_the_configuration_guide_loads(tmp_path):
+    """The TOML block of ``docs/configuration.md``'s Faults section is an adsb-snr config."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "configuration.md").read_text()
+    section = text.split("\n## Faults\n")[1].split("\n## ")[0]
+    (block,) = re.findall(r"^```toml\n(.*?)^```$", section, flags=re.MULTILINE | re.DOTALL)
+    config = tmp_path / "faults.toml"
+    config.write_text(block)
+    parameters = resolve_parameters(EXPERIMENT, config=config)
+    assert parameters.traffic.spoofer.offset_km == 50.0
+    assert parameters.receiver.outliers.offset_db == 20.0
