@@ -14,8 +14,9 @@ position: a fault of the transmitter's data, not of the measurement
 Random draws come from child stream :data:`SPOOFER_STREAM` of the trial's seed alone,
 and only when there is a spoofer, so runs without one draw exactly what they drew
 before: first the aircraft (for a count: ``Generator.choice`` without replacement among
-the aircraft with a visible row in the window, sorted by fleet index), then, without
-``azimuth_deg``, one azimuth per chosen aircraft, uniform in ``[0, 2 pi)``.
+the aircraft with a visible row in the window, in a main lobe whether received or not,
+sorted by fleet index), then, without ``azimuth_deg``, one azimuth per chosen
+aircraft, uniform in ``[0, 2 pi)``.
 """
 
 from __future__ import annotations
