@@ -46,7 +46,7 @@ Policy on bad input (mirrors :mod:`attopt.formulations.vector_observations`):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -219,6 +219,19 @@ class SnrEpoch:
     def m(self) -> int:
         """Number of observations."""
         return int(self.snr_db.shape[0])
+
+    def take(self, rows: NDArray[np.intp] | NDArray[np.bool_]) -> SnrEpoch:
+        """The epoch of the observations ``rows`` alone (indices or mask), e.g. without
+        those of one transmitter."""
+        return replace(
+            self,
+            snr_db=self.snr_db[rows],
+            los_orbit=self.los_orbit[rows],
+            antenna=self.antenna[rows],
+            p0_dbw=self.p0_dbw[rows],
+            sigma_db=np.asarray(self.sigma_db)[rows],
+            transmitter=None if self.transmitter is None else self.transmitter[rows],
+        )
 
     @property
     def n_antennas(self) -> int:

@@ -100,7 +100,9 @@ def residual_test(
     ``w_k = 1 / sigma_k^2``) with ``p`` parameters fitted: when the model and its sigmas
     are right it is chi-square with ``dof = m - p`` degrees of freedom (to first order
     in the noise), and an epoch where ``P(chi2(dof) >= chi_square) < false_alarm`` is a
-    model mismatch (``false_alarm`` 0 or ``dof < 1``: no test).
+    model mismatch (``false_alarm`` 0 or ``dof < 1``: no test).  A chi-square that is not
+    finite (a measurement the model cannot predict at the estimate, e.g. an SNR from
+    behind an antenna) is a mismatch too.
 
     Example::
 
@@ -110,8 +112,13 @@ def residual_test(
         >>> residual_test(1480.0, 297)[:14]  # 2 dB offsets against 1 dB sigmas
         'model mismatch'
     """
-    if false_alarm <= 0.0 or dof < 1 or not np.isfinite(chi_square):
+    if false_alarm <= 0.0 or dof < 1:
         return None
+    if not np.isfinite(chi_square):
+        return (
+            f"model mismatch: the residuals' chi-square is {chi_square} (a measurement the "
+            "model cannot predict at the estimate)"
+        )
     p = float(chi2.sf(chi_square, dof))
     if p >= false_alarm:
         return None

@@ -589,6 +589,16 @@ def test_a_gyro_fault_changes_every_gyros_filter_rows_alone():
     )
 
 
+def test_a_spoofed_position_moves_the_estimates_not_the_truth():
+    """An aircraft broadcasting a position 1000 km off (``[traffic.spoofer]``): what is
+    received, the truth and the bounds are those without it, the estimates move
+    (``tests/test_spoofed_position.py`` tests the spoofer and the exclusion)."""
+    spoofer = {"traffic": {"spoofer": {"aircraft": [27], "offset_km": 1000.0}}}
+    pd.testing.assert_frame_equal(epoch_rows(spoofer), epoch_rows())
+    moved = trial_rows(spoofer)["err_x_deg"].to_numpy() != trial_rows()["err_x_deg"].to_numpy()
+    assert moved.any()
+
+
 def test_every_parameter_is_overridden_by_a_test():
     """The key paths of the defaults, a circular orbit and the other gain patterns and gyro
     tables, each set to another value by one of the tests above."""

@@ -131,6 +131,7 @@ from attopt.experiments.adsb_snr.filters import (
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_chunks
+from attopt.experiments.adsb_snr.spoofing import Decoded, spoofed_decoding
 from attopt.experiments.config.components import Gyro, GyroFault, gyro_model
 from attopt.experiments.estimators import (
     EstimatorOptions,
@@ -348,13 +349,16 @@ class NoisyPass:
     """One trial's measurements: which rows were received, and the epochs to solve.
 
     ``true_snr_db`` is the scenario's true SNR plus the transmitters' power
-    offsets (equal to it without offsets).
+    offsets (equal to it without offsets); ``decoded`` the positions, lines of sight
+    and powers the receiver takes from the messages (the true ones without a spoofer,
+    :mod:`attopt.experiments.adsb_snr.spoofing`), those of the epochs.
     """
 
     measured_db: NDArray[np.float64]
     received: NDArray[np.bool_]
     epochs: list[SnrEpoch]
     true_snr_db: NDArray[np.float64]
+    decoded: Decoded
 
 
 def power_offsets(
@@ -377,10 +381,14 @@ def simulate_pass(
     threshold_db: float,
     offset_db: NDArray[np.float64] | None = None,
     fault_db: NDArray[np.float64] | None = None,
+    decoded: Decoded | None = None,
 ) -> NoisyPass:
     """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
     3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset, ``fault_db``
-    ``(M,)`` an error of the receiver's measurement (``receiver.outliers``)."""
+    ``(M,)`` an error of the receiver's measurement (``receiver.outliers``), ``decoded``
+    replaces the true lines of sight and powers of the epochs by what the receiver
+    decodes (``traffic.spoofer``)."""
+    decoded = Decoded.of(scenario) if decoded is None else decoded
     true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
     measured = true_snr + sigma_db * rng.standard_normal(true_snr.size)
     if fault_db is not None:
@@ -391,10 +399,10 @@ def simulate_pass(
     epochs = [
         SnrEpoch(
             snr_db=measured[take],
-            los_orbit=scenario.los_orbit[take],
+            los_orbit=decoded.los_orbit[take],
             antenna=scenario.antenna[take],
             boresights_body=scenario.boresights_body,
-            p0_dbw=scenario.p0_dbw[take],
+            p0_dbw=decoded.p0_dbw[take],
             noise_dbw=scenario.link_budget.noise_power_dbw,
             pattern=scenario.pattern,
             sigma_db=sigma_db,
@@ -403,7 +411,7 @@ def simulate_pass(
         )
         for take in (rows[start:stop] for start, stop in itertools.pairwise(bounds))
     ]
-    return NoisyPass(measured, received, epochs, true_snr)
+    return NoisyPass(measured, received, epochs, true_snr, decoded)
 
 
 def _per_epoch_sum(values: np.ndarray, epoch: np.ndarray, n_epochs: int) -> np.ndarray:
@@ -570,7 +578,10 @@ def trial_pass(
 ) -> tuple[NoiseFreePass, NoisyPass]:
     """The scenario's noise-free pass and trial ``seed``'s measurements of it (module
     docstring, 1-4): the SNR noise from ``default_rng(seed)``, the power offsets from
-    :func:`power_offsets`, a burst of outliers (``receiver.outliers``) if there is one."""
+    :func:`power_offsets`, a burst of outliers (``receiver.outliers``) and aircraft
+    broadcasting a wrong position
+    (``traffic.spoofer``, :func:`~attopt.experiments.adsb_snr.spoofing.spoofed_decoding`)
+    if there are."""
     scenario = noise_free_pass(parameters)
     receiver = parameters.receiver
     offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
@@ -583,6 +594,7 @@ def trial_pass(
         receiver.threshold_db,
         offsets,
         fault,
+        spoofed_decoding(parameters, scenario, seed),
     )
     return scenario, noisy
 

@@ -8,7 +8,8 @@ simulates for ``(setting, seed)``, with the experiment's own functions
 * ``snr``: every received message (Liu et al. 2023 sec. 5.1: measured SNR at or
   above the threshold), in the trial's order, with its antenna, its aircraft
   (``transmitter``) and the aircraft's ECI position, the orbit-frame line of
-  sight, the isotropic power ``10 lg P0`` and the SNR sigma;
+  sight, the isotropic power ``10 lg P0`` and the SNR sigma (as the receiver decodes
+  them: from the broadcast position, wrong for a ``[traffic.spoofer]`` aircraft);
 * ``epochs``: every epoch of the pass, also those without a received message;
 * ``[snr]``: the receiver's noise power and threshold, each antenna's body
   boresight and gain pattern, and ``truncated`` for the filters' SNR model
@@ -77,6 +78,7 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     inputs = gyro_inputs(parameters, seed, 0)
     received = np.flatnonzero(noisy.received)
     epoch = scenario.epoch_index[received]
+    decoded = noisy.decoded
     _, times = window_times(parameters.start_utc, parameters.duration_s, parameters.step_s)
     to_eci = ecef_to_eci_matrices(times)[epoch]
     receiver = parameters.receiver
@@ -109,9 +111,9 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
             t=scenario.t[epoch],
             antenna=scenario.antenna[received],
             transmitter=scenario.aircraft[received],
-            transmitter_km=np.einsum("nij,nj->ni", to_eci, scenario.aircraft_ecef_km[received]),
-            los=scenario.los_orbit[received],
-            p0_dbw=scenario.p0_dbw[received],
+            transmitter_km=np.einsum("nij,nj->ni", to_eci, decoded.aircraft_ecef_km[received]),
+            los=decoded.los_orbit[received],
+            p0_dbw=decoded.p0_dbw[received],
             snr_db=noisy.measured_db[received],
             sigma_db=receiver.snr_sigma_db,
         ),

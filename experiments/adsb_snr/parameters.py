@@ -25,7 +25,8 @@ others.
   pattern (:class:`attopt.experiments.config.components.Antenna`).
 * Traffic (:class:`TrafficParameters`): the synthetic flights of
   :mod:`attopt.experiments.environment.traffic` and their transmitters' power
-  (:class:`attopt.formulations.link_budget.LinkBudget`).
+  (:class:`attopt.formulations.link_budget.LinkBudget`); optionally aircraft that
+  broadcast a wrong position (:class:`Spoofer`).
 * Receiver (:class:`ReceiverParameters`): the noise power, the polarisation loss, the SNR
   noise and the reception threshold (``P_SNR^req = 6 dB``, sec. 5.1).
 """
@@ -109,6 +110,54 @@ class AttitudeProfile(Parameters):
         return attitude_from_euler321(np.radians(yaw), np.radians(pitch), np.radians(roll))
 
 
+class Spoofer(Parameters):
+    """``[traffic.spoofer]``: aircraft whose ADS-B messages broadcast a position
+    ``offset_km`` from the true one (a spoofer, or a wrong navigation solution on board).
+
+    The receiver takes the broadcast position for the line of sight and the range of
+    each of their messages over the window; the SNR is that of the true position.  The
+    offset is horizontal (in the plane normal to the aircraft's geodetic normal) at
+    ``azimuth_deg`` clockwise from north, a straight segment of ``offset_km``.  Drawn
+    from child stream
+    :data:`~attopt.experiments.adsb_snr.spoofing.SPOOFER_STREAM` of the trial's seed:
+    which aircraft (for a count, among those in view in the window) and, without
+    ``azimuth_deg``, each one's azimuth.
+    """
+
+    aircraft: int | list[int] = Field(
+        1,
+        description=(
+            "Spoofed aircraft: a number drawn from those in view in the window, or a list "
+            "of fleet indices."
+        ),
+    )
+    offset_km: float = Field(50.0, gt=0.0, description="Distance of the broadcast position.")
+    azimuth_deg: float | None = Field(
+        None,
+        description="Direction of the offset from north (clockwise); drawn per aircraft if unset.",
+    )
+    start_s: float = Field(0.0, ge=0.0, description="Start of the window from the pass start.")
+    duration_s: float | None = Field(
+        None, gt=0.0, description="Length of the window; to the end of the pass if unset."
+    )
+
+    @field_validator("aircraft")
+    @classmethod
+    def _count_or_indices(cls, aircraft: int | list[int]) -> int | list[int]:
+        if isinstance(aircraft, int) and aircraft < 1:
+            raise ValueError("a number of spoofed aircraft must be at least 1")
+        if isinstance(aircraft, list) and (
+            not aircraft or min(aircraft) < 0 or len(set(aircraft)) < len(aircraft)
+        ):
+            raise ValueError("a list of spoofed aircraft must name distinct fleet indices")
+        return aircraft
+
+    def active(self, t: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether the times ``t`` lie in the window."""
+        end = np.inf if self.duration_s is None else self.start_s + self.duration_s
+        return (t >= self.start_s) & (t < end)
+
+
 class TrafficParameters(Parameters):
     """The aircraft: a synthetic global population on great-circle routes between real
     airports (:mod:`attopt.experiments.environment.traffic`) and their 1090ES transmitters."""
@@ -158,6 +207,9 @@ class TrafficParameters(Parameters):
         _LINK.transmit_gain_dbi, description="Aircraft antenna gain towards the satellite."
     )
     frequency_hz: float = Field(ADSB_FREQUENCY_HZ, gt=0.0, description="Carrier frequency.")
+    spoofer: Spoofer | None = Field(
+        None, description="Aircraft broadcasting a wrong position (a fault); none by default."
+    )
 
     @model_validator(mode="after")
     def _bands(self) -> TrafficParameters:
@@ -166,6 +218,13 @@ class TrafficParameters(Parameters):
                 raise ValueError(f"{low} must not exceed {high}")
         if not self.route_min_km < self.route_max_km:
             raise ValueError("route_min_km must be below route_max_km")
+        return self
+
+    @model_validator(mode="after")
+    def _spoofed_in_fleet(self) -> TrafficParameters:
+        named = self.spoofer.aircraft if self.spoofer is not None else None
+        if isinstance(named, list) and max(named) >= self.n_aircraft:
+            raise ValueError(f"spoofer.aircraft must be fleet indices below {self.n_aircraft}")
         return self
 
     def model(self) -> TrafficModel:

@@ -302,6 +302,17 @@ def visible_counts(
     return counts.reshape(geometry.t.size, n_antennas)
 
 
+def lines_of_sight(
+    geometry: AdsbGeometry, epoch: NDArray[np.intp], aircraft_ecef_km: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit lines of sight in the orbit frame ``(P, 3)`` and slant ranges (km) ``(P,)`` from
+    the satellite at epochs ``epoch`` ``(P,)`` to the ECEF positions ``aircraft_ecef_km``."""
+    los_ecef = aircraft_ecef_km - geometry.position_ecef_km[epoch]
+    range_km = np.linalg.norm(los_ecef, axis=-1)
+    los_orbit = np.einsum("pij,pj->pi", geometry.ecef_to_orbit[epoch], los_ecef / range_km[:, None])
+    return los_orbit, range_km
+
+
 def _observe(
     geometry: AdsbGeometry, epochs: NDArray[np.intp], cos_min: NDArray[np.float64]
 ) -> ObservationTable:
@@ -310,12 +321,9 @@ def _observe(
         grid.ravel() for grid in np.meshgrid(epochs, _candidates(geometry, epochs), indexing="ij")
     )
     aircraft_ecef = positions_ecef_km(geometry.traffic, geometry.t[epoch], aircraft)
-    satellite_ecef = geometry.position_ecef_km[epoch]
-    above = above_limb(satellite_ecef, aircraft_ecef)
+    above = above_limb(geometry.position_ecef_km[epoch], aircraft_ecef)
     epoch, aircraft, aircraft_ecef = epoch[above], aircraft[above], aircraft_ecef[above]
-    los_ecef = aircraft_ecef - satellite_ecef[above]
-    range_km = np.linalg.norm(los_ecef, axis=-1)
-    los_orbit = np.einsum("pij,pj->pi", geometry.ecef_to_orbit[epoch], los_ecef / range_km[:, None])
+    los_orbit, range_km = lines_of_sight(geometry, epoch, aircraft_ecef)
     cos_off = geometry.truth[epoch].apply(los_orbit) @ geometry.boresights_body.T
     pair, antenna = np.nonzero(cos_off >= cos_min)
     order = np.lexsort((aircraft[pair], antenna, epoch[pair]))

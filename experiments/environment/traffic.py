@@ -253,3 +253,21 @@ def positions_ecef_km(
         ellipsoid="WGS84",
     )
     return np.stack([location.x, location.y, location.z], axis=-1).to_value(u.km)
+
+
+def horizontal_offsets_km(
+    normal: ArrayLike, azimuth_rad: ArrayLike, distance_km: float
+) -> NDArray[np.float64]:
+    """ECEF displacements (km) of length ``distance_km`` in the local horizontal plane.
+
+    ``normal`` ``(..., 3)`` are unit geodetic normals, ``azimuth_rad`` the directions
+    clockwise from north (broadcast together): ``d (cos az n_north + sin az n_east)``
+    with ``n_east = z x n / |z x n|`` and ``n_north = n x n_east`` (``z`` the ECEF polar
+    axis; undefined at the poles).
+    """
+    normal = np.asarray(normal, dtype=float)
+    azimuth = np.asarray(azimuth_rad, dtype=float)[..., None]
+    east = np.cross([0.0, 0.0, 1.0], normal)
+    east /= np.linalg.norm(east, axis=-1, keepdims=True)
+    north = np.cross(normal, east)
+    return distance_km * (np.cos(azimuth) * north + np.sin(azimuth) * east)

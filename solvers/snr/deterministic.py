@@ -49,6 +49,7 @@ from attopt.formulations.snr_problem import EpochIssue, SnrEpoch, epoch_issue
 from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.boresight import BoresightEstimate, estimate_boresight
 from attopt.solvers.snr.driver import SnrSolver
+from attopt.solvers.snr.exclusion import EXCLUSION_DIAGNOSTICS
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
 from attopt.solvers.wahba import QUEST
@@ -68,6 +69,7 @@ DETERMINISTIC_DIAGNOSTICS = (
     "wahba_loss",
     "quest_iterations",
     "outside_lobe",
+    *EXCLUSION_DIAGNOSTICS,
 )
 
 

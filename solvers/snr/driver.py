@@ -29,7 +29,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 from scipy.spatial.transform import Rotation
@@ -50,6 +50,11 @@ from attopt.solvers.snapshot_sequence import (
     residual_test,
     solve_in_sequence,
 )
+from attopt.solvers.snr.exclusion import Tested, exclude_one_transmitter
+from attopt.solvers.snr.fit import Residuals, standardised_residuals
+
+DEFAULT_FAULT_EXCLUSION = True
+"""Whether the SNR solvers exclude a faulty transmitter by default (``docs/filters.md``)."""
 
 
 def snr_epoch(snapshot: Snapshot) -> SnrEpoch | EpochIssue:
@@ -97,10 +102,15 @@ class SnrSolver(SnapshotEstimator):
             is flagged ``model mismatch``, :class:`~attopt.formulations.errors.ModelMismatchError`;
             the truncated likelihood's residuals are standardised by the truncated
             moments, :func:`~attopt.solvers.snr.fit.truncated_chi_square`; 0: no test).
+        fault_exclusion: an epoch that fails the residual test is solved again without
+            the one transmitter whose exclusion restores the fit, valid if that is the
+            only one (:mod:`attopt.solvers.snr.exclusion`, RAIM-style fault detection and
+            exclusion); off: the epoch is flagged.
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
     mismatch_false_alarm: float = MISMATCH_FALSE_ALARM
+    fault_exclusion: bool = DEFAULT_FAULT_EXCLUSION
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
     diagnostic_names: ClassVar[tuple[str, ...]]
 
@@ -117,15 +127,38 @@ class SnrSolver(SnapshotEstimator):
         twice its eq. 19 loss, ``sum_k (y_k - f_k)^2 / sigma_k^2``."""
         return 2.0 * estimate.loss
 
-    def tested_estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
-        """:meth:`estimate_epoch`, flagged ``model mismatch`` when its residuals fail the
-        test (class docstring)."""
+    def residuals(self, problem: SnrEpoch, estimate: EpochEstimate) -> Residuals:
+        """The standardised residuals whose squares :meth:`residual_chi_square` sums
+        (eq. 19's) and their whitened Jacobian
+        (:func:`~attopt.solvers.snr.fit.standardised_residuals`)."""
+        return standardised_residuals(problem, estimate.attitude)
+
+    def tested(self, problem: SnrEpoch, prior: Rotation | None) -> Tested:
+        """:meth:`estimate_epoch` and its residual test's reason (``None``: passed or not
+        solved), with ``n_excluded = 0`` in the diagnostics of a solved epoch."""
         estimate = self.estimate_epoch(problem, prior)
         if estimate.failure is not None or estimate.attitude is None:
-            return estimate
+            return estimate, None
+        estimate = replace(estimate, diagnostics={**estimate.diagnostics, "n_excluded": 0.0})
         chi_square = self.residual_chi_square(problem, estimate)
-        reason = residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
-        return mismatched(estimate, reason)
+        return estimate, residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
+
+    def tested_estimate(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
+        """:meth:`estimate_epoch`, unchanged when its residuals pass the test; else, with
+        :attr:`fault_exclusion`, repaired by excluding one transmitter or flagged
+        (:func:`~attopt.solvers.snr.exclusion.exclude_one_transmitter`), without it
+        flagged ``model mismatch`` (class docstring)."""
+        estimate, reason = self.tested(problem, prior)
+        if reason is None or not self.fault_exclusion:
+            return mismatched(estimate, reason)
+        return exclude_one_transmitter(
+            problem,
+            estimate,
+            reason,
+            self.residuals(problem, estimate),
+            lambda epoch: self.issue(epoch) is None,
+            lambda epoch: self.tested(epoch, prior),
+        )
 
     def solve_sequence(
         self, snapshots: Sequence[Snapshot | None], prior: Rotation | Prior | None = None

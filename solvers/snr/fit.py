@@ -45,7 +45,11 @@ from attopt.formulations.snr_model import (
     snr_jacobian_function,
 )
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.formulations.snr_truncation import truncated_fisher_information, truncated_nll
+from attopt.formulations.snr_truncation import (
+    truncated_fisher_information,
+    truncated_information_factor,
+    truncated_nll,
+)
 from attopt.solvers.snr.padding import pad_epoch
 
 Array = NDArray[np.float64]
@@ -120,11 +124,52 @@ def truncated_chi_square(problem: SnrEpoch, attitude: Rotation) -> float:
     (tau - f_k) / sigma_k``, in logarithms (``scipy.special.log_ndtr``, ``ndtri_exp``), so
     a far outlier keeps its score."""
     predicted, _ = model_at(problem, attitude)
+    z = truncated_scores(problem, predicted)
+    return float(np.sum(z * z))
+
+
+def truncated_scores(problem: SnrEpoch, predicted: Array) -> Array:
+    """The normal scores ``z_k`` of :func:`truncated_chi_square` at the predicted SNRs."""
     sigma = np.asarray(problem.sigma_db, dtype=float)
     r = (problem.snr_db - predicted) / sigma
     a = (problem.threshold_db - predicted) / sigma
-    z = -ndtri_exp(log_ndtr(-r) - log_ndtr(-a))
-    return float(np.sum(z * z))
+    return -ndtri_exp(log_ndtr(-r) - log_ndtr(-a))
+
+
+@dataclass(frozen=True)
+class Residuals:
+    """An epoch's standardised residuals at an attitude and their linearisation.
+
+    Attributes:
+        scores: ``(m,)`` residuals standardised to unit variance under the objective's
+            model: ``(y_k - f_k) / sigma_k`` for the least squares, the normal scores of
+            :func:`truncated_chi_square` for the truncated likelihood; their sum of
+            squares is the residual test's chi-square.
+        jacobian: ``(m, 3)`` the whitened Jacobian ``sqrt(I_k) d f_k / d delta`` (``I_k``
+            the Fisher information of measurement ``k`` about ``f_k``: ``1 / sigma_k^2``,
+            or :func:`~attopt.formulations.snr_truncation.truncated_information_factor`
+            ``/ sigma_k^2``), so ``jacobian^T jacobian`` is the inverse covariance of
+            :func:`fit_at`.
+    """
+
+    scores: Array
+    jacobian: Array
+
+
+def standardised_residuals(
+    problem: SnrEpoch, attitude: Rotation, objective: Objective = "least_squares"
+) -> Residuals:
+    """The :class:`Residuals` of ``objective`` at ``attitude`` for ``problem``."""
+    predicted, jac = model_at(problem, attitude)
+    sigma = np.asarray(problem.sigma_db, dtype=float)
+    if objective == "truncated_ml":
+        scores = truncated_scores(problem, predicted)
+        factor = truncated_information_factor(predicted, sigma, problem.threshold_db)
+        scale = np.sqrt(factor) / sigma
+    else:
+        scores = (problem.snr_db - predicted) / sigma
+        scale = 1.0 / sigma
+    return Residuals(scores, scale[:, None] * jac)
 
 
 @dataclass(frozen=True)

@@ -107,8 +107,10 @@ from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.fit import (
     OBJECTIVES,
     Objective,
+    Residuals,
     fit_at,
     objective_loss,
+    standardised_residuals,
     truncated_chi_square,
 )
 from attopt.solvers.snr.initialisation import LocalResult
@@ -243,6 +245,11 @@ class NlpSolver(OneStepSolver):
         if self.objective == "least_squares":
             return super().residual_chi_square(problem, estimate)
         return truncated_chi_square(problem, estimate.attitude)
+
+    def residuals(self, problem: SnrEpoch, estimate: EpochEstimate) -> Residuals:
+        """The standardised residuals of :attr:`objective` (those whose squares
+        :meth:`residual_chi_square` sums) and their whitened Jacobian."""
+        return standardised_residuals(problem, estimate.attitude, self.objective)
 
     def local_solve(self, problem: SnrEpoch, start: Rotation) -> LocalResult:
         return solve_local(problem, start, self.options, self.objective)

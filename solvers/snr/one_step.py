@@ -17,11 +17,13 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.driver import SnrSolver
+from attopt.solvers.snr.exclusion import EXCLUSION_DIAGNOSTICS
 from attopt.solvers.snr.fit import fit_at
 from attopt.solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
 
-ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe")
-"""Initialisation diagnostics plus observations beyond the main lobe at the estimate."""
+ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe", *EXCLUSION_DIAGNOSTICS)
+"""Initialisation diagnostics, observations beyond the main lobe at the estimate and the
+fault exclusion's (:mod:`attopt.solvers.snr.exclusion`)."""
 
 
 class OneStepSolver(SnrSolver):
