@@ -62,11 +62,13 @@ class GyroTimeline:
 
 def repeated_readings(rates: ArrayLike, limit: int) -> NDArray[np.bool_]:
     """The samples in a run of more than ``limit`` consecutive samples whose reading of one
-    axis is exactly the same: a stuck axis.  A sensor with white rate noise
-    (``sigma_v > 0``) repeats a reading with probability zero, so such a run is a fault,
-    not a measurement; ``limit = 0`` finds none.  Quantised records repeat readings
-    legitimately when the noise is below the quantum: there ``limit`` must exceed the
-    longest repetition expected.
+    axis is exactly the same while another axis's reading changes: a stuck axis.  A sensor
+    with white rate noise (``sigma_v > 0``) repeats a reading with probability zero, so
+    such a run is a fault, not a measurement; ``limit = 0`` finds none.  A record in which
+    every axis repeats (exact samples of a constant rate, a simulation without noise) is
+    not one axis stuck and is left alone.  Quantised records repeat readings legitimately
+    when the noise is below the quantum: there ``limit`` must exceed the longest
+    repetition expected.
 
     Example::
 
@@ -76,14 +78,23 @@ def repeated_readings(rates: ArrayLike, limit: int) -> NDArray[np.bool_]:
         >>> rates[2:7, 1] = 0.25  # the y axis stuck for five samples
         >>> repeated_readings(rates, limit=4).astype(int).tolist()
         [0, 0, 1, 1, 1, 1, 1, 0]
+        >>> repeated_readings(np.ones((8, 3)), limit=4).any()  # a constant rate, exactly
+        np.False_
     """
     rates = np.asarray(rates, dtype=float)
     stuck = np.zeros(rates.shape[0], dtype=bool)
     if not limit or rates.shape[0] <= limit:
         return stuck
-    for axis in rates.T:
-        run = np.cumsum(np.concatenate([[True], axis[1:] != axis[:-1]])) - 1
-        stuck |= np.bincount(run)[run] > limit
+    changed = np.vstack([np.ones((1, rates.shape[1]), dtype=bool), rates[1:] != rates[:-1]])
+    changes = np.cumsum(changed, axis=0)  # per axis, the run each sample belongs to (+1)
+    for axis in range(rates.shape[1]):
+        run = changes[:, axis] - 1
+        first = np.searchsorted(run, run)  # the first sample of each sample's run
+        others = np.delete(changes, axis, axis=1)
+        varies = (others - others[first]).max(axis=1) > 0  # another axis changed in the run
+        long_run = np.bincount(run)[run] > limit
+        in_varying_run = np.bincount(run, weights=varies)[run] > 0
+        stuck |= long_run & in_varying_run
     return stuck
 
 

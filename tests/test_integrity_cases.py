@@ -99,3 +99,11 @@ def test_a_printed_case_config_loads_back(capsys, monkeypatch):
     printed = capsys.readouterr().out
     assert printed.startswith("# attopt run adsb-snr")
     assert tomllib.loads(printed) == case("outlier-burst").parameters
+
+
+def test_the_integrity_page_lists_every_case():
+    from pathlib import Path
+
+    page = (Path(__file__).parents[1] / "docs" / "integrity.md").read_text()
+    for mismatch in CASES:
+        assert f"| `{mismatch.name}` | `{mismatch.experiment}` |" in page, mismatch.name

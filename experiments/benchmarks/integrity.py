@@ -88,6 +88,18 @@ CASES = (
         what="every SNR measured from 100 s to 130 s is 20 dB off",
     ),
     MismatchCase(
+        "spoofed-position",
+        "adsb-snr",
+        {**SHORT_ADSB_PASS, "traffic": {"spoofer": {"aircraft": 1, "offset_km": 50.0}}},
+        what="one aircraft broadcasts a position 50 km off its own",
+    ),
+    MismatchCase(
+        "spoofed-position-far",
+        "adsb-snr",
+        {**SHORT_ADSB_PASS, "traffic": {"spoofer": {"aircraft": 1, "offset_km": 2000.0}}},
+        what="one aircraft broadcasts a position 2000 km off its own",
+    ),
+    MismatchCase(
         "scale-factor",
         "wahba-mag-sun",
         {**SUNLIT_WAHBA_PASS, "gyro_fault": {"scale_factor": {"error": 0.01}}},

@@ -173,7 +173,7 @@ class FilterOptions:
             prior the filters start from a single-frame solution whatever this is.
         max_repeated_readings: a gyro whose noise model has white rate noise
             (``sigma_v > 0``) is stuck where one axis reads exactly the same value for
-            more than this many consecutive samples
+            more than this many consecutive samples while another axis's reading changes
             (:func:`~attopt.solvers.gyro_timeline.repeated_readings`): those samples are
             treated as missing (held, with the variance growth of ``hold_rate_sigma``,
             and flagged beyond ``max_gyro_gap_s``); 0 turns the check off (a quantised
