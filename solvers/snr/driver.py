@@ -51,7 +51,7 @@ from attopt.solvers.snapshot_sequence import (
     solve_in_sequence,
 )
 from attopt.solvers.snr.exclusion import Tested, exclude_one_transmitter
-from attopt.solvers.snr.fit import Residuals, standardised_residuals
+from attopt.solvers.snr.fit import Residuals, selection_bias_covariance, standardised_residuals
 
 DEFAULT_FAULT_EXCLUSION = True
 """Whether the SNR solvers exclude a faulty transmitter by default (``docs/filters.md``)."""
@@ -106,11 +106,17 @@ class SnrSolver(SnapshotEstimator):
             the one transmitter whose exclusion restores the fit, valid if that is the
             only one (:mod:`attopt.solvers.snr.exclusion`, RAIM-style fault detection and
             exclusion); off: the epoch is flagged.
+        selection_bias: a least-squares estimate's covariance is widened by the
+            reception threshold's selection bias propagated through the least-squares
+            gain (:func:`~attopt.solvers.snr.fit.selection_bias_covariance`), which
+            eq. 19 does not model; off: eq. 22 alone (Liu et al. 2023's covariance).
+            The truncated likelihood models the threshold and is never widened.
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
     mismatch_false_alarm: float = MISMATCH_FALSE_ALARM
     fault_exclusion: bool = DEFAULT_FAULT_EXCLUSION
+    selection_bias: bool = True
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
     diagnostic_names: ClassVar[tuple[str, ...]]
 
@@ -121,6 +127,12 @@ class SnrSolver(SnapshotEstimator):
     @abstractmethod
     def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         """Estimate one validated epoch; ``prior`` is an a-priori attitude or ``None``."""
+
+    @property
+    def models_the_threshold(self) -> bool:
+        """Whether the method's objective models the reception threshold (then its
+        covariance is not widened by :attr:`selection_bias`)."""
+        return False
 
     def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
         """The residuals' chi-square at ``estimate`` (``m - 3`` degrees of freedom):
@@ -140,6 +152,9 @@ class SnrSolver(SnapshotEstimator):
         if estimate.failure is not None or estimate.attitude is None:
             return estimate, None
         estimate = replace(estimate, diagnostics={**estimate.diagnostics, "n_excluded": 0.0})
+        if self.selection_bias and not self.models_the_threshold:
+            covariance = selection_bias_covariance(problem, estimate.attitude, estimate.covariance)
+            estimate = replace(estimate, covariance=covariance)
         chi_square = self.residual_chi_square(problem, estimate)
         return estimate, residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
 

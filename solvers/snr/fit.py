@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, ndtri_exp
+from scipy.stats import norm
 
 from attopt.formulations.snr_model import (
     cramer_rao_bound,
@@ -211,3 +212,27 @@ def fit_at(problem: SnrEpoch, attitude: Rotation, objective: Objective = "least_
         covariance=cramer_rao_bound(fisher),
         outside_lobe=int(np.count_nonzero(~in_lobe)),
     )
+
+
+def selection_bias_covariance(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
+    """The least-squares covariance widened by the reception threshold's selection bias:
+    ``P + d d^T``, the mean squared error matrix of a biased estimate.
+
+    A message is received only when its measured SNR passes the threshold ``tau``, so a
+    received SNR whose prediction ``f_k`` lies near it carries a positive error of mean
+    ``b_k = sigma_k phi(a_k) / (1 - Phi(a_k))``, ``a_k = (tau - f_k) / sigma_k`` (the mean
+    of a normal truncated below ``tau``, Johnson, Kotz and Balakrishnan 1994 eq. 13.134),
+    which Liu et al. 2023 eq. 19 does not model.  Through the least-squares gain it
+    biases the attitude by ``d = P J^T C b`` (``P = (J^T C J)^-1``, eq. 22; ``J`` the
+    SNRs' Jacobian at ``attitude``, ``C = diag(1 / sigma_k^2)``), evaluated at the
+    estimate.  The widened covariance covers that bias; the estimate is unchanged
+    (the truncated likelihood, ``nlp_truncated``, removes the bias instead).
+    """
+    predicted, jac = model_at(problem, attitude)
+    sigma = np.asarray(problem.sigma_db, dtype=float)
+    a = (problem.threshold_db - predicted) / sigma
+    bias = sigma * np.exp(norm.logpdf(a) - norm.logsf(a))
+    d = np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
+    if not np.all(np.isfinite(d)):
+        return covariance
+    return covariance + np.outer(d, d)

@@ -238,6 +238,11 @@ class NlpSolver(OneStepSolver):
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
 
+    @property
+    def models_the_threshold(self) -> bool:
+        """The truncated likelihood models the reception threshold."""
+        return self.objective == "truncated_ml"
+
     def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
         """Twice the eq. 19 loss for the least squares; for the truncated likelihood, whose
         loss is not a chi-square, the residuals standardised by the moments of the
