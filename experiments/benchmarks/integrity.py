@@ -137,6 +137,13 @@ CASES = (
         what="the gyro's y axis reading 0 for 60 s from 100 s",
     ),
     MismatchCase(
+        "doa-weak-signal",
+        "doa-ground",
+        {"table1_snr_db": [-14.0], "table2_snapshots": [1]},
+        what="Yang et al. 2014's EKF from the 98 deg start at -14 dB with L = 100 snapshots "
+        "and at 0 dB with L = 1",
+    ),
+    MismatchCase(
         "literal-gyro-eclipse",
         "wahba-mag-sun",
         {"gyro": "liu2023"},
