@@ -1,6 +1,6 @@
 """Benchmark of the filters on ``adsb-snr``: NEES consistency over many trials, and speed.
 
-Issue 5 sec. 4.  Runs ``trials`` Monte Carlo passes of the ``adsb-snr``
+Runs ``trials`` Monte Carlo passes of the ``adsb-snr``
 experiment with only the SNR filters (``mekf_snr``, ``usque_snr``,
 ``rts_snr``; no single-frame method) through the sweep runner, for each gyro
 model, then reports per filter:
