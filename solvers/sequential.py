@@ -64,10 +64,10 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import ConvergenceError, ModelMismatchError
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.results import Track
 
 if TYPE_CHECKING:
@@ -232,7 +232,7 @@ class TrackMonitor:
             return
         self.window = [*self.window[1 - self.consistency_window :], (nis, dof)]
         total, rows = np.sum(self.window, axis=0)
-        failed = chi2.sf(total, rows) < self.consistency_false_alarm
+        failed = chi_square_tail(total, rows) < self.consistency_false_alarm
         self.failing = self.failing + 1 if failed else 0
 
     def check(self, counts: dict[str, float], covariance: Array) -> Array:
@@ -317,7 +317,7 @@ def inconsistent_epochs(
         np.arange(1, updates.size + 1) - window, _segment_starts(updates, restarts, nis.size)
     )
     total, rows = (c[1:] - c[first] for c in sums)
-    failed = chi2.sf(total, rows) < false_alarm
+    failed = chi_square_tail(total, rows) < false_alarm
     last = np.searchsorted(updates, np.arange(nis.size), side="right") - 1
     flagged[last >= 0] = failed[last[last >= 0]]
     return flagged

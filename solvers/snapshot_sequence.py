@@ -31,7 +31,6 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from attopt.formulations.errors import (
     AttoptError,
@@ -40,6 +39,7 @@ from attopt.formulations.errors import (
     UnobservableError,
 )
 from attopt.formulations.snr_problem import EpochIssue
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.results import Track
 
 Item = TypeVar("Item")
@@ -119,7 +119,7 @@ def residual_test(
             f"model mismatch: the residuals' chi-square is {chi_square} (a measurement the "
             "model cannot predict at the estimate)"
         )
-    p = float(chi2.sf(chi_square, dof))
+    p = float(chi_square_tail(chi_square, dof))
     if p >= false_alarm:
         return None
     return (

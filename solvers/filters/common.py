@@ -413,9 +413,21 @@ def step_noise(model: GyroModel, dt: Array, hold_variance: Array) -> Array:
     growth (:meth:`~attopt.formulations.gyro.GyroModel.process_noise` once per length)."""
     if dt.size == 0:
         return np.zeros((0, STATE_SIZE, STATE_SIZE))
-    lengths, index = np.unique(dt, return_inverse=True)
-    q = np.stack([model.process_noise(float(length)) for length in lengths])[index]
+    if np.all(dt == dt[0]):  # the usual run of whole sampling intervals
+        q = np.repeat(_process_noise(model, float(dt[0]))[None], dt.size, axis=0)
+    else:
+        lengths, index = np.unique(dt, return_inverse=True)
+        q = np.stack([_process_noise(model, float(length)) for length in lengths])[index]
     q[:, [0, 1, 2], [0, 1, 2]] += hold_variance[:, None]
+    return q
+
+
+@lru_cache(maxsize=256)
+def _process_noise(model: GyroModel, dt: float) -> Array:
+    """:meth:`~attopt.formulations.gyro.GyroModel.process_noise`, once per model and step
+    length (read-only: callers copy it)."""
+    q = model.process_noise(dt)
+    q.flags.writeable = False
     return q
 
 
@@ -509,6 +521,8 @@ def usable_rows(
     with np.errstate(invalid="ignore"):
         innovation = measurement.innovation(predicted)
     finite_h = np.isfinite(predicted).all(axis=0) & np.isfinite(innovation).all(axis=0)
+    if finite_z.all() and finite_h.all():
+        return np.ones(finite_z.size, dtype=bool), 0, 0
     blocks = measurement.blocks
     bad_z = np.unique(blocks[~finite_z])
     bad_h = np.setdiff1d(np.unique(blocks[~finite_h]), bad_z)

@@ -57,13 +57,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import UnsupportedMeasurementError
 from attopt.formulations.gyro import GyroModel
 from attopt.formulations.passes import Prior
 from attopt.formulations.snapshot import Snapshot
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.filters.common import FilterOptions, error_vector
 from attopt.solvers.sequential import (
     INCONSISTENT,
@@ -106,7 +106,7 @@ def single_frame(measurement: AttitudeMeasurement, options: FilterOptions) -> Si
     if np.sqrt(np.max(np.diag(covariance))) > options.max_attitude_sigma:
         return INFLATE
     dof = measurement.size - 3
-    if dof > 0 and chi2.sf(2.0 * track.loss[0], dof) < options.consistency_false_alarm:
+    if dof > 0 and chi_square_tail(2.0 * track.loss[0], dof) < options.consistency_false_alarm:
         return WAIT
     return SingleFrame(track.attitude()[0], covariance)
 
@@ -121,7 +121,7 @@ def contradicts(filter: SequentialFilter, frame: SingleFrame, false_alarm: float
     s = filter.covariance[:3, :3] + frame.covariance
     with np.errstate(invalid="ignore", over="ignore"):
         statistic = float(d @ np.linalg.solve(s, d))
-    return not chi2.sf(statistic, 3) >= false_alarm
+    return not chi_square_tail(statistic, 3) >= false_alarm
 
 
 def unknown_prior(model: GyroModel) -> Prior:

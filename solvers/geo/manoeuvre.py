@@ -45,11 +45,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2
 
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.geo_link import BORESIGHT_BODY
 from attopt.formulations.passes import GyroRecord, Pass, Prior
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.filters import FilterOptions, Usque
 from attopt.solvers.filters.common import propagate_attitude
 from attopt.solvers.gyro_timeline import COINCIDENCE, gyro_timeline
@@ -94,7 +94,7 @@ def windowed_nis_test(nis: ArrayLike, dof: ArrayLike, window: int, false_alarm: 
     s = np.convolve(np.where(used, nis, 0.0), np.ones(window), mode="valid")
     n = np.convolve(np.where(used, np.asarray(dof, dtype=float), 0.0), np.ones(window), "valid")
     p = np.full(nis.size, np.nan)
-    p[window - 1 :] = np.where(n > 0, chi2.sf(s, np.maximum(n, 1.0)), np.nan)
+    p[window - 1 :] = np.where(n > 0, chi_square_tail(s, np.maximum(n, 1.0)), np.nan)
     return p
 
 
