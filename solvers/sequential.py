@@ -558,6 +558,7 @@ def filter_result(
     t: ArrayLike | None,
     history: FilterHistory | None = None,
     lost: NDArray[np.bool_] | None = None,
+    tested: str = "innovations of the last {window} updates",
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -571,7 +572,8 @@ def filter_result(
       ``restarts``, when it has them and ``options.consistency_window`` is not 0);
     * inconsistent innovations (:func:`inconsistent_epochs` of the record's ``nis`` and
       ``nis_dof``, when it has both, over ``options.consistency_window`` updates, the
-      window starting again at each restart), whose
+      window starting again at each restart; ``tested`` names what was tested in the
+      reason, ``{window}`` standing for the window), whose
       error is :class:`~attopt.formulations.errors.ModelMismatchError` (the others'
       :class:`~attopt.formulations.errors.ConvergenceError`).
 
@@ -612,7 +614,7 @@ def filter_result(
             nis, dof, options.consistency_window, options.consistency_false_alarm, restarts
         ) & (reason == "")
         reason[inconsistent] = (
-            f"inconsistent: the innovations of the last {options.consistency_window} updates "
+            f"inconsistent: the {tested.format(window=options.consistency_window)} "
             f"fail the chi-square test at {options.consistency_false_alarm:g}"
         )
     valid = reason == ""

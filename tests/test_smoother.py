@@ -507,14 +507,28 @@ def test_outlier_is_gated_once_and_counted():
 
 def test_huber_loss_downweights_an_ungated_outlier():
     """With gating off, the turned vector pulls the least-squares estimate at epoch
-    10 by degrees; the Huber loss (switchable, reported) down-weights it and
-    keeps the error near the clean solution's."""
+    10 by degrees, and the residual test flags the window of epochs it is in; the
+    Huber loss (switchable, reported) down-weights it and keeps the error near the
+    clean solution's."""
     run, prior, clean = _outlier_pass()
-    no_gate = FilterOptions(gate_probability=1.0)
+    tested = solve_with(
+        BatchSmoother(filter=FilterOptions(gate_probability=1.0)),
+        run.gyro,
+        run.t,
+        run.measurements,
+        prior,
+    )
+    # the residual test sees the outlier; the least-squares fit spreads it over the pass
+    window = FilterOptions().consistency_window
+    assert not tested.valid[10 : 10 + window].any()
+    assert all(r.startswith("inconsistent: the residuals") for r in tested.reason[10:20])
+    assert not tested.report.consistent and tested.report.chi_square_p < 1e-6
+    no_gate = FilterOptions(gate_probability=1.0, consistency_window=0)  # accuracy alone
     plain = solve_with(BatchSmoother(filter=no_gate), run.gyro, run.t, run.measurements, prior)
     huber = BatchSmoother(graph=GraphOptions(huber_threshold=1.345), filter=no_gate)
     robust = solve_with(huber, run.gyro, run.t, run.measurements, prior)
     reference = solve_with(BatchSmoother(), run.gyro, run.t, clean, prior)
+    assert reference.valid.all() and reference.report.consistent
     assert plain.report.n_gated == 0 and plain.report.n_downweighted == 0
     assert robust.diagnostics["n_downweighted"][10] == 1
     assert robust.report.converged, robust.report.message
@@ -597,6 +611,8 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     graph = result.report.problem.graph
     ahrs = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.AHRSFactor)]
     assert len(ahrs) == run.t.size - 1 - 20
+    # each segment's diffuse start takes three degrees of freedom from the pass's test
+    assert result.report.chi_square_dof == result.report.measurement_rows - 3 * 20
     blind = np.zeros(run.t.size, dtype=bool)
     blind[25:36] = True
     assert np.array_equal(~result.valid, blind)

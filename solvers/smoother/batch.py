@@ -21,7 +21,20 @@ than ``filter.max_gyro_gap_s`` splits the pass
 (:class:`~attopt.solvers.smoother.gyro_factors.GyroIntervals`) instead of flagging
 its epochs, whose marginal covariance then says how well each is determined.  The
 filters' "lost track" rule does not apply (the smoother bridges gated epochs with
-the gyro); ``filter.max_attitude_sigma`` does.  When the optimiser did not converge
+the gyro); ``filter.max_attitude_sigma`` does, and so does the filters' consistency
+test (:func:`~attopt.solvers.sequential.inconsistent_epochs`) on the residuals at the
+solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed over the last
+``filter.consistency_window`` epochs with measurements and tested against chi-square
+with their rows (conservative: the smoothed estimate absorbs part of each epoch's
+noise, so the residuals' expected sum is below the rows) when the optimiser
+converged.  The whole pass is tested too (:func:`pass_chi_square`), and the report
+says whether it is consistent.  A pass that fails it by a variance factor ``s = 2 J /
+dof`` of at most ``max_variance_factor`` has its noise model taken as ``s R`` (the a
+posteriori variance factor of least-squares adjustment, Teunissen 2003 sec. 4.3): every
+covariance is scaled by ``s`` and the epochs are tested on residuals normalised by ``s
+R``, so a small excess spread over the pass (a noise model slightly off) widens the
+covariances while a local one (a manoeuvre, an outlier burst) is still flagged; a larger
+factor scales nothing, and the windows flag the epochs.  When the optimiser did not converge
 the report says so (final cost, iterations) and, by default (``flag_unconverged``),
 every epoch is flagged invalid with that reason and
 :class:`~attopt.formulations.errors.ConvergenceError`; the estimates stay in the
@@ -39,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from attopt.formulations.errors import ConvergenceError
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.filters.common import FilterOptions, GyroPass, repair_covariance
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import EpochRecord, filter_result
@@ -65,7 +79,11 @@ class SmootherReport:
     initial one.  ``2 final_cost / measurement_rows`` is of order 1 at a correct
     minimum with consistent noise models (about 1 for SNRs, 2/3 for unit vectors,
     whose three rows carry two degrees of freedom); a wrong local minimum leaves it
-    far above.
+    far above.  ``chi_square`` (``2 final_cost``), ``chi_square_dof`` and
+    ``chi_square_p`` are the whole-pass test of :func:`pass_chi_square`;
+    ``consistent`` is ``chi_square_p >= filter.consistency_false_alarm``;
+    ``variance_factor`` the factor the covariances were scaled by
+    (:func:`variance_factor`; 1: none).
     """
 
     converged: bool
@@ -83,6 +101,11 @@ class SmootherReport:
     n_unpredictable: int
     n_downweighted: int
     measurement_rows: int
+    chi_square: float
+    chi_square_dof: int
+    chi_square_p: float
+    consistent: bool
+    variance_factor: float
     initialisation: str
     seconds: dict[str, float]
     quaternion: Array
@@ -111,6 +134,48 @@ class Stopwatch:
         return self.seconds | {"total": time.perf_counter() - self.begin}
 
 
+def pass_chi_square(problem: SmootherProblem, final_cost: float) -> tuple[float, int, float]:
+    """The whole-pass consistency test: ``(2 J, dof, P(chi2(dof) >= 2 J))``.
+
+    At the minimum of a linear least-squares problem with correct noise models, twice
+    the cost ``J`` is chi-square with (residual rows - parameters) degrees of freedom
+    (Bar-Shalom, Li and Kirubarajan 2001 sec. 3.4).  Each node adds six parameters and
+    the six rows of its gyro and bias factors, and the prior's six rows match the first
+    node's, so the measurements' rows are left, less three for each attitude segment
+    that a long gyro gap starts (its diffuse prior constrains nothing); an offset adds
+    one parameter and its prior's row.  The rows of a unit vector count three, of which
+    two carry noise, so for vector passes the test is conservative.  With the Huber loss
+    ``J`` is not quadratic and the test is approximate.
+    """
+    dof = sum(f.rows.size for f in problem.factors) - 3 * problem.intervals.segment_starts.size
+    statistic = 2.0 * final_cost
+    p = float(chi_square_tail(statistic, dof)) if dof > 0 else np.nan
+    return statistic, int(dof), p
+
+
+def variance_factor(
+    chi_square: float, dof: int, p: float, false_alarm: float, max_factor: float
+) -> float:
+    """The factor ``s`` the pass's noise model is scaled by (module docstring): ``2 J /
+    dof`` when the whole-pass test fails (``p < false_alarm``) and that is at most
+    ``max_factor``, else 1.
+
+    Example::
+
+        >>> from attopt.solvers.smoother.batch import variance_factor
+        >>> variance_factor(1300.0, 1000, 1e-19, 1e-6, 2.0)  # 30% excess over the pass
+        1.3
+        >>> variance_factor(5600.0, 1000, 0.0, 1e-6, 2.0)  # too large: the windows flag
+        1.0
+        >>> variance_factor(980.0, 1000, 0.7, 1e-6, 2.0)  # consistent
+        1.0
+    """
+    if not p < false_alarm:
+        return 1.0
+    factor = chi_square / dof
+    return factor if factor <= max_factor else 1.0
+
+
 def batch_track(
     method: str,
     inputs: GyroPass,
@@ -122,6 +187,7 @@ def batch_track(
     noise_updates: int,
     label: str,
     clock: Stopwatch,
+    max_variance_factor: float = 1.0,
 ) -> Track:
     """The smoothed attitudes (reference -> body), biases and ``6 x 6`` covariances at the
     epochs as a filter's :class:`~attopt.solvers.results.Track`
@@ -129,7 +195,8 @@ def batch_track(
     with the :class:`SmootherReport` as ``report``.
 
     Its ``loss`` (diagnostic ``nis``) is the epoch's normalised residual squared at
-    the solution, ``nu^T R^-1 nu`` over its used rows; diagnostics ``n_used``,
+    the solution, ``nu^T (s R)^-1 nu`` over its used rows (``nis_dof``; ``s`` the
+    variance factor, usually 1); diagnostics ``n_used``,
     ``n_gated``, ``n_nan``, ``n_unpredictable`` count observation blocks,
     ``n_downweighted`` the blocks the Huber loss down-weights, ``update_iterations``
     the pass's iterations, ``covariance_repairs`` the marginals that were not
@@ -143,12 +210,16 @@ def batch_track(
         flag_unconverged: flag every epoch when the optimiser did not converge.
         noise_updates, label: for the report (the re-solves with ``R`` updated, the start).
         clock: the solve's stage times.
+        max_variance_factor: the largest whole-pass variance factor taken as the noise
+            model's scale (module docstring; 1: none).
     """
     n, offset, threshold = len(inputs.measurements), problem.offset, problem.huber_threshold
     record = EpochRecord(n)
     record.quaternion = outcome.attitudes[offset:].as_quat()
     record.vector = outcome.bias[offset:].copy()
-    covariance = marginals.covariance.copy()
+    chi_square, dof, p = pass_chi_square(problem, float(outcome.cost))
+    factor = variance_factor(chi_square, dof, p, rules.consistency_false_alarm, max_variance_factor)
+    covariance = factor * marginals.covariance
     repairs = np.zeros(n)
     for k in range(n):
         if np.isfinite(covariance[k]).all():
@@ -158,9 +229,11 @@ def batch_track(
     for name in COUNTS:
         record.diagnostics[name] = problem.counts[name].copy()
     record.diagnostics["n_downweighted"] = np.zeros(n)
+    record.diagnostics["nis_dof"] = np.zeros(n)
     for f in problem.factors:
         k = f.node - offset
-        record.diagnostics["nis"][k] = f.normalised_residual()
+        record.diagnostics["nis"][k] = f.normalised_residual() / factor
+        record.diagnostics["nis_dof"][k] = float(f.rows.size)
         record.diagnostics["n_used"][k] = f.counts["n_used"]
         record.diagnostics["n_unpredictable"][k] = f.counts["n_unpredictable"]
         record.diagnostics["n_downweighted"][k] = f.n_downweighted(threshold)
@@ -171,7 +244,18 @@ def batch_track(
     if marginals.error:
         record.reason[:] = marginals.error
     # no lost-track rule, and a long gyro gap splits the pass instead of being flagged
-    result = filter_result(method, record, replace(rules, max_gyro_gap_s=np.inf), inputs.t)
+    result = filter_result(
+        method,
+        record,
+        # no residual test of a solution that is not a minimum (flagged below instead)
+        replace(
+            rules,
+            max_gyro_gap_s=np.inf,
+            consistency_window=rules.consistency_window if outcome.converged else 0,
+        ),
+        inputs.t,
+        tested="residuals at the solution of the last {window} epochs with measurements",
+    )
     message = outcome.message
     if not outcome.converged:
         message = (
@@ -196,6 +280,11 @@ def batch_track(
         n_unpredictable=int(record.diagnostics["n_unpredictable"].sum()),
         n_downweighted=int(record.diagnostics["n_downweighted"].sum()),
         measurement_rows=int(sum(f.rows.size for f in problem.factors)),
+        chi_square=chi_square,
+        chi_square_dof=dof,
+        chi_square_p=p,
+        consistent=bool(p >= rules.consistency_false_alarm),
+        variance_factor=factor,
         initialisation=label,
         seconds=clock.split(),
         quaternion=record.quaternion.copy(),
