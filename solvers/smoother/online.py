@@ -85,6 +85,8 @@ from attopt.solvers.filters.common import (
     STATE_SIZE,
     FilterOptions,
     PreparedGyro,
+    error_jacobian,
+    error_vector,
     kalman_gain,
     linearised,
     noise_subset,
@@ -355,12 +357,25 @@ def _settle(
         more += 1
 
 
-def _epoch_nis(factor: EpochFactor, covariance: Array) -> float:
-    """``nu^T S^-1 nu`` of the epoch against the predicted covariance (the MEKF's loss)."""
+def _epoch_nis(
+    factor: EpochFactor, covariance: Array, predicted: Rotation, updated: Rotation
+) -> tuple[float, float]:
+    """``nu~^T S^-1 nu~`` of the epoch against the predicted covariance and its rows: the
+    MEKF's statistic (:func:`attopt.solvers.filters.mekf.update`), with ``nu~ = nu(x+) +
+    H(x+) x+`` the innovation relinearised at the update ``x+`` (the error of ``updated``
+    relative to ``predicted``), so a large correction does not inflate it.  Blocks the
+    model cannot predict at ``updated`` are left out."""
+    state = error_vector(updated, predicted)
+    nu, jac, lost = factor.evaluate(updated)
+    keep = ~np.isin(factor.measurement.blocks[factor.rows], lost)
+    rows = factor.rows[keep]
+    if not rows.size:
+        return np.nan, 0.0
+    h = np.zeros((rows.size, STATE_SIZE))
+    h[:, :3] = jac[keep] @ error_jacobian(state)
+    relinearised = nu[keep] + h[:, :3] @ state
     noise = factor.noise if factor.noise_diagonal is None else factor.noise_diagonal
-    h = np.zeros((factor.rows.size, STATE_SIZE))
-    h[:, :3] = factor.jacobian
-    return kalman_gain(covariance, h, noise_subset(noise, factor.rows), factor.innovation)[1]
+    return kalman_gain(covariance, h, noise_subset(noise, rows), relinearised)[1], float(rows.size)
 
 
 class OnlineFilter(SequentialFilter):
@@ -440,7 +455,8 @@ class OnlineFilter(SequentialFilter):
         start = time.perf_counter()
         i, predicted, predicted_covariance = self.i, self.attitude, self.covariance
         counts = dict.fromkeys(COUNTS, 0.0)
-        counts["nis"] = np.nan
+        counts["nis"], counts["nis_dof"] = np.nan, 0.0
+        factor = None
         if measurement is not None:
             factor, epoch_counts = prepare_factor(
                 i,
@@ -451,7 +467,6 @@ class OnlineFilter(SequentialFilter):
             )
             counts |= epoch_counts
             if factor is not None:
-                counts["nis"] = _epoch_nis(factor, predicted_covariance)
                 callback = MeasurementCallback(factor, predicted)
                 self.callbacks.append(callback)
                 self.callback_epoch.append(i - self.offset)
@@ -474,6 +489,10 @@ class OnlineFilter(SequentialFilter):
         self.max_window = max(self.max_window, self.values.size())
         self.attitude = attitude(self.values.atRot3(attitude_key(i)))
         self.bias = self.values.atVector(bias_key(i))
+        if factor is not None:
+            counts["nis"], counts["nis_dof"] = _epoch_nis(
+                factor, predicted_covariance, predicted, self.attitude
+            )
         self.seconds["update"] += time.perf_counter() - start
         k = i - self.offset
         if k >= 0:
