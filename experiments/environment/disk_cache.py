@@ -36,7 +36,7 @@ decoded is rebuilt and overwritten.
 
 Every result, built or loaded, goes through the same encoding (arrays as fresh
 C-contiguous copies, rotations from their quaternions without renormalising),
-so a loaded result equals a built one bit for bit, memory layout included.
+so a loaded result equals a built one bit for bit, in the same array layout.
 Results are shared: do not modify their arrays in place.
 """
 
