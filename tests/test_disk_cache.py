@@ -8,7 +8,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -18,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.parameters import AdsbScenario, TrafficParameters
 from attopt.experiments.adsb_snr.scenario import _build_adsb_geometry
+from attopt.experiments.benchmarks import geometry as geometry_benchmark
 from attopt.experiments.doa_ground.parameters import DoaScenario
 from attopt.experiments.doa_ground.scenario import orbit_track
 from attopt.experiments.environment import disk_cache
@@ -258,6 +261,23 @@ def test_a_corrupt_entry_is_rebuilt_and_overwritten(damage, cache, counter, toy)
     assert counter.calls == 2
 
 
+def test_concurrent_builds_of_one_entry_store_it_once(cache, counter):
+    both_building = threading.Barrier(2)
+
+    def slow(size: int) -> Toy:
+        both_building.wait(timeout=30)  # neither has stored its entry yet
+        return counter(size)
+
+    builder = disk_cached(_named(slow, "slow_builder"))
+    with ThreadPoolExecutor(2) as pool:
+        first, second = pool.map(builder, [5, 5])
+    assert counter.calls == 2
+    assert_identical(first, second)
+    assert [path.stem for path in cache.iterdir()] == [cache_key(builder, 5)]
+    assert_identical(builder(5), first)
+    assert counter.calls == 2
+
+
 def test_disabled_cache_builds_every_time(tmp_path, monkeypatch, counter, toy):
     monkeypatch.setenv("ATTOPT_CACHE_DIR", "OFF")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
@@ -306,3 +326,11 @@ def test_results_the_format_cannot_hold_raise(cache):
     with pytest.raises(TypeError, match="does not import it"):
         local()
     assert list(cache.iterdir()) == []
+
+
+def test_benchmark_times_a_cold_and_a_warm_build(capsys):
+    geometry_benchmark.main(["--scenarios", "geo-snr-stations", "--runs", "1"])
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("| scenario | first build s")
+    assert table[2].startswith("| geo-snr-stations | ")
+    assert float(table[2].split("|")[-2]) > 0.0  # the entry was written
