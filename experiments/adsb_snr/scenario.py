@@ -75,6 +75,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
+from attopt.experiments.environment.disk_cache import disk_cached
 from attopt.experiments.environment.orbit import (
     ecef_to_eci_matrices,
     propagate,
@@ -177,7 +178,8 @@ class Observations:
 
 def build_adsb_geometry(scenario: AdsbScenario | None = None) -> AdsbGeometry:
     """Geometry of ``scenario`` (default: Liu et al. 2023's) at ``t = 0, step_s, ...`` below
-    ``duration_s`` (cached per process).
+    ``duration_s`` (cached per process and on disk,
+    :mod:`attopt.experiments.environment.disk_cache`).
 
     The aircraft are :func:`attopt.experiments.environment.traffic.sample_traffic` of
     ``numpy.random.default_rng(traffic.seed)``.
@@ -186,6 +188,7 @@ def build_adsb_geometry(scenario: AdsbScenario | None = None) -> AdsbGeometry:
 
 
 @functools.lru_cache(maxsize=4)
+@disk_cached
 def _build_adsb_geometry(key: str) -> AdsbGeometry:
     scenario = AdsbScenario.model_validate_json(key)
     t, times = window_times(scenario.start_utc, scenario.duration_s, scenario.step_s)

@@ -50,8 +50,9 @@ of view, ``theta <= 62 deg``), and the errors converge from about 50 deg (Fig. 6
 0.5 deg/s (Fig. 7).
 
 The geometry is cached per process and scenario (:func:`build_geometry`), and the
-orbit (sgp4 and astropy's frame transforms, the slow part) per orbit and time grid, so
-scenarios that differ only in their stations or truth share it.
+orbit (sgp4 and astropy's frame transforms, the slow part) per orbit and time grid, per
+process and on disk (:func:`orbit_track`), so scenarios that differ only in their
+stations or truth share it and the processes of a machine build it once.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.experiments.config.components import Station
 from attopt.experiments.doa_ground.parameters import DoaScenario, RigidBodyTruth
+from attopt.experiments.environment.disk_cache import disk_cached
 from attopt.experiments.environment.orbit import (
     ecef_to_eci_matrices,
     propagate,
@@ -193,11 +195,13 @@ def _build_geometry(document: str) -> DoaGroundGeometry:
 
 
 @functools.lru_cache(maxsize=2)
+@disk_cached
 def orbit_track(
     tle: tuple[str, str], start_utc: str, duration_s: float, step_s: float
 ) -> OrbitTrack:
     """sgp4 and astropy's frames at ``t = 0, step_s, ...`` below ``duration_s`` from
-    ``start_utc`` (cached: the slow part of a scenario)."""
+    ``start_utc`` (cached per process and on disk,
+    :mod:`attopt.experiments.environment.disk_cache`: the slow part of a scenario)."""
     t = np.arange(0.0, duration_s, step_s)
     times = Time(start_utc, scale="utc") + t * u.s
     orbit = propagate(satellite_from_tle(*tle), times)

@@ -4,6 +4,8 @@
 * :mod:`.sun`: apparent Sun direction from the satellite;
 * :mod:`.geomagnetic`: IGRF field at the satellite (ppigrf);
 * :mod:`.shadow`: cylindrical Earth shadow.
+* :mod:`.disk_cache`: slow deterministic results (a scenario's geometry) cached on
+  disk, once per machine.
 
 Importing the package makes astropy's Earth-orientation data strictly offline:
 the bundled ``astropy-iers-data`` table is used, never downloaded, and epochs

@@ -68,6 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.experiments.config.components import Station, TleOrbit
+from attopt.experiments.environment.disk_cache import disk_cached
 from attopt.experiments.environment.orbit import ecef_to_eci_matrices, propagate, satellite_from_tle
 from attopt.experiments.environment.traffic import geodetic_normal
 from attopt.experiments.geo_snr_stations.parameters import (
@@ -237,12 +238,14 @@ def build_geo_snr_scenario(
     world: GeoWorld | None = None, manoeuvre: bool = False
 ) -> GeoSnrScenario:
     """The scenario of ``world`` (default: the paper's) at ``t = 0, step_s, ...`` below
-    ``duration_s``, with or without the manoeuvre (cached per process)."""
+    ``duration_s``, with or without the manoeuvre (cached per process and on disk,
+    :mod:`attopt.experiments.environment.disk_cache`)."""
     world = GeoWorld() if world is None else world.world()
     return _build(world.model_dump_json(), bool(manoeuvre))
 
 
 @functools.lru_cache(maxsize=4)
+@disk_cached
 def _build(world_json: str, manoeuvre: bool) -> GeoSnrScenario:
     world = GeoWorld.model_validate_json(world_json)
     profile, link = world.attitude, world.link()

@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from attopt.experiments.environment.disk_cache import disk_cached
 from attopt.experiments.environment.geomagnetic import geomagnetic_field_eci
 from attopt.experiments.environment.orbit import propagate, satellite_from_tle, window_times
 from attopt.experiments.environment.shadow import in_cylindrical_shadow
@@ -106,6 +107,7 @@ def true_attitude(t: NDArray[np.float64], profile: AttitudeProfile) -> Rotation:
 
 
 @functools.lru_cache(maxsize=8)
+@disk_cached
 def build_geometry(
     orbit: TleOrbit | CircularOrbit,
     start_utc: str,
@@ -114,7 +116,8 @@ def build_geometry(
     attitude: AttitudeProfile,
 ) -> VectorGeometry:
     """Geometry of ``orbit`` with the true ``attitude`` at the epochs of
-    :func:`~attopt.experiments.environment.orbit.window_times` (cached per process)."""
+    :func:`~attopt.experiments.environment.orbit.window_times` (cached per process and on
+    disk, :mod:`attopt.experiments.environment.disk_cache`)."""
     t, times = window_times(start_utc, duration_s, step_s)
     states = propagate(satellite_from_tle(*orbit.tle()), times)
     sun_eci = sun_direction_eci(times, states.position_eci_km)
