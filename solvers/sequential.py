@@ -87,6 +87,7 @@ DIAGNOSTICS = (
     "recoveries",
     "restarts",
     "covariance_repairs",
+    "n_downweighted",
 )
 """Per-epoch counts of the gyro-aided filters (:func:`filter_result`)."""
 NON_FINITE = "filter state became non-finite"

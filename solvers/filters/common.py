@@ -77,6 +77,7 @@ from attopt.solvers.gyro_timeline import (
     gyro_timeline,
     repeated_readings,
 )
+from attopt.solvers.robust import huber_weights
 from attopt.solvers.sequential import SequentialFilter, TrackMonitor
 
 Array = NDArray[np.float64]
@@ -178,6 +179,11 @@ class FilterOptions:
             treated as missing (held, with the variance growth of ``hold_rate_sigma``,
             and flagged beyond ``max_gyro_gap_s``); 0 turns the check off (a quantised
             record whose noise is below its quantum).
+        huber_threshold: ``k`` of the Huber loss on each observation block's whitened
+            innovation norm at the prior, in the MEKF's and USQUE's updates
+            (:func:`robust_noise`); the blocks beyond it are down-weighted and counted
+            in ``n_downweighted``; ``None`` (default): the Gaussian update.  The batch
+            smoother has its own (``GraphOptions.huber_threshold``).
 
     Example::
 
@@ -201,8 +207,11 @@ class FilterOptions:
     consistency_false_alarm: float = CONSISTENCY_FALSE_ALARM
     recovery: Literal["restart", "inflate", "none"] = "restart"
     max_repeated_readings: int = 10
+    huber_threshold: float | None = None
 
     def __post_init__(self) -> None:
+        if self.huber_threshold is not None and not self.huber_threshold > 0:
+            raise ValueError("huber_threshold must be positive (or None)")
         if self.recovery not in RECOVERIES:
             raise ValueError(
                 f"recovery must be one of {', '.join(RECOVERIES)}, not {self.recovery!r}"
@@ -473,24 +482,24 @@ def kalman_gain(
     return posterior @ r_inv_h.T, nis, posterior
 
 
-def gate(
+def block_nis(
     innovation: Array,
     factor: Array,
     weight: Array,
     noise: Array,
     blocks: NDArray[np.intp],
-    probability: float,
-) -> NDArray[np.bool_]:
-    """Rows whose block's normalised innovation squared is within the chi-square gate.
+) -> tuple[Array, NDArray[np.intp]]:
+    """Per row, its block's normalised innovation squared ``nu_b^T S_b^-1 nu_b`` and the
+    block's size.
 
     The innovation covariance is ``S = F^T W F + R`` (``F`` ``(k, m)``: for the
     MEKF ``H^T`` with ``W = P``; for USQUE the sigma deviations with ``W`` the
     covariance weights); only its diagonal blocks are formed, blocks of equal
-    size tested together, so the cost is linear in the number of blocks.
+    size tested together, so the cost is linear in the number of blocks.  NaN where
+    ``S`` or the innovation is not finite.
     """
-    keep = np.ones(innovation.shape[0], dtype=bool)
-    if probability >= 1.0 or innovation.size == 0:
-        return keep
+    nis_rows = np.full(innovation.shape[0], np.nan)
+    size_rows = np.zeros(innovation.shape[0], dtype=np.intp)
     labels, first, sizes = np.unique(blocks, return_index=True, return_counts=True)
     for size in np.unique(sizes):
         members = labels[sizes == size]
@@ -507,9 +516,81 @@ def gate(
         else:
             s += noise[rows[:, :, None], rows[:, None, :]]
         nis = np.einsum("bi,bi->b", nu, np.linalg.solve(s, nu[..., None])[..., 0])
-        # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
-        keep[rows[~(nis <= gate_threshold(probability, int(size)))].ravel()] = False
-    return keep
+        nis_rows[rows] = nis[:, None]
+        size_rows[rows] = size
+    return nis_rows, size_rows
+
+
+def gate(
+    innovation: Array,
+    factor: Array,
+    weight: Array,
+    noise: Array,
+    blocks: NDArray[np.intp],
+    probability: float,
+) -> NDArray[np.bool_]:
+    """Rows whose block's normalised innovation squared (:func:`block_nis`) is within the
+    chi-square gate of its size at ``probability`` (1: every row)."""
+    keep = np.ones(innovation.shape[0], dtype=bool)
+    if probability >= 1.0 or innovation.size == 0:
+        return keep
+    nis, size = block_nis(innovation, factor, weight, noise, blocks)
+    threshold = np.array([gate_threshold(probability, int(n)) for n in np.unique(size)])
+    # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
+    return nis <= threshold[np.searchsorted(np.unique(size), size)]
+
+
+def robust_noise(
+    noise: Array,
+    rows: NDArray[np.intp],
+    nis: Array,
+    threshold: float | None,
+) -> tuple[Array, NDArray[np.bool_]]:
+    """``R`` with the blocks of ``rows`` down-weighted by the Huber loss on their whitened
+    innovation norms ``sqrt(nis)`` (:func:`block_nis` at the prior), and which rows were.
+
+    The weight ``w = min(1, k / sqrt(nis))`` (:func:`attopt.solvers.robust.huber_weights`)
+    divides the rows' noise covariance (the rows and columns of a full ``R`` by
+    ``sqrt(w)``): the update of a Huber M-estimate linearised at the prior (Karlgaard and
+    Schaub 2007).  ``threshold`` ``None``: ``R`` unchanged.
+    """
+    down = np.zeros(rows.size, dtype=bool)
+    if threshold is None or rows.size == 0:
+        return noise, down
+    weights = huber_weights(np.sqrt(nis), threshold)
+    down = weights < 1.0
+    if not down.any():
+        return noise, down
+    scale = np.ones(noise.shape[0])
+    scale[rows[down]] = 1.0 / weights[down]
+    if noise.ndim == 1:
+        return noise * scale, down
+    root = np.sqrt(scale)
+    return root[:, None] * noise * root[None, :], down
+
+
+def robust(
+    noise: Array,
+    rows: NDArray[np.intp],
+    innovation: Array,
+    factor: Array,
+    weight: Array,
+    blocks: NDArray[np.intp],
+    options: FilterOptions,
+    counts: dict[str, float],
+) -> Array:
+    """``R`` (all rows) with the used ``rows`` Huber-weighted at the prior
+    (:func:`robust_noise` of their :func:`block_nis`), the down-weighted blocks counted in
+    ``counts["n_downweighted"]``; ``R`` itself without ``options.huber_threshold``.
+
+    ``innovation``, ``factor`` (``(k, len(rows))``, with its ``weight``, as in
+    :func:`block_nis`) and ``blocks`` are those of ``rows``."""
+    if options.huber_threshold is None:
+        return noise
+    nis, _ = block_nis(innovation, factor, weight, noise_subset(noise, rows), blocks)
+    weighted, down = robust_noise(noise, rows, nis, options.huber_threshold)
+    counts["n_downweighted"] = float(np.unique(blocks[down]).size)
+    return weighted
 
 
 def usable_rows(

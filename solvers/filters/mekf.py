@@ -43,6 +43,7 @@ from attopt.solvers.filters.common import (
     propagate_attitude,
     propagate_covariance,
     repair_covariance,
+    robust,
     solve_noise,
     usable_rows,
 )
@@ -78,7 +79,9 @@ def update(
 ) -> tuple[Rotation, Array, Array, dict[str, float]]:
     """One iterated measurement update with gating, Joseph form and reset.
 
-    Gating uses the prediction at the prior estimate.  The update is the
+    Gating, and the Huber weights when ``options.huber_threshold`` is set
+    (:func:`~attopt.solvers.filters.common.robust`), use the prediction at the prior
+    estimate.  The update is the
     iterated EKF's Gauss-Newton step on the MAP cost (Bell and Cathey 1993):
     ``x_{i+1} = K_i (z - h(x_i) + H_i x_i)`` with ``h`` and ``H_i``
     re-evaluated at ``x_i``; ``H_i`` is the measurement's body-frame Jacobian
@@ -112,6 +115,7 @@ def update(
     r_all = measurement.noise_covariance_at(attitude)
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
+    counts["n_downweighted"] = 0.0
     state = np.zeros(STATE_SIZE)
     current = attitude
     prior_information = np.linalg.inv(covariance)
@@ -139,6 +143,16 @@ def update(
             rows = rows[accepted]
             if rows.size == 0:
                 return attitude, bias, covariance, counts
+            r_all = robust(
+                r_all,
+                rows,
+                innovation[rows],
+                h_all[rows].T,
+                covariance,
+                blocks[rows],
+                options,
+                counts,
+            )
             r = noise_subset(r_all, rows)
         else:  # relinearised: drop blocks the model can no longer predict
             lost = np.unique(blocks[rows[~np.isfinite(innovation[rows])]])

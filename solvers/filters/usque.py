@@ -149,6 +149,7 @@ from attopt.solvers.filters.common import (
     propagate_attitude,
     propagate_covariance,
     repair_covariance,
+    robust,
     usable_rows,
 )
 
@@ -262,10 +263,13 @@ def update(
     ``x_{i+1} = K (nu_i + H x_i)``, ``P_{i+1} = P^- - K S K^T``, ``nu_i``
     the sigma-weighted innovation at ``x_i``.  With ``x_0 = 0`` and ``P_0 =
     P^-`` this is the unscented update itself (``H P^- H^T + Omega = P_nunu
-    - R``, ``P^- H^T = P_xnu``).  Gating uses the first pass.
+    - R``, ``P^- H^T = P_xnu``).  Gating, and the Huber weights when
+    ``options.huber_threshold`` is set (:func:`~attopt.solvers.filters.common.robust`),
+    use the first pass.
     """
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
+    counts["n_downweighted"] = 0.0
     offsets, repaired = sigma_offsets(covariance)
     counts["covariance_repairs"] = float(repaired)
     predicted, _ = measurement.predict(apply_error(offsets[:, :3], attitude), jacobian=False)
@@ -294,6 +298,9 @@ def update(
     rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
     nu = nu[accepted]
     counts["n_used"] = float(np.unique(blocks).size)
+    r_all = robust(
+        r_all, rows, nu, (nu - innovations), np.diag(COVARIANCE_WEIGHTS), blocks, options, counts
+    )
     r = noise_subset(r_all, rows)
     state = np.zeros(STATE_SIZE)
     posterior = covariance

@@ -63,29 +63,11 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import gate, noise_subset, usable_rows
+from attopt.solvers.robust import huber_cost, huber_weights
 from attopt.solvers.smoother.conventions import Array, attitude_key, offset_key
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
 UNIT1 = gtsam.noiseModel.Unit.Create(1)
-
-
-def huber_cost(norms: Array, threshold: float | None) -> float:
-    """``sum rho(s)`` of block residual norms ``s`` (``0.5 s^2`` without a threshold)."""
-    if threshold is None:
-        return 0.5 * float(norms @ norms)
-    quadratic = norms <= threshold
-    return float(
-        0.5 * np.sum(norms[quadratic] ** 2)
-        + np.sum(threshold * norms[~quadratic] - 0.5 * threshold**2)
-    )
-
-
-def huber_weights(norms: Array, threshold: float | None) -> Array:
-    """IRLS weights ``min(1, k / s)`` per block."""
-    if threshold is None:
-        return np.ones_like(norms)
-    with np.errstate(divide="ignore"):
-        return np.where(norms > threshold, threshold / norms, 1.0)
 
 
 FD_STEP = 1e-6
