@@ -16,6 +16,7 @@ from attopt.formulations.attitude_measurement import EulerAngleMeasurement
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import (
     ConvergenceError,
+    ModelMismatchError,
     UnobservableError,
     UnsupportedMeasurementError,
 )
@@ -210,3 +211,31 @@ def test_estimator_accepts_unit_vectors_only() -> None:
     mixed = Pass(pass_.t, tuple(snapshots), None, pass_.prior, pass_.dynamics)
     with pytest.raises(UnsupportedMeasurementError, match="bls_yang2014 accepts VectorMeasurement"):
         DoaBatchLs().solve(mixed)
+
+
+def test_consistent_passes_pass_both_residual_tests(monte_carlo) -> None:
+    """The 20 consistent passes: no epoch flagged by the windowed residual test, every
+    pass consistent as a whole, and the per-epoch residuals sum to the cost."""
+    _, _, results = monte_carlo
+    for result in results:
+        assert result.valid.all(), set(result.reason)
+        assert result.report.consistent, result.report.chi_square_p
+        np.testing.assert_allclose(result.diagnostics["nis"].sum(), result.report.cost)
+        assert result.diagnostics["nis_dof"].sum() == result.report.rows
+
+
+def test_a_truth_off_the_dynamics_fails_the_residual_tests() -> None:
+    """A truth with process noise (``Q = 1e-7 E_6`` per step) that the batch least
+    squares' exact dynamics cannot follow: the whole pass fails its chi-square test and
+    the windowed test flags epochs (``inconsistent``, ``ModelMismatchError``); with the
+    test off (``consistency_window = 0``) none is flagged."""
+    rng = np.random.default_rng(8)
+    run = simulate_vectors(rng, EPOCHS, process_noise=1e-7)
+    start = drawn_start(rng, run)
+    result = solve(run, *start)
+    assert result.report.converged and not result.report.consistent
+    flagged = ~result.valid
+    assert flagged.mean() > 0.5, flagged.mean()
+    assert all(r.startswith("inconsistent: the residuals") for r in result.reason[flagged])
+    assert set(result.error[flagged]) == {ModelMismatchError}
+    assert solve(run, *start, consistency_window=0).valid.all()

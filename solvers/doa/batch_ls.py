@@ -55,7 +55,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_model import increment_matrix
-from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.formulations.errors import ConvergenceError, ModelMismatchError, UnobservableError
+from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.doa.ekf import (
     EkfDynamics,
     check_steps,
@@ -65,7 +66,9 @@ from attopt.solvers.doa.ekf import (
 )
 from attopt.solvers.doa.vector_slots import vector_arrays
 from attopt.solvers.filters.casadi_pass import accumulate
+from attopt.solvers.filters.common import CONSISTENCY_FALSE_ALARM, CONSISTENCY_WINDOW
 from attopt.solvers.results import Track
+from attopt.solvers.sequential import inconsistent_epochs
 
 Array = NDArray[np.float64]
 
@@ -84,11 +87,21 @@ class BatchLsOptions:
         flag_unconverged: flag every epoch invalid when the solve did not
             converge; ``False`` keeps the estimates valid (the track's
             :class:`BatchLsReport` says whether it converged).
+        consistency_window: epochs with vectors whose residuals at the solution
+            (``sum w |nu|^2`` over their rows) are summed in the filters' windowed
+            chi-square test (:func:`~attopt.solvers.sequential.inconsistent_epochs`;
+            conservative: the fit absorbs six degrees of freedom of the pass and a unit
+            vector's three rows carry two); a failing epoch is flagged
+            ``inconsistent``; 0 turns the test off.
+        consistency_false_alarm: that test's false-alarm probability, also the level
+            of the report's whole-pass verdict (``consistent``).
     """
 
     tolerance: float = 1e-6
     max_iterations: int = 20
     flag_unconverged: bool = True
+    consistency_window: int = CONSISTENCY_WINDOW
+    consistency_false_alarm: float = CONSISTENCY_FALSE_ALARM
 
 
 @dataclass(frozen=True)
@@ -101,6 +114,11 @@ class BatchLsReport:
         iterations: passes run (each one propagation of the whole trajectory).
         converged: whether the last accepted step met the tolerance.
         reason: empty if converged, else why not.
+        chi_square_p: the whole-pass test, ``P(chi2(rows - 6) >= J)``: ``J`` is
+            chi-square with the rows less the six parameters at the minimum of a
+            consistent pass (Bar-Shalom, Li and Kirubarajan 2001 sec. 3.4;
+            conservative for unit vectors, whose three rows carry two).
+        consistent: ``chi_square_p >= consistency_false_alarm``.
     """
 
     cost: float
@@ -108,6 +126,8 @@ class BatchLsReport:
     iterations: int
     converged: bool
     reason: str
+    chi_square_p: float
+    consistent: bool
 
 
 @lru_cache(maxsize=8)
@@ -161,6 +181,10 @@ class _Pass:
     gradient: Array
     cost: float
     rows: int
+    epoch_cost: Array
+    """``(N,)`` each epoch's ``sum w |nu|^2``."""
+    epoch_rows: Array
+    """``(N,)`` each epoch's rows in it."""
 
 
 def batch_least_squares(
@@ -221,6 +245,8 @@ def batch_least_squares(
             gradient=outputs[4][-1, :, 0],
             cost=float(outputs[5][-1, 0, 0]),
             rows=int(np.rint(outputs[6][:, 0, 0].sum())),
+            epoch_cost=np.diff(outputs[5][:, 0, 0], prepend=0.0),
+            epoch_rows=outputs[6][:, 0, 0],
         )
 
     current = run(np.asarray(start_rate, dtype=float).reshape(3), start_attitude.as_matrix())
@@ -249,22 +275,47 @@ def batch_least_squares(
     spread = np.linalg.inv(current.normal)
     covariance = current.sensitivity @ spread @ np.swapaxes(current.sensitivity, 1, 2)
     covariance = 0.5 * (covariance + np.swapaxes(covariance, 1, 2))
-    reason = "" if converged else f"not converged in {options.max_iterations} passes"
-    report = BatchLsReport(current.cost, current.rows, iterations, converged, reason)
+    unconverged = "" if converged else f"not converged in {options.max_iterations} passes"
+    reason = np.full(n, unconverged, dtype=object)
+    p = float(chi_square_tail(current.cost, current.rows - 6)) if current.rows > 6 else np.nan
+    report = BatchLsReport(
+        current.cost,
+        current.rows,
+        iterations,
+        converged,
+        unconverged,
+        p,
+        bool(p >= options.consistency_false_alarm),
+    )
     valid = np.full(n, converged or not options.flag_unconverged)
     error = np.full(n, None, dtype=object)
     error[~valid] = ConvergenceError
+    if converged and options.consistency_window:
+        nis = np.where(current.epoch_rows > 0, current.epoch_cost, np.nan)
+        inconsistent = inconsistent_epochs(
+            nis,
+            current.epoch_rows,
+            options.consistency_window,
+            options.consistency_false_alarm,
+        )
+        reason[inconsistent] = (
+            f"inconsistent: the residuals at the solution of the last "
+            f"{options.consistency_window} epochs with vectors fail the chi-square test at "
+            f"{options.consistency_false_alarm:g}"
+        )
+        error[inconsistent] = ModelMismatchError
+        valid &= ~inconsistent
     return Track(
         method=method,
         quaternion=np.where(
             valid[:, None], Rotation.from_matrix(current.attitude).as_quat(), np.nan
         ),
         covariance=np.where(valid[:, None, None], covariance[:, 3:, 3:], np.nan),
-        loss=np.full(n, np.nan),
+        loss=np.where(current.epoch_rows > 0, current.epoch_cost, np.nan),
         valid=valid,
         reason=np.where(valid, "", reason).astype(object),
         error=error,
-        diagnostics={},
+        diagnostics={"nis": current.epoch_cost, "nis_dof": current.epoch_rows},
         t=np.array(t, dtype=float),
         rate=np.where(valid[:, None], current.rate, np.nan),
         state_covariance=np.where(valid[:, None, None], covariance, np.nan),
