@@ -7,6 +7,12 @@ its value equals ``lambda_max(K)``.  The problem is DPP: repeated solves with a
 new ``K`` reuse the compiled problem, with whichever installed conic solver
 that handles semidefinite cones is asked for (Clarabel, SCS).  Its dual is
 ``min nu  s.t.  nu I - K PSD``, so the multiplier of ``tr X = 1`` is a certificate of optimality.
+
+A problem of ``size`` blocks holds that many independent relaxations, one
+per epoch: ``max sum_b tr(K_b X_b)  s.t.  tr X_b = 1,  X_b PSD``.  The blocks
+share nothing, so each block's optimum, value ``tr(K_b X_b)`` and multiplier
+of its own ``tr X_b = 1`` are those of its epoch's relaxation; one solve
+replaces ``size`` and pays cvxpy's per-solve overhead once.
 """
 
 from __future__ import annotations
@@ -30,37 +36,69 @@ class SDPSolution:
     status: str
 
 
+@dataclass(frozen=True)
+class BlockSolution:
+    """Every block's primal matrix ``(size, 4, 4)``, primal value ``tr(K_b X_b)`` and dual
+    value (the multiplier of its ``tr X_b = 1``), and the status of the one solve."""
+
+    x: NDArray[np.float64]
+    value: NDArray[np.float64]
+    dual_value: NDArray[np.float64]
+    status: str
+
+
 class WahbaSDP:
-    """The relaxation, built once; :meth:`solve` it with each ``K`` and any conic solver.
+    """The relaxation of ``size`` epochs (module docstring), built once; solve it with any
+    conic solver: :meth:`solve` for one epoch (``size`` 1), :meth:`solve_blocks` for
+    ``size``.
 
     cvxpy compiles the problem for a solver on its first solve and reuses that
     compilation while the solver stays the same (the problem is DPP), so keep
-    one instance per solver and option set
+    one instance per solver, option set and size
     (:func:`attopt.solvers.wahba.sdp.relaxation`).
     """
 
-    def __init__(self) -> None:
-        self.k = cp.Parameter((4, 4), symmetric=True)
-        self.x = cp.Variable((4, 4), symmetric=True)
-        self.unit_trace = cp.trace(self.x) == 1
-        self.problem = cp.Problem(
-            cp.Maximize(cp.trace(self.k @ self.x)), [self.unit_trace, self.x >> 0]
+    def __init__(self, size: int = 1) -> None:
+        self.size = size
+        self.k = [cp.Parameter((4, 4), symmetric=True) for _ in range(size)]
+        self.x = [cp.Variable((4, 4), symmetric=True) for _ in range(size)]
+        self.unit_trace = [cp.trace(x) == 1 for x in self.x]
+        objective = cp.Maximize(
+            cp.sum([cp.trace(k @ x) for k, x in zip(self.k, self.x, strict=True)])
         )
+        self.problem = cp.Problem(objective, [*self.unit_trace, *(x >> 0 for x in self.x)])
 
     def solve(
         self, k: NDArray[np.float64], solver: str = cp.CLARABEL, **solver_options: Any
     ) -> SDPSolution:
         """Solve for one (symmetric) Davenport matrix ``k`` with ``solver`` (a cvxpy name)."""
-        self.k.value = 0.5 * (k + k.T)
+        if self.size != 1:
+            raise ValueError(f"solve() is for one epoch; this relaxation has {self.size} blocks")
+        sol = self.solve_blocks(k[None], solver, **solver_options)
+        value = self.problem.value
+        return SDPSolution(
+            x=sol.x[0],
+            value=np.nan if value is None else float(value),
+            dual_value=float(sol.dual_value[0]),
+            status=sol.status,
+        )
+
+    def solve_blocks(
+        self, k: NDArray[np.float64], solver: str = cp.CLARABEL, **solver_options: Any
+    ) -> BlockSolution:
+        """Solve for ``size`` (symmetric) Davenport matrices ``k`` ``(size, 4, 4)``."""
+        for parameter, matrix in zip(self.k, k, strict=True):
+            parameter.value = 0.5 * (matrix + matrix.T)
         with warnings.catch_warnings():
             # "optimal_inaccurate" is reported in ``status``; callers check the certificate.
             warnings.filterwarnings("ignore", message="Solution may be inaccurate")
             self.problem.solve(solver=solver, **solver_options)
-        x = self.x.value
-        dual = self.unit_trace.dual_value
-        return SDPSolution(
-            x=np.full((4, 4), np.nan) if x is None else np.asarray(x),
-            value=np.nan if self.problem.value is None else float(self.problem.value),
-            dual_value=np.nan if dual is None else abs(float(dual)),
-            status=str(self.problem.status),
-        )
+        x = np.full((self.size, 4, 4), np.nan)
+        dual = np.full(self.size, np.nan)
+        for b, (variable, constraint) in enumerate(zip(self.x, self.unit_trace, strict=True)):
+            if variable.value is not None:
+                x[b] = variable.value
+            if constraint.dual_value is not None:
+                dual[b] = abs(float(constraint.dual_value))
+        value = np.einsum("bij,bij->b", 0.5 * (k + np.swapaxes(k, 1, 2)), x)
+        return BlockSolution(x=x, value=value, dual_value=dual, status=str(self.problem.status))

@@ -68,9 +68,12 @@ def test_batch_equals_single_epochs(solver, problem):
         bodies, np.broadcast_to(reference, bodies.shape), np.tile(weights, (3, 1))
     )
     assert batch.valid.all()
+    # The SDP solves a batch in blocks: another interior-point run, equal to its tolerance
+    # divided by the eigen-gap (1e-8 rad at the 1e-12 default; tests/test_wahba_fast_paths.py).
+    tol = 1e-8 if solver.name == "sdp" else 1e-12
     for i in range(3):
         single = solver.solve_vectors(bodies[i], reference, weights)
-        assert angle(batch.epoch(i).attitude, single.attitude) < 1e-12
+        assert angle(batch.epoch(i).attitude, single.attitude) < tol
         np.testing.assert_allclose(batch.covariance[i], single.covariance, rtol=1e-10)
 
 

@@ -13,14 +13,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error
 from attopt.solvers.registry import ESTIMATORS
-from attopt.solvers.wahba import WahbaSolver
+from attopt.solvers.wahba import SDP, WahbaSolver
+from attopt.solvers.wahba.sdp import SdpOptions
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,10 @@ def _per_call_seconds(call: Callable[[int], object], calls: int) -> float:
     return float(np.median(times))
 
 
+REFERENCES = {"sdp, one solve per epoch": replace(SDP, options=SdpOptions(block_size=1))}
+"""Previous algorithms kept as options, measured in the same run as their references."""
+
+
 def run(n_batch: int = 100_000, calls: int = 2000, seed: int = 0) -> list[BenchRow]:
     """Measure every registered Wahba solver and the ``align_vectors`` reference."""
     body, reference, weights, _ = _problems(max(n_batch, calls), seed)
@@ -69,7 +74,8 @@ def run(n_batch: int = 100_000, calls: int = 2000, seed: int = 0) -> list[BenchR
     check = min(n_batch, 5000)
     reference_att = Rotation.concatenate([align(i) for i in range(check)])
     rows = [BenchRow("align_vectors (scipy)", ref_call * 1e6, 1.0, ref_throughput, 1.0, 0.0)]
-    for solver in (e for e in ESTIMATORS.values() if isinstance(e, WahbaSolver)):
+    solvers = [(e.name, e) for e in ESTIMATORS.values() if isinstance(e, WahbaSolver)]
+    for label, solver in [*solvers, *REFERENCES.items()]:
         n_calls = calls if solver.vectorised else max(calls // 10, 20)
         per_call = _per_call_seconds(
             lambda i, s=solver: s.solve_vectors(body[i], reference[i], weights[i]), n_calls
@@ -86,7 +92,7 @@ def run(n_batch: int = 100_000, calls: int = 2000, seed: int = 0) -> list[BenchR
         diff = float(np.abs(np.linalg.norm(attitude_error(est, reference_att[:m]), axis=1)).max())
         rows.append(
             BenchRow(
-                solver.name,
+                label,
                 per_call * 1e6,
                 ref_call / per_call,
                 n / elapsed,
