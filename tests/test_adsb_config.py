@@ -539,12 +539,13 @@ def test_unmodelled_power_offsets_are_flagged(offset_db):
     several dB): the snapshot least squares' residuals fail their chi-square test
     (``model mismatch``) and the filter's innovations their consistency test
     (``inconsistent``), so their epochs are flagged, not reported valid with a covariance
-    their error contradicts.  The smoother that models the offsets is valid where its
+    their error contradicts, and the smoother's residual test flags every epoch of the
+    smoother without offsets.  The smoother that models the offsets is valid where its
     residuals pass their test and consistent where valid (in this 12 s pass it starts
     from a filter without offsets and its residuals at the solution are about 3 times
     their rows: flagged), and without offsets every one of them is valid."""
     methods = ["deterministic", "nlse", "nlp"]
-    chosen = {"methods": methods, "filters": ["mekf_snr", "fg_batch_offsets"]}
+    chosen = {"methods": methods, "filters": ["mekf_snr", "fg_batch", "fg_batch_offsets"]}
     rows = trial_rows({**chosen, "traffic": {"power_offset_sigma_db": offset_db}})
     for method in methods:  # (measured: 4 to 6 of the 6 epochs at 1 dB, all at 2 dB)
         mismatch = _method(rows, method, NO_GYRO)["reason"].str.startswith("model mismatch")
@@ -552,6 +553,10 @@ def test_unmodelled_power_offsets_are_flagged(offset_db):
     mekf = _method(rows, "mekf_snr")
     assert not mekf["valid"].any()
     assert mekf["reason"].str.startswith("inconsistent").all()
+    plain = _method(rows, "fg_batch")  # the smoother without offsets: its residual test
+    assert not plain["valid"].any()  # (at 2 dB its optimiser does not converge either)
+    flags = ("inconsistent: the residuals", "smoother did not converge")
+    assert plain["reason"].str.startswith(flags).all()
     smoother = _method(rows, "fg_batch_offsets")
     valid = smoother["valid"]
     assert (smoother["reason"][~valid].str.startswith("inconsistent: the residuals")).all()
