@@ -535,9 +535,10 @@ def gate(
     if probability >= 1.0 or innovation.size == 0:
         return keep
     nis, size = block_nis(innovation, factor, weight, noise, blocks)
-    threshold = np.array([gate_threshold(probability, int(n)) for n in np.unique(size)])
+    sizes, index = np.unique(size, return_inverse=True)
+    threshold = np.array([gate_threshold(probability, int(n)) for n in sizes])
     # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
-    return nis <= threshold[np.searchsorted(np.unique(size), size)]
+    return nis <= threshold[index]
 
 
 def robust_noise(
