@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from attopt.experiments.reporting.figures import error_figure
-from attopt.experiments.reporting.integrity import integrity_section
+from attopt.experiments.reporting.integrity import integrity_section, worst_share
 from attopt.experiments.reporting.paper_values import paper_label, paper_table, paper_values
 from attopt.experiments.reporting.statistics import (
     INTEGRITY_PROBABILITY,
@@ -279,3 +279,12 @@ def test_track_plot_and_the_report_figures_use_the_same_routine():
         bottom, top = b.get_ylim()
         limit = 1.15 * max(3 * sigma, np.abs(np.degrees(error[0, i])))
         assert (bottom, top) == pytest.approx((-limit, limit))
+
+
+def test_a_run_without_rows_has_an_integrity_section_that_says_so():
+    """Every trial failed: the report's integrity section and the CLI's worst share say
+    there is nothing, instead of failing on the missing columns."""
+    empty = pd.DataFrame()
+    assert "No rows" in integrity_section(empty, ["method"])
+    share, group = worst_share(empty, ["method"])
+    assert np.isnan(share) and group == ""

@@ -44,7 +44,7 @@ def flagged_table(rows: pd.DataFrame, by: Sequence[str]) -> pd.DataFrame:
 def worst_share(rows: pd.DataFrame, by: Sequence[str]) -> tuple[float, str]:
     """The largest share beyond the quantile over the groups of ``by``
     (:func:`~attopt.experiments.reporting.statistics.integrity`) and its group, as
-    ``"key=value, ..."``; ``(nan, "")`` when no group has a NEES.
+    ``"key=value, ..."``; ``(nan, "")`` when no group has a NEES (or there are no rows).
 
     Example::
 
@@ -59,6 +59,8 @@ def worst_share(rows: pd.DataFrame, by: Sequence[str]) -> tuple[float, str]:
         (0.5, 'method=a')
     """
     by = list(by)
+    if rows.empty:
+        return float("nan"), ""
     shares = integrity(rows, by)["share_beyond"]
     if not shares.notna().any():
         return float("nan"), ""
@@ -70,7 +72,10 @@ def worst_share(rows: pd.DataFrame, by: Sequence[str]) -> tuple[float, str]:
 
 def integrity_section(rows: pd.DataFrame, by: Sequence[str], command: str = "") -> str:
     """``## Integrity``: per group of ``by``, the share of valid epochs whose NEES exceeds
-    the chi-square(3) 1 - 1e-4 quantile, the mean NEES and the valid fraction."""
+    the chi-square(3) 1 - 1e-4 quantile, the mean NEES and the valid fraction; a line
+    saying there is none without rows (every trial failed)."""
+    if rows.empty:
+        return section("Integrity", "No rows: no trial finished without an exception.")
     threshold = nees_threshold()
     table = integrity_table(rows, by)
     caption = (
