@@ -116,7 +116,7 @@ class BatchLsReport:
         reason: empty if converged, else why not.
         chi_square_p: the whole-pass test, ``P(chi2(rows - 6) >= J)``: ``J`` is
             chi-square with the rows less the six parameters at the minimum of a
-            consistent pass (Bar-Shalom, Li and Kirubarajan 2001 sec. 3.4;
+            consistent pass (Bar-Shalom, Li and Kirubarajan 2001, ch. 3;
             conservative for unit vectors, whose three rows carry two).
         consistent: ``chi_square_p >= consistency_false_alarm``.
     """

@@ -30,7 +30,7 @@ noise, so the residuals' expected sum is below the rows) when the optimiser
 converged.  The whole pass is tested too (:func:`pass_chi_square`), and the report
 says whether it is consistent.  A pass that fails it by a variance factor ``s = 2 J /
 dof`` of at most ``max_variance_factor`` has its noise model taken as ``s R`` (the a
-posteriori variance factor of least-squares adjustment, Teunissen 2003 sec. 4.3): every
+posteriori variance factor of least-squares adjustment, Teunissen 2003 ch. 4): every
 covariance is scaled by ``s`` and the epochs are tested on residuals normalised by ``s
 R``, so a small excess spread over the pass (a noise model slightly off) widens the
 covariances while a local one (a manoeuvre, an outlier burst) is still flagged; a larger
@@ -139,7 +139,7 @@ def pass_chi_square(problem: SmootherProblem, final_cost: float) -> tuple[float,
 
     At the minimum of a linear least-squares problem with correct noise models, twice
     the cost ``J`` is chi-square with (residual rows - parameters) degrees of freedom
-    (Bar-Shalom, Li and Kirubarajan 2001 sec. 3.4).  Each node adds six parameters and
+    (Bar-Shalom, Li and Kirubarajan 2001, ch. 3).  Each node adds six parameters and
     the six rows of its gyro and bias factors, and the prior's six rows match the first
     node's, so the measurements' rows are left, less three for each attitude segment
     that a long gyro gap starts (its diffuse prior constrains nothing); an offset adds
