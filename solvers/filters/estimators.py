@@ -75,7 +75,7 @@ class GyroFilter(PassEstimator):
             gyro_monitor(self.filter, start),
             self.filter,
             self.name,
-            SingleFrameRecovery.of(self.filter, inputs.prior, inputs.model),
+            SingleFrameRecovery.of(self.filter, start, started=inputs.prior is not None),
         )
 
 

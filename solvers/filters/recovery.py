@@ -149,13 +149,11 @@ class SingleFrameRecovery(Recovery):
     checked: bool = False
 
     @classmethod
-    def of(
-        cls, options: FilterOptions, prior: Prior | None, model: GyroModel
-    ) -> SingleFrameRecovery:
-        """The recovery of a filter started from ``prior`` (``None``: :func:`unknown_prior`)."""
-        start = prior if prior is not None else unknown_prior(model)
+    def of(cls, options: FilterOptions, start: Prior, started: bool) -> SingleFrameRecovery:
+        """The recovery of a filter started from ``start``: the pass's prior (``started``)
+        or :func:`unknown_prior`."""
         checked = options.recovery != "restart"
-        return cls(options, np.asarray(start.covariance)[3:, 3:], prior is not None, checked)
+        return cls(options, np.asarray(start.covariance)[3:, 3:], started, checked)
 
     def before_update(
         self, filter: SequentialFilter, measurement: AttitudeMeasurement
