@@ -127,7 +127,9 @@ def test_sdp_is_tight_and_equals_lambda_max(options, problem):
     k /= weights.sum()
     solution = relaxation(options).solve(k, options.solver, **options.solver_options())
     eigenvalues = np.linalg.eigvalsh(solution.x)
-    assert solution.status == "optimal"
+    # the estimator's rule: "optimal_inaccurate" (a 1e-12 tolerance just missed, seen once
+    # in a fresh clone at a weight ratio of 8e4) counts when the certificate below holds
+    assert solution.status in ("optimal", "optimal_inaccurate")
     assert eigenvalues[-2] / eigenvalues[-1] < 1e-6
     lam = np.linalg.eigvalsh(k)[-1]
     assert solution.value == pytest.approx(lam, abs=1e-7)
