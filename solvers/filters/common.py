@@ -570,7 +570,7 @@ def robust_noise(
     return root[:, None] * noise * root[None, :], down
 
 
-def robust(
+def huber_noise(
     noise: Array,
     rows: NDArray[np.intp],
     innovation: Array,

@@ -36,6 +36,7 @@ from attopt.solvers.filters.common import (
     apply_error,
     error_jacobian,
     gate,
+    huber_noise,
     kalman_gain,
     linearised,
     noise_sandwich,
@@ -43,7 +44,6 @@ from attopt.solvers.filters.common import (
     propagate_attitude,
     propagate_covariance,
     repair_covariance,
-    robust,
     solve_noise,
     usable_rows,
 )
@@ -80,7 +80,7 @@ def update(
     """One iterated measurement update with gating, Joseph form and reset.
 
     Gating, and the Huber weights when ``options.huber_threshold`` is set
-    (:func:`~attopt.solvers.filters.common.robust`), use the prediction at the prior
+    (:func:`~attopt.solvers.filters.common.huber_noise`), use the prediction at the prior
     estimate.  The update is the
     iterated EKF's Gauss-Newton step on the MAP cost (Bell and Cathey 1993):
     ``x_{i+1} = K_i (z - h(x_i) + H_i x_i)`` with ``h`` and ``H_i``
@@ -143,7 +143,7 @@ def update(
             rows = rows[accepted]
             if rows.size == 0:
                 return attitude, bias, covariance, counts
-            r_all = robust(
+            r_all = huber_noise(
                 r_all,
                 rows,
                 innovation[rows],

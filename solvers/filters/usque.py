@@ -143,13 +143,13 @@ from attopt.solvers.filters.common import (
     error_jacobian,
     error_vector,
     gate,
+    huber_noise,
     kalman_gain,
     linearised,
     noise_subset,
     propagate_attitude,
     propagate_covariance,
     repair_covariance,
-    robust,
     usable_rows,
 )
 
@@ -264,7 +264,7 @@ def update(
     the sigma-weighted innovation at ``x_i``.  With ``x_0 = 0`` and ``P_0 =
     P^-`` this is the unscented update itself (``H P^- H^T + Omega = P_nunu
     - R``, ``P^- H^T = P_xnu``).  Gating, and the Huber weights when
-    ``options.huber_threshold`` is set (:func:`~attopt.solvers.filters.common.robust`),
+    ``options.huber_threshold`` is set (:func:`~attopt.solvers.filters.common.huber_noise`),
     use the first pass.
     """
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
@@ -298,7 +298,7 @@ def update(
     rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
     nu = nu[accepted]
     counts["n_used"] = float(np.unique(blocks).size)
-    r_all = robust(
+    r_all = huber_noise(
         r_all, rows, nu, (nu - innovations), np.diag(COVARIANCE_WEIGHTS), blocks, options, counts
     )
     r = noise_subset(r_all, rows)
