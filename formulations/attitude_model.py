@@ -6,7 +6,8 @@ A measurement model ``h(A, params)`` is written once with
 ``v = 0``: the Jacobian with respect to the body-frame attitude error
 (``docs/conventions.md``).  :func:`attitude_model_function` builds that pair
 by CasADi automatic differentiation and :func:`evaluate_at_attitudes`
-evaluates it, vectorised, at a stack of attitudes.
+evaluates it at a stack of attitudes in one call into compiled code
+(:mod:`attopt.formulations.kernels`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from attopt.formulations.kernels import evaluate_mapped
 from attopt.formulations.symbolic import namespace_of
 
 Array = NDArray[np.float64]
@@ -72,27 +74,6 @@ def attitude_model_function(
     return ca.Function(model.__name__, [attitude, *parameters], at_zero)
 
 
-def _side_by_side(x: Array) -> Array:
-    """``(N, r, c)`` -> ``(r, N c)``: the blocks side by side, as ``Function.map`` takes them."""
-    return x.transpose(1, 0, 2).reshape(x.shape[1], -1)
-
-
-def bucket(n: int) -> int:
-    """``n`` rounded up to one of eight sizes per octave (at most 12.5 % padding).
-
-    Mapped functions are built per size; rounding bounds how many are built.
-    """
-    if n <= 8:
-        return max(n, 1)
-    step = 1 << (n.bit_length() - 4)
-    return -(-n // step) * step
-
-
-@lru_cache(maxsize=256)
-def _mapped(function: ca.Function, n: int) -> ca.Function:
-    return function.map(n)
-
-
 def evaluate_at_attitudes(
     function: ca.Function, attitude_matrices: ArrayLike, *parameters: ArrayLike
 ) -> tuple[Array, Array]:
@@ -102,19 +83,9 @@ def evaluate_at_attitudes(
     :func:`attitude_model_function`; ``attitude_matrices`` is ``(N, 3, 3)``;
     each parameter is either one value in the shape of the function's input
     (shared by every attitude) or ``N`` such values stacked on a leading axis.
-    The map is evaluated at :func:`bucket` ``(N)`` points (the last repeated).
+    One call into the compiled kernel
+    (:func:`attopt.formulations.kernels.evaluate_mapped`).
     """
     matrices = np.asarray(attitude_matrices, dtype=float).reshape(-1, 3, 3)
-    n = matrices.shape[0]
-    size = bucket(n)
-    pad = np.minimum(np.arange(size), n - 1)
-    stacked = [_side_by_side(matrices[pad])]
-    for i, value in enumerate(parameters):
-        rows, columns = function.size_in(i + 1)
-        block = np.asarray(value, dtype=float).reshape(-1, rows, columns)
-        block = np.broadcast_to(block, (n, rows, columns))[pad]
-        stacked.append(_side_by_side(block))
-    h, jac = _mapped(function, size)(*stacked)
-    m = function.size_out(0)[0]
-    h = h.full().T.reshape(size, m)[:n]
-    return h, jac.full().reshape(m, size, 3).transpose(1, 0, 2)[:n]
+    h, jacobian = evaluate_mapped(function, matrices, *parameters)
+    return h.reshape(h.shape[0], -1), jacobian

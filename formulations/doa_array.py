@@ -37,8 +37,8 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from attopt.formulations.attitude_model import bucket
 from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.kernels import evaluate_mapped
 from attopt.formulations.symbolic import CASADI, namespace_of
 
 Array = NDArray[np.float64]
@@ -117,52 +117,6 @@ def doa_from_unit_vector(direction: Any) -> tuple[Any, Any]:
     xp = namespace_of(direction)
     x, y, z = xp.components(direction)
     return xp.atan2(xp.sqrt(x**2 + y**2), z), xp.atan2(y, x)
-
-
-def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
-    """Outputs ``(N, rows, columns)`` of ``function`` at ``N`` points.
-
-    Input ``i`` is ``N`` stacked values of the function's input shape
-    (``(N, rows, columns)``, or ``(N, rows)`` for a column), or one value
-    shared by every point.  The map is built for
-    :func:`~attopt.formulations.attitude_model.bucket` ``(N)`` points (the last
-    repeated) and evaluated on numpy buffers (no CasADi matrices): each
-    point's nonzeros, column-major, follow the previous point's.  No points (an input
-    with none and none shared) give empty outputs.
-    """
-    arrays = [np.asarray(x, dtype=float) for x in inputs]
-    shapes = [function.size_in(i) for i in range(len(arrays))]
-    n = max(a.size // (r * c) for a, (r, c) in zip(arrays, shapes, strict=True))
-    if n == 0 or min(a.size for a in arrays) == 0:
-        return [np.zeros((0, *function.size_out(i))) for i in range(function.n_out())]
-    size = bucket(n)
-    pad = np.minimum(np.arange(size), n - 1)
-    buffer, evaluate = _mapped(function, size).buffer()
-    stacked = []  # referenced by the buffer until the evaluation
-    for i, (a, (rows, cols)) in enumerate(zip(arrays, shapes, strict=True)):
-        block = np.broadcast_to(a.reshape(-1, rows, cols), (n, rows, cols))[pad]
-        stacked.append(np.ascontiguousarray(block[:, *_nonzero_entries(function.sparsity_in(i))]))
-        buffer.set_arg(i, memoryview(stacked[-1]))
-    outputs = [np.empty((size, function.nnz_out(i))) for i in range(function.n_out())]
-    for i, out in enumerate(outputs):
-        buffer.set_res(i, memoryview(out))
-    evaluate()
-    result = []
-    for i, out in enumerate(outputs):
-        dense = np.zeros((n, *function.size_out(i)))
-        dense[:, *_nonzero_entries(function.sparsity_out(i))] = out[:n]
-        result.append(dense)
-    return result
-
-
-def _nonzero_entries(sparsity: ca.Sparsity) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Rows and columns of the nonzeros of ``sparsity`` in CasADi's (column-major) order."""
-    return np.array(sparsity.row(), dtype=np.intp), np.array(sparsity.get_col(), dtype=np.intp)
-
-
-@lru_cache(maxsize=64)
-def _mapped(function: ca.Function, n: int) -> ca.Function:
-    return function.map(n)
 
 
 @lru_cache(maxsize=1)

@@ -37,8 +37,8 @@ from attopt.formulations.doa_array import (
     Array,
     UniformCircularArray,
     doa_unit_vector,
-    evaluate_mapped,
 )
+from attopt.formulations.kernels import evaluate_mapped
 
 _SINGULAR = 1e-12
 """Relative determinant below which the information matrix is singular."""

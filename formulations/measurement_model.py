@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_model import attitude_model_function, evaluate_at_attitudes
-from attopt.formulations.doa_array import evaluate_mapped
+from attopt.formulations.kernels import evaluate_mapped
 
 Array = NDArray[np.float64]
 

@@ -42,10 +42,9 @@ from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.measurement_model import SymbolicModel
 from attopt.formulations.snr_model import (
     Pattern,
-    observation_mask,
     pattern_snr_model,
     predict_snr,
-    snr_db,
+    snr_db_or_nan,
 )
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.snr_truncation import inverse_mills_ratio, truncated_information_factor
@@ -112,27 +111,20 @@ class SnrMeasurement(AttitudeMeasurement):
             self.sigma = float(sigma[0]) if epoch.m else 1.0
             self._model = truncated_mean_model(epoch.pattern, self.sigma, epoch.threshold_db)
 
-    def _usable(self, matrices: Array) -> np.ndarray:
+    def _snr(self, matrices: Array) -> Array:
+        """Untruncated ``f`` ``(N, m)`` (numpy), NaN for the observations not usable at
+        every attitude."""
         epoch = self.epoch
-        los, bore = epoch.unit_los[None], epoch.boresight_rows[None]
-        return observation_mask(matrices, los, bore, epoch.pattern, epoch.pattern_antenna).all(
-            axis=0
-        )
-
-    def _snr(self, matrices: Array, usable: np.ndarray) -> Array:
-        """Untruncated ``f`` ``(N, m)`` (numpy), NaN where not usable."""
-        epoch = self.epoch
-        values = np.full((matrices.shape[0], epoch.m), np.nan)
-        antenna = epoch.pattern_antenna
-        values[:, usable] = snr_db(
+        values = snr_db_or_nan(
             matrices,
-            epoch.unit_los[None, usable],
-            epoch.boresight_rows[None, usable],
-            epoch.p0_dbw[usable],
+            epoch.unit_los[None],
+            epoch.boresight_rows[None],
+            epoch.p0_dbw,
             epoch.noise_dbw,
             epoch.pattern,
-            None if antenna is None else antenna[usable],
+            epoch.pattern_antenna,
         )
+        values[:, np.isnan(values).any(axis=0)] = np.nan
         return values
 
     def symbolic(self) -> SymbolicModel:
@@ -150,7 +142,7 @@ class SnrMeasurement(AttitudeMeasurement):
         matrices = attitude.as_matrix().reshape(-1, 3, 3)
         epoch = self.epoch
         if not jacobian:
-            f = self._snr(matrices, self._usable(matrices))
+            f = self._snr(matrices)
             if not self.truncated:
                 return f, None
             x = (f - epoch.threshold_db) / self.sigma
@@ -175,7 +167,7 @@ class SnrMeasurement(AttitudeMeasurement):
         if not self.truncated:
             return self.noise_covariance
         matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
-        f = self._snr(matrices, self._usable(matrices))[0]
+        f = self._snr(matrices)[0]
         factor = truncated_information_factor(f, self.sigma, self.epoch.threshold_db)
         return self.sigma**2 * np.where(np.isfinite(factor), factor, 1.0)
 
@@ -191,7 +183,7 @@ class SnrMeasurement(AttitudeMeasurement):
         if not self.truncated:
             return np.ones(self.epoch.m)
         matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
-        f = self._snr(matrices, self._usable(matrices))[0]
+        f = self._snr(matrices)[0]
         slope = truncated_mean_slope(self.sigma, self.epoch.threshold_db)
         out = np.full(f.shape, np.nan)
         usable = np.isfinite(f)

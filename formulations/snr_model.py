@@ -142,6 +142,39 @@ def snr_db(
     return _gain_dbi(pattern, cos_alpha, versine, antenna, xp) + p0_dbw - noise_dbw
 
 
+def snr_db_or_nan(
+    attitude_matrix: ArrayLike,
+    los_orbit: ArrayLike,
+    boresight_body: ArrayLike,
+    p0_dbw: ArrayLike,
+    noise_dbw: ArrayLike,
+    pattern: Pattern,
+    antenna: ArrayLike | None = None,
+) -> Array:
+    """:func:`snr_db` (numpy) with NaN, instead of the exception, for each observation
+    :func:`observation_mask` rejects; the geometry and the checks evaluated once.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.formulations.gain_patterns import LIU2023_HELIX
+        >>> los = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])  # on and behind the boresight
+        >>> snr_db_or_nan(np.eye(3), los, [0.0, 0.0, 1.0], 30.0, 0.0, LIU2023_HELIX).round(2)
+        array([41.6,  nan])
+    """
+    if not (np.all(np.isfinite(p0_dbw)) and np.all(np.isfinite(noise_dbw))):
+        raise InvalidObservationError("isotropic or noise power is NaN/inf")
+    a, los, bore = _numpy_inputs(attitude_matrix, los_orbit, boresight_body)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos_alpha, versine = off_boresight(a, los, bore)
+        reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern, antenna)
+        bad = np.logical_or.reduce([rejected for _, rejected in reasons])
+        # rejected observations are evaluated on the boresight, inside every pattern's lobe
+        cos_alpha, versine = np.where(bad, 1.0, cos_alpha), np.where(bad, 0.0, versine)
+        gain = _gain_dbi(pattern, cos_alpha, versine, antenna, NUMPY)
+    return np.where(bad, np.nan, gain + np.asarray(p0_dbw) - np.asarray(noise_dbw))
+
+
 def _gain_dbi(pattern: Pattern, cos_alpha: Any, versine: Any, antenna: Any, xp: Any) -> Any:
     if isinstance(pattern, AntennaPatterns):
         return pattern.gain_dbi(cos_alpha, versine, antenna, xp)

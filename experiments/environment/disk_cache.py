@@ -11,10 +11,10 @@ loads it instead::
     @disk_cached
     def build(orbit: TleOrbit, duration_s: float) -> Geometry: ...
 
-Directory.  ``$ATTOPT_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/attopt`` (default
-``~/.cache/attopt``); ``ATTOPT_CACHE_DIR=off`` disables the cache (every call
-builds).  A directory that cannot be created, read or written is skipped: the
-result is built, with a debug-level log message only.
+Directory: :func:`attopt.cache.cache_directory` (``$ATTOPT_CACHE_DIR`` if set, else
+``$XDG_CACHE_HOME/attopt``, default ``~/.cache/attopt``); ``ATTOPT_CACHE_DIR=off``
+disables the cache (every call builds).  A directory that cannot be created, read or
+written is skipped: the result is built, with a debug-level log message only.
 
 Key.  An entry is named after the builder's qualified name, a digest of its
 arguments (bound to its signature with defaults applied; pydantic models by
@@ -62,10 +62,8 @@ import numpy as np
 from pydantic import BaseModel
 from scipy.spatial.transform import Rotation
 
-CACHE_DIR_ENV = "ATTOPT_CACHE_DIR"
-"""Environment variable naming the cache directory, or :data:`DISABLED`."""
-DISABLED = "off"
-"""Value of :data:`CACHE_DIR_ENV` (any case) that turns the cache off."""
+from attopt.cache import cache_directory
+
 FORMAT_VERSION = 1
 """Version of the entry format; part of every key."""
 LIBRARIES = (
@@ -92,17 +90,6 @@ logger = logging.getLogger(__name__)
 
 P = ParamSpec("P")
 R = TypeVar("R")
-
-
-def cache_directory() -> Path | None:
-    """The cache directory (module docstring), ``None`` when the cache is disabled."""
-    configured = os.environ.get(CACHE_DIR_ENV, "")
-    if configured.lower() == DISABLED:
-        return None
-    if configured:
-        return Path(configured).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "attopt"
 
 
 @functools.cache

@@ -62,7 +62,6 @@ from attopt.formulations.doa_array import (
     ComplexArray,
     UniformCircularArray,
     doa_from_unit_vector,
-    evaluate_mapped,
 )
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.errors import (
@@ -70,6 +69,7 @@ from attopt.formulations.errors import (
     InvalidObservationError,
     UnobservableError,
 )
+from attopt.formulations.kernels import evaluate_mapped
 
 SPECTRUM_BLOCK = 1024
 """Sets per block of the grid spectrum: about 30 MB of ``e^H a``, in few large BLAS calls."""
