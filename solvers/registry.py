@@ -98,11 +98,17 @@ def with_options(found: Estimator, options: Mapping[str, Any]) -> Any:
     return dataclasses.replace(found, **changes)
 
 
-INTEGRITY_TESTS: dict[str, Any] = {"consistency_window": 0, "mismatch_false_alarm": 0.0}
+INTEGRITY_TESTS: dict[str, Any] = {
+    "consistency_window": 0,
+    "mismatch_false_alarm": 0.0,
+    "max_variance_factor": 1.0,
+}
 """The options fields of the integrity tests and the value that turns each off: the
 filters' windowed innovation test
-(:func:`attopt.solvers.sequential.inconsistent_epochs`) and the snapshot estimators'
-residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`)."""
+(:func:`attopt.solvers.sequential.inconsistent_epochs`), the snapshot estimators'
+residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`) and the batch
+smoother's covariance scaling by the whole-pass variance factor, which acts on that
+test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`)."""
 
 
 def integrity_tests_off(found: Any) -> dict[str, Any]:

@@ -185,3 +185,18 @@ def test_without_a_working_compiler_the_interpreter_is_used(
         assert "not compiled" in caplog.text and "failed" in caplog.text
     norm, _ = evaluate_mapped(function, np.array([3.0, 4.0, 0.0]))
     assert norm[0, 0, 0] == 5.0
+
+
+def test_the_benchmark_times_the_three_paths_on_equal_outputs() -> None:
+    from attopt.experiments.benchmarks import kernels as benchmark
+
+    case = benchmark.CASES[0]
+    row = benchmark._row(case, case.function(), 5, 1, 0.0)
+    assert row["difference"] <= RTOL
+    assert all(len(row[path]) == 3 for path in ("matrices", "interpreted", "compiled"))
+    assert "| SNR, one observation | 5 |" in benchmark.format_table([row], 1)
+    for case in benchmark.CASES:  # the previous path computes what the kernels compute
+        function, inputs = case.function(), case.inputs(np.random.default_rng(1), 4)
+        previous = benchmark.evaluate_with_matrices(function, *inputs)
+        for a, b in zip(evaluate_mapped(function, *inputs), previous, strict=True):
+            _assert_equal_to_round_off(a, b)

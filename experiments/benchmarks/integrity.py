@@ -9,7 +9,8 @@ sweep runner, with the same seeds:
 * **tests on**: the estimators as configured;
 * **tests off**: every estimator with its integrity tests turned off
   (:func:`attopt.solvers.registry.integrity_tests_off`: the filters' windowed
-  innovation test and the snapshot estimators' residual test), so an epoch is flagged
+  innovation test, the snapshot estimators' residual test and the batch smoother's
+  whole-pass variance factor), so an epoch is flagged
   only by its solver's own checks (convergence, gating, a lost track, a covariance too
   wide to mean anything).
 

@@ -69,6 +69,7 @@ from attopt.formulations.gyro import (
     attitude_increment,
     error_state_transition,
 )
+from attopt.formulations.kernels import evaluate_mapped
 from attopt.formulations.passes import GyroRecord, Pass, Prior
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.gyro_timeline import (
@@ -119,9 +120,11 @@ def error_jacobian(delta: Array) -> Array:
 
     The derivative of the body-frame perturbation at ``apply_error(delta, A)``
     with respect to the error vector, by CasADi AD of
-    :func:`attopt.formulations.attitude_model.increment_matrix` (``I`` at ``delta = 0``).
+    :func:`attopt.formulations.attitude_model.increment_matrix` (``I`` at ``delta = 0``),
+    evaluated as a measurement kernel (:mod:`attopt.formulations.kernels`).
     """
-    return _error_jacobian_function()(np.asarray(delta, dtype=float)).full()
+    (jacobian,) = evaluate_mapped(_error_jacobian_function(), delta)
+    return jacobian[0]
 
 
 @dataclass(frozen=True)
@@ -244,7 +247,7 @@ class PreparedGyro:
         """
         boundaries = self.timeline.t
         slack = COINCIDENCE * self.timeline.sample_dt
-        i = int(np.clip(np.searchsorted(boundaries, t - slack), 0, boundaries.size - 1))
+        i = min(int(np.searchsorted(boundaries, t - slack)), boundaries.size - 1)
         if not abs(boundaries[i] - t) <= slack:
             raise InvalidObservationError(
                 f"t = {t:g} s is neither a gyro sample time nor an epoch of the pass"
@@ -482,6 +485,28 @@ def kalman_gain(
     return posterior @ r_inv_h.T, nis, posterior
 
 
+@lru_cache(maxsize=1024)
+def block_layout(blocks: bytes) -> tuple[tuple[int, NDArray[np.intp]], ...]:
+    """The rows of each block of the labels ``blocks`` (an ``intp`` array's bytes), by
+    block size: ``(size, rows)`` with ``rows`` ``(blocks of that size, size)``.
+
+    Cached: a pass's epochs repeat a few layouts.  The arrays are shared, not to be
+    modified.
+    """
+    labels = np.frombuffer(blocks, dtype=np.intp)
+    unique, first, sizes = np.unique(labels, return_index=True, return_counts=True)
+    layout = []
+    for size in np.unique(sizes):
+        members = unique[sizes == size]
+        rows = (
+            np.stack([np.flatnonzero(labels == b) for b in members])
+            if size > 1
+            else first[sizes == size][:, None]
+        )
+        layout.append((int(size), rows))
+    return tuple(layout)
+
+
 def block_nis(
     innovation: Array,
     factor: Array,
@@ -500,14 +525,7 @@ def block_nis(
     """
     nis_rows = np.full(innovation.shape[0], np.nan)
     size_rows = np.zeros(innovation.shape[0], dtype=np.intp)
-    labels, first, sizes = np.unique(blocks, return_index=True, return_counts=True)
-    for size in np.unique(sizes):
-        members = labels[sizes == size]
-        rows = (
-            np.stack([np.flatnonzero(blocks == b) for b in members])
-            if size > 1
-            else (first[sizes == size][:, None])
-        )
+    for size, rows in block_layout(np.ascontiguousarray(blocks, dtype=np.intp).tobytes()):
         nu = innovation[rows]
         columns = factor[:, rows]  # (k, blocks, size)
         s = np.einsum("kbi,kl,lbj->bij", columns, weight, columns)
@@ -595,13 +613,12 @@ def huber_noise(
 
 
 def usable_rows(
-    measurement: AttitudeMeasurement, predicted: Array
+    measurement: AttitudeMeasurement, predicted: Array, innovation: Array
 ) -> tuple[NDArray[np.bool_], int, int]:
-    """Rows with finite values, predictions and innovations (whole blocks); counts
-    of the blocks left out for a NaN value and for an unpredictable one."""
+    """Rows with finite values, predictions ``(N, m)`` and their innovations ``(N, m)``
+    (whole blocks); counts of the blocks left out for a NaN value and for an
+    unpredictable one."""
     finite_z = np.isfinite(measurement.z)
-    with np.errstate(invalid="ignore"):
-        innovation = measurement.innovation(predicted)
     finite_h = np.isfinite(predicted).all(axis=0) & np.isfinite(innovation).all(axis=0)
     if finite_z.all() and finite_h.all():
         return np.ones(finite_z.size, dtype=bool), 0, 0

@@ -128,7 +128,7 @@ def update(
         h_all[:, :3] = jacobian[0] if iteration == 0 else jacobian[0] @ error_jacobian(state[:3])
         counts["update_iterations"] = float(iteration + 1)
         if iteration == 0:
-            keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
+            keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovation[None])
             rows = np.flatnonzero(keep)
             accepted = gate(
                 innovation[rows],

@@ -273,14 +273,15 @@ def update(
     offsets, repaired = sigma_offsets(covariance)
     counts["covariance_repairs"] = float(repaired)
     predicted, _ = measurement.predict(apply_error(offsets[:, :3], attitude), jacobian=False)
-    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
+    with np.errstate(invalid="ignore"):  # rows left out may hold NaN
+        innovations = measurement.innovation(predicted)
+    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovations)
     counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
     rows = np.flatnonzero(keep)
     if rows.size == 0:
         return attitude, bias, covariance, counts
     blocks = measurement.blocks[rows]
-    with np.errstate(invalid="ignore"):  # rows left out may hold NaN
-        innovations = measurement.innovation(predicted)[:, rows]
+    innovations = innovations[:, rows]
     nu = WEIGHTS @ innovations  # (U6)
     deviation = nu - innovations  # h_i - h_mean
     r_all = measurement.noise_covariance_at(attitude)

@@ -344,15 +344,16 @@ def prepare_factor(
     if measurement.size == 0:
         return None, counts
     predicted, jacobian = measurement.predict(attitude)
-    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted)
+    with np.errstate(invalid="ignore"):
+        innovation = measurement.innovation(predicted[0])
+    keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovation[None])
     counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
     rows = np.flatnonzero(keep)
     if rows.size == 0:
         return None, counts
     noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
     factor = EpochFactor(node, measurement, rows, noise, counts, offset_index)
-    with np.errstate(invalid="ignore"):
-        nu = measurement.innovation(predicted[0])[rows]
+    nu = innovation[rows]
     h = jacobian[0][rows]
     gate_noise = noise_subset(noise, rows)
     if offset_variance:
