@@ -36,7 +36,7 @@ them for an attitude relative to another reference frame.
 from __future__ import annotations
 
 from abc import ABC
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import block_diag
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.attitude_model import evaluate_at_attitudes
 from attopt.formulations.conventions import euler321_from_attitude
 from attopt.formulations.errors import InvalidObservationError, UnsupportedMeasurementError
 from attopt.formulations.measurement_model import (
@@ -126,6 +127,21 @@ class AttitudeMeasurement(ABC):
         h, jac = self.symbolic_model().evaluate(attitude)
         return h, (jac if jacobian else None)
 
+    def batch_key(self) -> Hashable | None:
+        """Measurements of one class with equal keys are predicted together, in one call
+        into their model's kernel (:meth:`predict_batch`, :func:`predict_each`); ``None``
+        (the default): one :meth:`predict` each."""
+        return None
+
+    @classmethod
+    def predict_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[tuple[Array, Array]]:
+        """``[m.predict(attitudes[i]) for i, m in enumerate(measurements)]`` for measurements
+        of this class with one :meth:`batch_key`; the types that give a key override it
+        with a single evaluation, equal to the loop bit for bit."""
+        return [m.predict(attitudes[i]) for i, m in enumerate(measurements)]
+
     def innovation(self, predicted: Array) -> Array:
         """``z - h`` for predictions ``(..., m)`` (angles wrapped where the model has them).
 
@@ -153,6 +169,56 @@ class AttitudeMeasurement(ABC):
     def offset_slope(self, attitude: Rotation) -> Array:
         """``dh / d offset`` ``(m,)`` of each row at one attitude (CasADi AD)."""
         raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
+
+
+def predict_each(
+    measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+) -> list[tuple[Array, Array]]:
+    """Each measurement's prediction and Jacobian at its own attitude, as
+    ``[m.predict(attitudes[i]) for i, m in enumerate(measurements)]`` computes them, with the
+    measurements that share a class and a :meth:`~AttitudeMeasurement.batch_key` evaluated
+    together (:meth:`~AttitudeMeasurement.predict_batch`): a pass's epochs of unit vectors or
+    SNRs cost one kernel call, not one per epoch.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from scipy.spatial.transform import Rotation
+        >>> from attopt import VectorMeasurement
+        >>> r = np.eye(3)[:2]
+        >>> attitudes = Rotation.from_rotvec([[0.0, 0.0, 0.1], [0.2, 0.0, 0.0]])
+        >>> ms = [VectorMeasurement(a.apply(r), r, 1e-3) for a in attitudes]
+        >>> [(h.shape, j.shape) for h, j in predict_each(ms, attitudes)]
+        [((1, 6), (1, 6, 3)), ((1, 6), (1, 6, 3))]
+    """
+    results: list[tuple[Array, Array] | None] = [None] * len(measurements)
+    groups: dict[tuple[type, Hashable], list[int]] = {}
+    for i, measurement in enumerate(measurements):
+        key = measurement.batch_key()
+        if key is None:
+            results[i] = measurement.predict(attitudes[i])
+        else:
+            groups.setdefault((type(measurement), key), []).append(i)
+    for (cls, _), index in groups.items():
+        batch = cls.predict_batch([measurements[i] for i in index], attitudes[index])
+        for i, result in zip(index, batch, strict=True):
+            results[i] = result
+    return results  # type: ignore[return-value]
+
+
+def symbolic_predict_batch(
+    measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+) -> list[tuple[Array, Array]]:
+    """:meth:`AttitudeMeasurement.predict` of measurements with one symbolic model structure
+    (:attr:`~attopt.formulations.measurement_model.SymbolicModel.structure`), each at its
+    attitude, in one kernel call: their parameters stacked on a leading axis."""
+    models = [m.symbolic_model() for m in measurements]
+    parameters = [np.stack(values) for values in zip(*(m.parameters for m in models), strict=True)]
+    h, jacobian = evaluate_at_attitudes(models[0].function, attitudes.as_matrix(), *parameters)
+    if models[0].rows is not None:
+        rows = list(models[0].rows)
+        h, jacobian = h[:, rows], jacobian[:, rows]
+    return [(h[i : i + 1], jacobian[i : i + 1]) for i in range(len(measurements))]
 
 
 def _check_vector(name: str, value: ArrayLike) -> Array:
@@ -314,6 +380,16 @@ class VectorMeasurement(AttitudeMeasurement):
         """:func:`body_vectors_model` of the reference vectors; geodesic innovation."""
         return SymbolicModel(body_vectors_model, (self.reference,), innovation=geodesic_difference)
 
+    def batch_key(self) -> Hashable:
+        """The number of vectors: measurements with as many are predicted together."""
+        return self.reference.shape[0]
+
+    @classmethod
+    def predict_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[tuple[Array, Array]]:
+        return symbolic_predict_batch(measurements, attitudes)
+
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         k = self.reference.shape[0]
         if not jacobian:
@@ -387,6 +463,19 @@ class ReferencedMeasurement(AttitudeMeasurement):
 
     def predict(self, attitude: Rotation, jacobian: bool = True) -> tuple[Array, Array | None]:
         return self.inner.predict(attitude * self.frame_inverse, jacobian)
+
+    def batch_key(self) -> Hashable | None:
+        """The inner measurement's class and key (``None``: predicted alone)."""
+        key = self.inner.batch_key()
+        return None if key is None else (type(self.inner), key)
+
+    @classmethod
+    def predict_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[tuple[Array, Array]]:
+        frames = Rotation.concatenate([m.frame_inverse for m in measurements])
+        inner = [m.inner for m in measurements]
+        return type(inner[0]).predict_batch(inner, attitudes * frames)
 
     def innovation(self, predicted: Array) -> Array:
         return self.inner.innovation(predicted)

@@ -28,7 +28,7 @@ predicted and is returned as NaN (the filters leave it out and count it).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import replace
 from functools import lru_cache
 from typing import Any
@@ -162,6 +162,42 @@ class SnrMeasurement(AttitudeMeasurement):
         values[:, unusable] = np.nan
         jac[:, unusable] = np.nan
         return values, jac
+
+    def batch_key(self) -> Hashable:
+        """The pattern and the model (plain or truncated): epochs sharing them are predicted
+        together (:meth:`predict_batch`)."""
+        return (self.epoch.pattern, self._model, self.epoch.pattern_antenna is None)
+
+    @classmethod
+    def predict_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[tuple[Array, Array]]:
+        """:meth:`predict` of each epoch at its attitude in one :func:`predict_snr` call, the
+        epochs' observations one after another, each with its epoch's attitude."""
+        epochs = [m.epoch for m in measurements]
+        counts = np.array([e.m for e in epochs])
+        epoch_of_row = np.repeat(np.arange(len(epochs)), counts)
+        rotations = Rotation.from_quat(attitudes.as_quat().reshape(-1, 4))  # as predict does
+        antenna = None
+        if epochs[0].pattern_antenna is not None:
+            antenna = np.concatenate([e.pattern_antenna for e in epochs])[:, None]
+        values, jac = predict_snr(
+            rotations[epoch_of_row],
+            np.concatenate([e.unit_los for e in epochs])[:, None],
+            np.concatenate([e.boresight_rows for e in epochs])[:, None],
+            np.concatenate([e.p0_dbw for e in epochs])[:, None],
+            np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
+            epochs[0].pattern,
+            mask="valid",
+            model=measurements[0]._model,
+            antenna=antenna,
+        )
+        jac[np.isnan(values)] = np.nan
+        splits = np.cumsum(counts)[:-1]
+        return [
+            (h.reshape(1, -1), j.reshape(1, -1, 3))
+            for h, j in zip(np.split(values, splits), np.split(jac, splits), strict=True)
+        ]
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
         if not self.truncated:

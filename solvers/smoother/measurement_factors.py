@@ -54,13 +54,15 @@ are counted.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, predict_each
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import gate, noise_subset, usable_rows
 from attopt.solvers.robust import huber_cost, huber_weights
@@ -220,13 +222,26 @@ class EpochFactor:
         (``dh / d o`` from :meth:`~AttitudeMeasurement.offset_slope`).
         """
         measurement = self.shifted(offsets)
-        predicted, jacobian = measurement.predict(attitude)
+        slope = None
+        if self.offset_index is not None and offsets is not None:
+            slope = measurement.offset_slope(attitude)
+        return self.evaluated(measurement, measurement.predict(attitude), slope)
+
+    def evaluated(
+        self,
+        measurement: AttitudeMeasurement,
+        prediction: tuple[Array, Array],
+        slope: Array | None = None,
+    ) -> tuple[Array, Array, NDArray[np.intp]]:
+        """:meth:`evaluate` from the (shifted) measurement's ``prediction`` at the attitude
+        (``predict``'s values and Jacobians) and, with offsets, its ``offset_slope`` there."""
+        predicted, jacobian = prediction
         with np.errstate(invalid="ignore"):
             nu = measurement.innovation(predicted[0])[self.rows]
         jac = innovation_jacobian(measurement, predicted[0], jacobian[0], self.members)
         jac = jac[self.rows]
-        if self.offset_index is not None and offsets is not None:
-            jac = np.column_stack([jac, measurement.offset_slope(attitude)[self.rows]])
+        if slope is not None:
+            jac = np.column_stack([jac, slope[self.rows]])
         bad = ~(np.isfinite(nu) & np.isfinite(jac).all(axis=1))
         lost = np.unique(self.measurement.blocks[self.rows[bad]])
         return nu, jac, lost
@@ -324,6 +339,24 @@ class EpochFactor:
         return int(np.count_nonzero(self.weights(threshold) < 1.0))
 
 
+def evaluate_factors(
+    factors: Sequence[EpochFactor], attitudes: Rotation, offsets: Array | None = None
+) -> list[tuple[Array, Array, NDArray[np.intp]]]:
+    """:meth:`EpochFactor.evaluate` of every factor at its node's attitude in ``attitudes``
+    (all nodes), the measurements predicted together
+    (:func:`~attopt.formulations.attitude_measurement.predict_each`)."""
+    measurements = [f.shifted(offsets) for f in factors]
+    nodes = np.array([f.node for f in factors], dtype=np.intp)
+    predictions = predict_each(measurements, attitudes[nodes])
+    results = []
+    for f, measurement, prediction in zip(factors, measurements, predictions, strict=True):
+        slope = None
+        if f.offset_index is not None and offsets is not None:
+            slope = measurement.offset_slope(attitudes[f.node])
+        results.append(f.evaluated(measurement, prediction, slope))
+    return results
+
+
 def prepare_factor(
     node: int,
     measurement: AttitudeMeasurement,
@@ -332,8 +365,12 @@ def prepare_factor(
     gate_probability: float,
     offset_index: NDArray[np.intp] | None = None,
     offset_variance: float = 0.0,
+    prediction: tuple[Array, Array] | None = None,
 ) -> tuple[EpochFactor | None, dict[str, float]]:
     """The epoch's factor at the initial estimate (rows, ``R``, gating; module docstring).
+
+    ``prediction``: the measurement's ``predict`` at ``attitude`` when already computed
+    (:func:`~attopt.formulations.attitude_measurement.predict_each` over a pass).
 
     With offsets modelled (``offset_index``, all offsets 0 initially) the gate
     adds the offsets' prior variance to ``R``, so that a transmitter's offset
@@ -343,7 +380,7 @@ def prepare_factor(
     counts = dict.fromkeys(COUNTS, 0.0)
     if measurement.size == 0:
         return None, counts
-    predicted, jacobian = measurement.predict(attitude)
+    predicted, jacobian = measurement.predict(attitude) if prediction is None else prediction
     with np.errstate(invalid="ignore"):
         innovation = measurement.innovation(predicted[0])
     keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovation[None])

@@ -48,6 +48,7 @@ from attopt.solvers.smoother.conventions import (
     step_arrays,
     to_values,
 )
+from attopt.solvers.smoother.measurement_factors import evaluate_factors
 from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
 from attopt.solvers.smoother.problem import SmootherProblem
 
@@ -151,7 +152,7 @@ def levenberg_marquardt(
         trial_attitudes, trial_bias = retract(attitudes, xi), bias + d
         modelled = problem.modelled(trial_offsets)
         evaluations += 1
-        evaluated = [f.evaluate(trial_attitudes[f.node], modelled) for f in problem.factors]
+        evaluated = evaluate_factors(problem.factors, trial_attitudes, modelled)
         current = cost
         trial = np.inf
         finite = np.all(np.isfinite(xi)) and np.all(np.isfinite(d))

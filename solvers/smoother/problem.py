@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement
+from attopt.formulations.attitude_measurement import AttitudeMeasurement, predict_each
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import FilterOptions, GyroPass, PreparedGyro
 from attopt.solvers.smoother.conventions import (
@@ -204,18 +204,19 @@ def build_problem(
     factors: list[EpochFactor] = []
     offset_ids, offset_index = transmitter_offsets(measurements, offset_sigma)
     offset_variance = 0.0 if offset_sigma is None else offset_sigma**2
-    for k, measurement in enumerate(measurements):
-        if measurement is None:
-            continue
-        node = k + offset
+    epochs = [k for k, m in enumerate(measurements) if m is not None and m.size > 0]
+    node_of = np.array(epochs, dtype=np.intp) + offset
+    predictions = predict_each([measurements[k] for k in epochs], start.attitudes[node_of])
+    for k, node, prediction in zip(epochs, node_of, predictions, strict=True):
         factor, epoch_counts = prepare_factor(
-            node,
-            measurement,
+            int(node),
+            measurements[k],
             start.attitudes[node],
             start.covariance[node, :3, :3],
             rules.gate_probability,
             offset_index[k],
             offset_variance,
+            prediction,
         )
         for name in COUNTS:
             counts[name][k] = epoch_counts[name]
