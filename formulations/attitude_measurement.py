@@ -142,6 +142,14 @@ class AttitudeMeasurement(ABC):
         with a single evaluation, equal to the loop bit for bit."""
         return [m.predict(attitudes[i]) for i, m in enumerate(measurements)]
 
+    @classmethod
+    def noise_covariance_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        """``[m.noise_covariance_at(attitudes[i]) for ...]`` for measurements of this class
+        with one :meth:`batch_key` (types whose ``R`` depends on the attitude override it)."""
+        return [m.noise_covariance_at(attitudes[i]) for i, m in enumerate(measurements)]
+
     def innovation(self, predicted: Array) -> Array:
         """``z - h`` for predictions ``(..., m)`` (angles wrapped where the model has them).
 
@@ -191,19 +199,40 @@ def predict_each(
         >>> [(h.shape, j.shape) for h, j in predict_each(ms, attitudes)]
         [((1, 6), (1, 6, 3)), ((1, 6), (1, 6, 3))]
     """
-    results: list[tuple[Array, Array] | None] = [None] * len(measurements)
+    return _each(measurements, attitudes, "predict_batch", lambda m, a: m.predict(a))
+
+
+def noise_covariance_each(
+    measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+) -> list[Array]:
+    """``[m.noise_covariance_at(attitudes[i]) for ...]``, grouped as :func:`predict_each`
+    (:meth:`~AttitudeMeasurement.noise_covariance_batch`)."""
+    return _each(
+        measurements, attitudes, "noise_covariance_batch", lambda m, a: m.noise_covariance_at(a)
+    )
+
+
+def _each(
+    measurements: Sequence[AttitudeMeasurement],
+    attitudes: Rotation,
+    batch: str,
+    alone: Callable[[AttitudeMeasurement, Rotation], Any],
+) -> list[Any]:
+    """``alone(m, attitudes[i])`` per measurement, those sharing a class and a batch key by
+    one call of the class's method ``batch``."""
+    results: list[Any] = [None] * len(measurements)
     groups: dict[tuple[type, Hashable], list[int]] = {}
     for i, measurement in enumerate(measurements):
         key = measurement.batch_key()
         if key is None:
-            results[i] = measurement.predict(attitudes[i])
+            results[i] = alone(measurement, attitudes[i])
         else:
             groups.setdefault((type(measurement), key), []).append(i)
     for (cls, _), index in groups.items():
-        batch = cls.predict_batch([measurements[i] for i in index], attitudes[index])
-        for i, result in zip(index, batch, strict=True):
-            results[i] = result
-    return results  # type: ignore[return-value]
+        values = getattr(cls, batch)([measurements[i] for i in index], attitudes[index])
+        for i, value in zip(index, values, strict=True):
+            results[i] = value
+    return results
 
 
 def symbolic_predict_batch(
@@ -473,9 +502,23 @@ class ReferencedMeasurement(AttitudeMeasurement):
     def predict_batch(
         cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
     ) -> list[tuple[Array, Array]]:
+        inner, composed = cls._inner_batch(measurements, attitudes)
+        return type(inner[0]).predict_batch(inner, composed)
+
+    @classmethod
+    def noise_covariance_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        inner, composed = cls._inner_batch(measurements, attitudes)
+        return type(inner[0]).noise_covariance_batch(inner, composed)
+
+    @staticmethod
+    def _inner_batch(
+        measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> tuple[list[AttitudeMeasurement], Rotation]:
+        """The inner measurements and the attitudes of their model (``A F`` each)."""
         frames = Rotation.concatenate([m.frame_inverse for m in measurements])
-        inner = [m.inner for m in measurements]
-        return type(inner[0]).predict_batch(inner, attitudes * frames)
+        return [m.inner for m in measurements], attitudes * frames
 
     def innovation(self, predicted: Array) -> Array:
         return self.inner.innovation(predicted)

@@ -203,9 +203,42 @@ class SnrMeasurement(AttitudeMeasurement):
         if not self.truncated:
             return self.noise_covariance
         matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
-        f = self._snr(matrices)[0]
+        return self._truncated_noise(self._snr(matrices)[0])
+
+    def _truncated_noise(self, f: Array) -> Array:
+        """``R`` of the truncated model at the untruncated SNRs ``f`` ``(m,)``."""
         factor = truncated_information_factor(f, self.sigma, self.epoch.threshold_db)
         return self.sigma**2 * np.where(np.isfinite(factor), factor, 1.0)
+
+    @classmethod
+    def noise_covariance_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        """:meth:`noise_covariance_at` of each epoch at its attitude; the truncated model's
+        SNRs in one evaluation, the epochs' observations one after another."""
+        if not measurements[0].truncated:
+            return [m.noise_covariance for m in measurements]
+        epochs = [m.epoch for m in measurements]
+        counts = np.array([e.m for e in epochs])
+        matrices = attitudes.as_matrix().reshape(-1, 3, 3)[
+            np.repeat(np.arange(len(epochs)), counts)
+        ]
+        antenna = None
+        if epochs[0].pattern_antenna is not None:
+            antenna = np.concatenate([e.pattern_antenna for e in epochs])[:, None]
+        f = snr_db_or_nan(
+            matrices,
+            np.concatenate([e.unit_los for e in epochs])[:, None],
+            np.concatenate([e.boresight_rows for e in epochs])[:, None],
+            np.concatenate([e.p0_dbw for e in epochs])[:, None],
+            np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
+            epochs[0].pattern,
+            antenna,
+        )[:, 0]
+        return [
+            m._truncated_noise(part)
+            for m, part in zip(measurements, np.split(f, np.cumsum(counts)[:-1]), strict=True)
+        ]
 
     def with_offsets(self, offsets: Array) -> SnrMeasurement:
         """The SNRs with each transmitter's power raised by ``offsets`` ``(m,)`` dB: the

@@ -366,11 +366,14 @@ def prepare_factor(
     offset_index: NDArray[np.intp] | None = None,
     offset_variance: float = 0.0,
     prediction: tuple[Array, Array] | None = None,
+    noise: Array | None = None,
 ) -> tuple[EpochFactor | None, dict[str, float]]:
     """The epoch's factor at the initial estimate (rows, ``R``, gating; module docstring).
 
-    ``prediction``: the measurement's ``predict`` at ``attitude`` when already computed
-    (:func:`~attopt.formulations.attitude_measurement.predict_each` over a pass).
+    ``prediction`` and ``noise``: the measurement's ``predict`` and ``noise_covariance_at``
+    at ``attitude`` when already computed (over a pass by
+    :func:`~attopt.formulations.attitude_measurement.predict_each` and
+    :func:`~attopt.formulations.attitude_measurement.noise_covariance_each`).
 
     With offsets modelled (``offset_index``, all offsets 0 initially) the gate
     adds the offsets' prior variance to ``R``, so that a transmitter's offset
@@ -388,7 +391,9 @@ def prepare_factor(
     rows = np.flatnonzero(keep)
     if rows.size == 0:
         return None, counts
-    noise = np.asarray(measurement.noise_covariance_at(attitude), dtype=float)
+    if noise is None:
+        noise = measurement.noise_covariance_at(attitude)
+    noise = np.asarray(noise, dtype=float)
     factor = EpochFactor(node, measurement, rows, noise, counts, offset_index)
     nu = innovation[rows]
     h = jacobian[0][rows]

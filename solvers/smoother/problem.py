@@ -46,7 +46,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement, predict_each
+from attopt.formulations.attitude_measurement import (
+    AttitudeMeasurement,
+    noise_covariance_each,
+    predict_each,
+)
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import FilterOptions, GyroPass, PreparedGyro
 from attopt.solvers.smoother.conventions import (
@@ -206,8 +210,9 @@ def build_problem(
     offset_variance = 0.0 if offset_sigma is None else offset_sigma**2
     epochs = [k for k, m in enumerate(measurements) if m is not None and m.size > 0]
     node_of = np.array(epochs, dtype=np.intp) + offset
-    predictions = predict_each([measurements[k] for k in epochs], start.attitudes[node_of])
-    for k, node, prediction in zip(epochs, node_of, predictions, strict=True):
+    used, at = [measurements[k] for k in epochs], start.attitudes[node_of]
+    predictions, noises = predict_each(used, at), noise_covariance_each(used, at)
+    for k, node, prediction, noise in zip(epochs, node_of, predictions, noises, strict=True):
         factor, epoch_counts = prepare_factor(
             int(node),
             measurements[k],
@@ -217,6 +222,7 @@ def build_problem(
             offset_index[k],
             offset_variance,
             prediction,
+            noise,
         )
         for name in COUNTS:
             counts[name][k] = epoch_counts[name]
