@@ -27,6 +27,12 @@ RTOL = 1e-13
 largest magnitude)."""
 
 
+@pytest.fixture(autouse=True)
+def compiled_by_default(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each test starts in the default mode, whatever ``ATTOPT_KERNELS`` the run has."""
+    monkeypatch.delenv(kernels.KERNELS_ENV, raising=False)
+
+
 def _assert_equal_to_round_off(compiled: np.ndarray, interpreted: np.ndarray) -> None:
     scale = np.nanmax(np.abs(interpreted), initial=1.0)
     np.testing.assert_allclose(compiled, interpreted, rtol=RTOL, atol=RTOL * scale)
