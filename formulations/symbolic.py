@@ -21,6 +21,8 @@ import casadi as ca
 import numpy as np
 import scipy.special
 
+from attopt.formulations.kernels import evaluate_mapped
+
 
 class ArrayNamespace(Protocol):
     """Operations a model may use besides arithmetic operators."""
@@ -88,11 +90,13 @@ class NumpyNamespace:
         return np.stack(entries, axis=-1).reshape(*entries[0].shape, len(rows), len(rows[0]))
 
     def apply(self, function: ca.Function, x: Any) -> Any:
-        """Evaluate a scalar CasADi ``function`` elementwise on an array of any shape."""
+        """Evaluate a scalar CasADi ``function`` elementwise on an array of any shape (as a
+        measurement kernel, :func:`attopt.formulations.kernels.evaluate_mapped`)."""
         x = np.asarray(x, dtype=float)
         if x.size == 0:
             return np.empty(x.shape)
-        return function.map(x.size)(x.reshape(1, -1)).full().reshape(x.shape)
+        (values,) = evaluate_mapped(function, x.reshape(-1))
+        return values.reshape(x.shape)
 
 
 class CasadiNamespace:

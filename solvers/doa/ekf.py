@@ -64,7 +64,7 @@ loop (:func:`attopt.solvers.sequential.run_filter`, with its lost-track
 monitor) over any measurements, about 0.5 ms per epoch.  With unit vectors
 only (:class:`~attopt.formulations.attitude_measurement.VectorMeasurement`s
 with per-vector sigmas) and no gate, :func:`run_vectors` runs whole epochs
-(:func:`epoch_function`) in CasADi's virtual machine with
+(:func:`epoch_function`) in CasADi, as a compiled kernel, with
 ``Function.mapaccum`` (:func:`accumulate`), about 30 times faster; the
 monitor would never fire there (nothing is gated).  Both keep the history a
 fixed-interval smoother needs (:func:`attopt.solvers.filters.rts.rts_smooth`);

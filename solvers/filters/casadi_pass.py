@@ -1,4 +1,4 @@
-"""Passes run in CasADi's virtual machine: the epoch loop and the symmetric covariance.
+"""Passes run in CasADi: the epoch loop (of the compiled kernel) and the symmetric covariance.
 
 Shared by Yang et al. 2014's EKF and its smoother (:mod:`attopt.solvers.doa.ekf`,
 :mod:`attopt.solvers.doa.eks`) and by the multiplicative RTS backward pass
@@ -14,6 +14,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from attopt.formulations.kernels import kernel
 
 Array = NDArray[np.float64]
 
@@ -33,7 +35,9 @@ def lower_symmetric(matrix: Any) -> Any:
 
 @lru_cache(maxsize=32)
 def _mapaccum(function: ca.Function, n_accum: int) -> ca.Function:
-    return function.mapaccum(f"{function.name()}_pass", CHUNK, n_accum, {})
+    """The loop over :data:`CHUNK` epochs of ``function``'s compiled kernel
+    (:func:`attopt.formulations.kernels.kernel`)."""
+    return kernel(function).mapaccum(f"{function.name()}_pass", CHUNK, n_accum, {})
 
 
 def _column_major(x: Array) -> Array:

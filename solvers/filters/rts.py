@@ -19,7 +19,7 @@ the error to) and differences elsewhere.  Since ``A^s_{k+1} = C(x_{k+1})
 A_{k+1}`` and ``A_{k+1} = C(c_{k+1}) A^-_{k+1}`` (``c`` the filter's
 correction), the attitude part is the error vector of the composition ``C(x)
 C(c)``, computed from quaternions in CasADi (:func:`composed_error`), so the
-whole pass runs in CasADi's virtual machine
+whole pass runs in CasADi, as a compiled kernel
 (:func:`~attopt.solvers.filters.casadi_pass.accumulate`).  ``P^s_{k+1} <= P^-_{k+1}``
 makes ``P^s_k <= P_k``: the smoothed covariance never exceeds the filtered one.
 
