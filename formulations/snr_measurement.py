@@ -29,12 +29,13 @@ predicted and is returned as NaN (the filters leave it out and count it).
 from __future__ import annotations
 
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Any
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
@@ -174,29 +175,23 @@ class SnrMeasurement(AttitudeMeasurement):
     ) -> list[tuple[Array, Array]]:
         """:meth:`predict` of each epoch at its attitude in one :func:`predict_snr` call, the
         epochs' observations one after another, each with its epoch's attitude."""
-        epochs = [m.epoch for m in measurements]
-        counts = np.array([e.m for e in epochs])
-        epoch_of_row = np.repeat(np.arange(len(epochs)), counts)
+        rows = _StackedEpochs.of([m.epoch for m in measurements])
         rotations = Rotation.from_quat(attitudes.as_quat().reshape(-1, 4))  # as predict does
-        antenna = None
-        if epochs[0].pattern_antenna is not None:
-            antenna = np.concatenate([e.pattern_antenna for e in epochs])[:, None]
         values, jac = predict_snr(
-            rotations[epoch_of_row],
-            np.concatenate([e.unit_los for e in epochs])[:, None],
-            np.concatenate([e.boresight_rows for e in epochs])[:, None],
-            np.concatenate([e.p0_dbw for e in epochs])[:, None],
-            np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
-            epochs[0].pattern,
+            rotations[rows.epoch_of_row],
+            rows.los,
+            rows.boresight,
+            rows.p0,
+            rows.noise,
+            measurements[0].epoch.pattern,
             mask="valid",
             model=measurements[0]._model,
-            antenna=antenna,
+            antenna=rows.antenna,
         )
         jac[np.isnan(values)] = np.nan
-        splits = np.cumsum(counts)[:-1]
         return [
             (h.reshape(1, -1), j.reshape(1, -1, 3))
-            for h, j in zip(np.split(values, splits), np.split(jac, splits), strict=True)
+            for h, j in zip(rows.split(values), rows.split(jac), strict=True)
         ]
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
@@ -218,26 +213,18 @@ class SnrMeasurement(AttitudeMeasurement):
         SNRs in one evaluation, the epochs' observations one after another."""
         if not measurements[0].truncated:
             return [m.noise_covariance for m in measurements]
-        epochs = [m.epoch for m in measurements]
-        counts = np.array([e.m for e in epochs])
-        matrices = attitudes.as_matrix().reshape(-1, 3, 3)[
-            np.repeat(np.arange(len(epochs)), counts)
-        ]
-        antenna = None
-        if epochs[0].pattern_antenna is not None:
-            antenna = np.concatenate([e.pattern_antenna for e in epochs])[:, None]
+        rows = _StackedEpochs.of([m.epoch for m in measurements])
         f = snr_db_or_nan(
-            matrices,
-            np.concatenate([e.unit_los for e in epochs])[:, None],
-            np.concatenate([e.boresight_rows for e in epochs])[:, None],
-            np.concatenate([e.p0_dbw for e in epochs])[:, None],
-            np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
-            epochs[0].pattern,
-            antenna,
+            attitudes.as_matrix().reshape(-1, 3, 3)[rows.epoch_of_row],
+            rows.los,
+            rows.boresight,
+            rows.p0,
+            rows.noise,
+            measurements[0].epoch.pattern,
+            rows.antenna,
         )[:, 0]
         return [
-            m._truncated_noise(part)
-            for m, part in zip(measurements, np.split(f, np.cumsum(counts)[:-1]), strict=True)
+            m._truncated_noise(part) for m, part in zip(measurements, rows.split(f), strict=True)
         ]
 
     def with_offsets(self, offsets: Array) -> SnrMeasurement:
@@ -259,3 +246,37 @@ class SnrMeasurement(AttitudeMeasurement):
         if usable.any():
             out[usable] = np.asarray(slope(f[usable][None, :])).ravel()
         return out
+
+
+@dataclass(frozen=True)
+class _StackedEpochs:
+    """Several epochs' observations one after another, one per row, as ``(rows, 1)`` inputs
+    of the SNR model (with the epoch of each row, to give it its epoch's attitude)."""
+
+    epoch_of_row: NDArray[np.intp]
+    ends: NDArray[np.intp]
+    los: Array
+    boresight: Array
+    p0: Array
+    noise: Array
+    antenna: NDArray[np.intp] | None
+
+    @classmethod
+    def of(cls, epochs: Sequence[SnrEpoch]) -> _StackedEpochs:
+        counts = np.array([e.m for e in epochs], dtype=np.intp)
+        antenna = None
+        if epochs[0].pattern_antenna is not None:
+            antenna = np.concatenate([e.pattern_antenna for e in epochs])[:, None]
+        return cls(
+            epoch_of_row=np.repeat(np.arange(len(epochs)), counts),
+            ends=np.cumsum(counts)[:-1],
+            los=np.concatenate([e.unit_los for e in epochs])[:, None],
+            boresight=np.concatenate([e.boresight_rows for e in epochs])[:, None],
+            p0=np.concatenate([e.p0_dbw for e in epochs])[:, None],
+            noise=np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
+            antenna=antenna,
+        )
+
+    def split(self, values: Array) -> list[Array]:
+        """``values`` over the rows, epoch by epoch."""
+        return np.split(values, self.ends)
