@@ -218,9 +218,27 @@ def test_filter_rows_are_valid_and_consistent_for_every_gyro(sweep):
         assert len(group) == int(SHORT["duration_s"]), (method, gyro)
         assert group["valid"].all(), (method, gyro)
         settled = group[group["t_s"] >= 60.0]
-        # 60 epochs of a 3-dof NEES; generous band (errors are correlated in time)
-        assert 0.5 < settled["nees"].mean() < 8.0, (method, gyro)
+        # 60 epochs of a 3-dof NEES; generous band (errors are correlated in time);
+        # mekf_paper's covariance considers its input's whole one, so it may be far
+        # below 3 (measured 0.26 with the MEMS gyro)
+        lowest = 0.0 if method == "mekf_paper" else 0.5
+        assert lowest < settled["nees"].mean() < 8.0, (method, gyro)
         assert np.isfinite(settled["bias_err_x_deg_h"]).all()
+
+
+@pytest.mark.parametrize("gyro", PARAMETERS["gyros"])
+def test_the_papers_mekf_reports_at_least_its_inputs_covariance(sweep, gyro):
+    """``mekf_paper``'s reported covariance considers its input's (the NLSE's errors are
+    correlated from epoch to epoch): on every epoch after the NLSE's first valid one its
+    variance about each axis is at least the NLSE's most recent."""
+    paper = sweep.rows[(sweep.rows["method"] == "mekf_paper") & (sweep.rows["gyro"] == gyro)]
+    nlse = sweep.rows[sweep.rows["method"] == "nlse"].sort_values("t_s")
+    held = nlse.set_index("t_s").where(nlse.set_index("t_s")["valid"]).ffill()
+    paper = paper.set_index("t_s").loc[held.index]
+    after = held["valid"].notna().to_numpy()
+    for axis in "xyz":
+        column = f"sigma_{axis}_deg"
+        assert (paper[column].to_numpy()[after] >= held[column].to_numpy()[after]).all()
 
 
 @pytest.mark.parametrize("gyro", PARAMETERS["gyros"])

@@ -525,7 +525,8 @@ def input_section(ctx: ReportContext, rows: pd.DataFrame, gyros: list[str]) -> s
         f"Settled epochs (t >= {start:g} s), Euler-angle differences (deg): {PAPER_FILTER}'s RMS "
         f"over the {PAPER_INPUT}'s on the same epochs (the paper's ratio from Table 2), mean "
         f"and standard deviation of the errors, own sigma (median for the {PAPER_INPUT}, eq. 22 "
-        "at the estimate; mean for the filter) and its ratio to Table 2's MEKF RMS."
+        "at the estimate widened by the selection bias; mean for the filter, whose reported "
+        "covariance considers its input's, docs/filters.md) and its ratio to Table 2's MEKF RMS."
         + made_by(ctx.command)
     )
     formats = {"mean NEES": ".2f", "inside 3 sigma": ".3f"}

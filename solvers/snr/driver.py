@@ -32,6 +32,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
+import numpy as np
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
@@ -51,7 +53,13 @@ from attopt.solvers.snapshot_sequence import (
     solve_in_sequence,
 )
 from attopt.solvers.snr.exclusion import Tested, exclude_one_transmitter
-from attopt.solvers.snr.fit import Residuals, selection_bias_covariance, standardised_residuals
+from attopt.solvers.snr.fit import (
+    SELECTION_BIAS_DIAGNOSTICS,
+    Residuals,
+    least_squares_bias,
+    standardised_residuals,
+    widened,
+)
 
 DEFAULT_FAULT_EXCLUSION = True
 """Whether the SNR solvers exclude a faulty transmitter by default (``docs/filters.md``)."""
@@ -106,11 +114,13 @@ class SnrSolver(SnapshotEstimator):
             the one transmitter whose exclusion restores the fit, valid if that is the
             only one (:mod:`attopt.solvers.snr.exclusion`, RAIM-style fault detection and
             exclusion); off: the epoch is flagged.
-        selection_bias: a least-squares estimate's covariance is widened by the
-            reception threshold's selection bias propagated through the least-squares
-            gain (:func:`~attopt.solvers.snr.fit.selection_bias_covariance`), which
-            eq. 19 does not model; off: eq. 22 alone (Liu et al. 2023's covariance).
-            The truncated likelihood models the threshold and is never widened.
+        selection_bias: an estimate's covariance is widened by the reception
+            threshold's selection bias propagated through the method's own gain
+            (:meth:`SnrSolver.threshold_bias`; ``P + d d^T``,
+            :func:`~attopt.solvers.snr.fit.widened`), which eq. 19 does not model; off:
+            the method's covariance alone (for the least squares eq. 22, Liu et al.
+            2023's). The truncated likelihood models the threshold and is never
+            widened.
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
@@ -134,6 +144,13 @@ class SnrSolver(SnapshotEstimator):
         covariance is not widened by :attr:`selection_bias`)."""
         return False
 
+    def threshold_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> NDArray[np.float64]:
+        """The attitude bias ``d`` that the reception threshold's selection of the SNRs
+        causes in this method's estimate: through the least-squares gain
+        (:func:`~attopt.solvers.snr.fit.least_squares_bias`), for the least-squares
+        methods."""
+        return least_squares_bias(problem, estimate.attitude, estimate.covariance)
+
     def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
         """The residuals' chi-square at ``estimate`` (``m - 3`` degrees of freedom):
         twice its eq. 19 loss, ``sum_k (y_k - f_k)^2 / sigma_k^2``."""
@@ -153,8 +170,11 @@ class SnrSolver(SnapshotEstimator):
             return estimate, None
         estimate = replace(estimate, diagnostics={**estimate.diagnostics, "n_excluded": 0.0})
         if self.selection_bias and not self.models_the_threshold:
-            covariance = selection_bias_covariance(problem, estimate.attitude, estimate.covariance)
-            estimate = replace(estimate, covariance=covariance)
+            bias = self.threshold_bias(problem, estimate)
+            shown = dict(zip(SELECTION_BIAS_DIAGNOSTICS, bias, strict=True))
+            diagnostics = {**estimate.diagnostics, **shown}
+            covariance = widened(estimate.covariance, bias)
+            estimate = replace(estimate, covariance=covariance, diagnostics=diagnostics)
         chi_square = self.residual_chi_square(problem, estimate)
         return estimate, residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
 

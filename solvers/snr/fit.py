@@ -58,6 +58,9 @@ Array = NDArray[np.float64]
 Objective = Literal["least_squares", "truncated_ml"]
 """The likelihood a one-step solver maximises (module docstring)."""
 OBJECTIVES: tuple[Objective, ...] = ("least_squares", "truncated_ml")
+SELECTION_BIAS_DIAGNOSTICS = ("selection_bias_x", "selection_bias_y", "selection_bias_z")
+"""Diagnostics of a widened estimate: the selection bias ``d`` its covariance covers (rad,
+body frame, :func:`widened`); NaN where it is not widened."""
 
 
 def snr_loss(measured: Any, predicted: Any, weights: Any) -> Any:
@@ -214,25 +217,44 @@ def fit_at(problem: SnrEpoch, attitude: Rotation, objective: Objective = "least_
     )
 
 
-def selection_bias_covariance(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
-    """The least-squares covariance widened by the reception threshold's selection bias:
-    ``P + d d^T``, the mean squared error matrix of a biased estimate.
-
-    A message is received only when its measured SNR passes the threshold ``tau``, so a
-    received SNR whose prediction ``f_k`` lies near it carries a positive error of mean
-    ``b_k = sigma_k phi(a_k) / (1 - Phi(a_k))``, ``a_k = (tau - f_k) / sigma_k`` (the mean
-    of a normal truncated below ``tau``, Johnson, Kotz and Balakrishnan 1994 eq. 13.134),
-    which Liu et al. 2023 eq. 19 does not model.  Through the least-squares gain it
-    biases the attitude by ``d = P J^T C b`` (``P = (J^T C J)^-1``, eq. 22; ``J`` the
-    SNRs' Jacobian at ``attitude``, ``C = diag(1 / sigma_k^2)``), evaluated at the
-    estimate.  The widened covariance covers that bias; the estimate is unchanged
-    (the truncated likelihood, ``nlp_truncated``, removes the bias instead).
-    """
-    predicted, jac = model_at(problem, attitude)
+def threshold_bias(problem: SnrEpoch, predicted: Array) -> Array:
+    """The mean error of each received SNR that the reception threshold selects:
+    ``b_k = sigma_k phi(a_k) / (1 - Phi(a_k))``, ``a_k = (tau - f_k) / sigma_k`` at the
+    predicted ``f_k`` (the mean of a normal truncated below ``tau``, Johnson, Kotz and
+    Balakrishnan 1994 eq. 13.134), which Liu et al. 2023 eq. 19 does not model."""
     sigma = np.asarray(problem.sigma_db, dtype=float)
     a = (problem.threshold_db - predicted) / sigma
-    bias = sigma * np.exp(norm.logpdf(a) - norm.logsf(a))
-    d = np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
-    if not np.all(np.isfinite(d)):
+    return sigma * np.exp(norm.logpdf(a) - norm.logsf(a))
+
+
+def least_squares_bias(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
+    """The attitude bias ``d = P J^T C b`` that the SNR errors ``b``
+    (:func:`threshold_bias`) cause through the least-squares gain (``P = (J^T C J)^-1``,
+    eq. 22; ``J`` the SNRs' Jacobian at ``attitude``, ``C = diag(1 / sigma_k^2)``),
+    evaluated at the estimate."""
+    predicted, jac = model_at(problem, attitude)
+    sigma = np.asarray(problem.sigma_db, dtype=float)
+    bias = threshold_bias(problem, predicted)
+    return np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
+
+
+def widened(covariance: Array, bias: Array) -> Array:
+    """``P + d d^T``, the mean squared error matrix of an estimate of bias ``d``
+    (``P`` itself when ``d`` is not finite)."""
+    if not np.all(np.isfinite(bias)):
         return covariance
-    return covariance + np.outer(d, d)
+    return covariance + np.outer(bias, bias)
+
+
+def selection_bias_covariance(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
+    """The least-squares covariance widened by the reception threshold's selection bias:
+    ``P + d d^T`` (:func:`widened`), ``d`` the bias the threshold causes through the
+    least-squares gain (:func:`least_squares_bias`).
+
+    A message is received only when its measured SNR passes the threshold ``tau``, so a
+    received SNR whose prediction lies near it carries a positive error
+    (:func:`threshold_bias`).  The widened covariance covers the attitude bias that
+    follows; the estimate is unchanged (the truncated likelihood, ``nlp_truncated``,
+    removes the bias instead).
+    """
+    return widened(covariance, least_squares_bias(problem, attitude, covariance))

@@ -18,12 +18,18 @@ from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.exclusion import EXCLUSION_DIAGNOSTICS
-from attopt.solvers.snr.fit import fit_at
+from attopt.solvers.snr.fit import SELECTION_BIAS_DIAGNOSTICS, fit_at
 from attopt.solvers.snr.initialisation import INITIALISATION_DIAGNOSTICS, LocalResult, initialise
 
-ONE_STEP_DIAGNOSTICS = (*INITIALISATION_DIAGNOSTICS, "outside_lobe", *EXCLUSION_DIAGNOSTICS)
-"""Initialisation diagnostics, observations beyond the main lobe at the estimate and the
-fault exclusion's (:mod:`attopt.solvers.snr.exclusion`)."""
+ONE_STEP_DIAGNOSTICS = (
+    *INITIALISATION_DIAGNOSTICS,
+    "outside_lobe",
+    *EXCLUSION_DIAGNOSTICS,
+    *SELECTION_BIAS_DIAGNOSTICS,
+)
+"""Initialisation diagnostics, observations beyond the main lobe at the estimate, the
+fault exclusion's (:mod:`attopt.solvers.snr.exclusion`) and the selection bias the
+covariance covers (:mod:`attopt.solvers.snr.fit`)."""
 
 
 class OneStepSolver(SnrSolver):
