@@ -719,7 +719,7 @@ def test_the_two_step_method_widens_by_its_own_gain():
     solution = solver.solve(_snapshot(biased), prior=TRUTH)
     moved = attitude_error(solution.attitude, TRUTH)
     estimate = EpochEstimate(solution.attitude, solution.covariance, solution.loss, {})
-    own = solver.threshold_bias(biased, estimate)
+    own = solver.attitude_bias(biased, estimate)
     least_squares = least_squares_bias(biased, solution.attitude, solution.covariance)
     assert np.linalg.norm(moved) > np.radians(1.0)
     # Measured: 0.22 of |d| off (the error's mean taken at the biased estimate), eq. 22's 0.60.

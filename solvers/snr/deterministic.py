@@ -173,7 +173,7 @@ class DeterministicSolver(SnrSolver):
         """The two-step rule: two non-parallel antennas with ``min_per_antenna`` observations."""
         return epoch_issue(problem, min_per_antenna=self.min_per_antenna)
 
-    def threshold_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> Array:
+    def attitude_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> Array:
         """The selection bias through the two-step method's own gain: the attitude
         error ``d`` of the estimate against :func:`two_step` on the SNRs less their
         threshold bias (:func:`~attopt.solvers.snr.fit.threshold_bias` at the estimate),
@@ -184,11 +184,11 @@ class DeterministicSolver(SnrSolver):
         predicted, _ = model_at(problem, estimate.attitude)
         bias = threshold_bias(problem, predicted)
         if not np.all(np.isfinite(bias)):  # a message the estimate does not predict
-            return super().threshold_bias(problem, estimate)
+            return super().attitude_bias(problem, estimate)
         debiased = replace(problem, snr_db=problem.snr_db - bias)
         result = two_step(debiased, estimate.attitude, self.min_per_antenna)
         if not result.valid:
-            return super().threshold_bias(problem, estimate)
+            return super().attitude_bias(problem, estimate)
         return attitude_error(estimate.attitude, result.attitude)
 
     def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:

@@ -116,7 +116,7 @@ class SnrSolver(SnapshotEstimator):
             exclusion); off: the epoch is flagged.
         selection_bias: an estimate's covariance is widened by the reception
             threshold's selection bias propagated through the method's own gain
-            (:meth:`SnrSolver.threshold_bias`; ``P + d d^T``,
+            (:meth:`SnrSolver.attitude_bias`; ``P + d d^T``,
             :func:`~attopt.solvers.snr.fit.widened`), which eq. 19 does not model; off:
             the method's covariance alone (for the least squares eq. 22, Liu et al.
             2023's). The truncated likelihood models the threshold and is never
@@ -144,7 +144,7 @@ class SnrSolver(SnapshotEstimator):
         covariance is not widened by :attr:`selection_bias`)."""
         return False
 
-    def threshold_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> NDArray[np.float64]:
+    def attitude_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> NDArray[np.float64]:
         """The attitude bias ``d`` that the reception threshold's selection of the SNRs
         causes in this method's estimate: through the least-squares gain
         (:func:`~attopt.solvers.snr.fit.least_squares_bias`), for the least-squares
@@ -170,7 +170,7 @@ class SnrSolver(SnapshotEstimator):
             return estimate, None
         estimate = replace(estimate, diagnostics={**estimate.diagnostics, "n_excluded": 0.0})
         if self.selection_bias and not self.models_the_threshold:
-            bias = self.threshold_bias(problem, estimate)
+            bias = self.attitude_bias(problem, estimate)
             shown = dict(zip(SELECTION_BIAS_DIAGNOSTICS, bias, strict=True))
             diagnostics = {**estimate.diagnostics, **shown}
             covariance = widened(estimate.covariance, bias)
