@@ -54,23 +54,23 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Literal
 
-import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
-from attopt.formulations.attitude_model import increment_matrix
 from attopt.formulations.errors import InvalidObservationError
-from attopt.formulations.gyro import (
-    GyroModel,
-    GyroSamples,
-    attitude_increment,
-    error_state_transition,
-)
-from attopt.formulations.kernels import evaluate_mapped
+from attopt.formulations.gyro import GyroModel, GyroSamples, error_state_transition
 from attopt.formulations.passes import GyroRecord, Pass, Prior
+from attopt.formulations.quaternion_algebra import (
+    compose,
+    conjugate,
+    from_mrp,
+    from_rotation_vector,
+    left_matrices,
+    to_mrp,
+)
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.gyro_timeline import (
     COINCIDENCE,
@@ -96,35 +96,49 @@ RECOVERIES = ("restart", "inflate", "none")
 
 def error_vector(estimate: Rotation, reference: Rotation) -> Array:
     """Error vector ``4 p`` of ``estimate`` relative to ``reference`` (``p``: MRPs of
-    ``estimate * reference.inv()``), body frame."""
-    return 4.0 * (estimate * reference.inv()).as_mrp()
+    ``estimate * reference.inv()``), body frame (:func:`quaternion_error_vector`)."""
+    return quaternion_error_vector(estimate.as_quat(), reference.as_quat())
 
 
-def apply_error(delta: Array, reference: Rotation) -> Rotation:
-    """The attitude whose :func:`error_vector` relative to ``reference`` is ``delta``."""
-    return Rotation.from_mrp(np.asarray(delta) / 4.0) * reference
+def apply_error(delta: ArrayLike, reference: Rotation) -> Rotation:
+    """The attitude whose :func:`error_vector` relative to ``reference`` is ``delta``:
+    ``Rotation.from_mrp(delta / 4) * reference`` (:func:`perturb_quaternion`)."""
+    return Rotation.from_quat(perturb_quaternion(delta, reference.as_quat()))
 
 
-@lru_cache(maxsize=1)
-def _error_jacobian_function() -> ca.Function:
-    x = ca.SX.sym("x", 3)
-    dx = ca.SX.sym("dx", 3)
-    turn = increment_matrix(x + dx) @ increment_matrix(x).T
-    body = ca.vertcat(turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0], turn[1, 0] - turn[0, 1])
-    jacobian = ca.substitute(ca.jacobian(0.5 * body, dx), dx, ca.DM.zeros(3))
-    return ca.Function("error_jacobian", [x], [jacobian])
+def quaternion_error_vector(estimate: ArrayLike, reference: ArrayLike) -> Array:
+    """:func:`error_vector` of scalar-last quaternions ``(..., 4)``, by the products of
+    :mod:`attopt.formulations.quaternion_algebra`: the filters call it every epoch, and
+    scipy's ``Rotation`` costs ten times more per call."""
+    return 4.0 * to_mrp(compose(estimate, conjugate(reference)))
 
 
-def error_jacobian(delta: Array) -> Array:
+def perturb_quaternion(delta: ArrayLike, reference: ArrayLike) -> Array:
+    """:func:`apply_error` on scalar-last quaternions (``(..., 4)``; the quaternion
+    returned), as :func:`quaternion_error_vector`."""
+    return compose(from_mrp(np.asarray(delta, dtype=float) / 4.0), reference)
+
+
+def error_jacobian(delta: ArrayLike) -> Array:
     """``J`` with ``apply_error(delta + d, A) = exp(J d) apply_error(delta, A)`` to first order.
 
-    The derivative of the body-frame perturbation at ``apply_error(delta, A)``
-    with respect to the error vector, by CasADi AD of
-    :func:`attopt.formulations.attitude_model.increment_matrix` (``I`` at ``delta = 0``),
-    evaluated as a measurement kernel (:mod:`attopt.formulations.kernels`).
+    The derivative of the body-frame perturbation at ``apply_error(delta, A)`` with
+    respect to the error vector, ``p = delta / 4``::
+
+        J = ((1 - |p|^2) I + 2 [p x] + 2 p p^T) / (1 + |p|^2)^2,
+
+    the inverse of the kinematics matrix ``B(p)`` of the modified Rodrigues parameters
+    (Markley and Crassidis 2014, ch. 3; ``B^-1 = 16 B^T / (1 + |p|^2)^2``) for the
+    attitude ``C(delta) A`` of :func:`attopt.formulations.attitude_model.increment_matrix`;
+    ``I`` at ``delta = 0``.
+    Closed form rather than AD, for speed (every update calls it); the test suite checks
+    it against CasADi's derivative of ``increment_matrix``.
     """
-    (jacobian,) = evaluate_mapped(_error_jacobian_function(), delta)
-    return jacobian[0]
+    p = np.asarray(delta, dtype=float) / 4.0
+    norm2 = float(p @ p)
+    x, y, z = p
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return ((1.0 - norm2) * np.eye(3) + 2.0 * cross + 2.0 * np.outer(p, p)) / (1.0 + norm2) ** 2
 
 
 @dataclass(frozen=True)
@@ -653,19 +667,23 @@ def propagate_attitude(attitude: Rotation, rates: Array, dt: ArrayLike) -> Rotat
     """Carry attitudes over consecutive steps at constant rates (Liu et al. 2023 eq. 25).
 
     ``rates`` is ``(k, 3)`` for one attitude or ``(K, k, 3)`` for a stack of
-    ``K``; ``dt`` the step (s) or ``(k,)`` steps.  Step ``j`` applies
-    :func:`attopt.formulations.gyro.attitude_increment`.  The increments'
-    matrices are multiplied in order (later steps on the left) and the product
-    applied once.
+    ``K``; ``dt`` the step (s) or ``(k,)`` steps.  Step ``j`` applies the increment
+    ``exp(-[w_j x] dt_j)`` of :func:`attopt.formulations.gyro.attitude_increment`
+    (:func:`propagate_quaternion`).
     """
-    rates = np.asarray(rates, dtype=float)
-    k = rates.shape[-2]
-    if k == 0:
+    if np.shape(rates)[-2] == 0:
         return attitude
-    dt = np.broadcast_to(np.asarray(dt, dtype=float)[..., None], rates.shape)
-    steps = attitude_increment(rates.reshape(-1, 3), dt.reshape(-1, 3)).as_matrix()
-    steps = steps.reshape(*rates.shape[:-2], k, 3, 3)
-    total = steps[..., 0, :, :]
-    for j in range(1, k):
+    return Rotation.from_quat(propagate_quaternion(attitude.as_quat(), rates, dt))
+
+
+def propagate_quaternion(quaternion: Array, rates: Array, dt: ArrayLike) -> Array:
+    """:func:`propagate_attitude` on scalar-last quaternions (``(4,)`` or ``(K, 4)``), as
+    quaternion products (:mod:`attopt.formulations.quaternion_algebra`, for speed: one
+    ``4 x 4`` matrix product per step, later steps on the left)."""
+    rates = np.asarray(rates, dtype=float)
+    dt = np.asarray(dt, dtype=float)
+    steps = left_matrices(from_rotation_vector(-rates * (dt[..., None] if dt.ndim else dt)))
+    total = np.asarray(quaternion, dtype=float)[..., None]
+    for j in range(rates.shape[-2]):
         total = steps[..., j, :, :] @ total
-    return Rotation.from_matrix(total) * attitude
+    return total[..., 0]

@@ -34,7 +34,7 @@ Propagation from one output epoch to the next, over all the gyro steps
 between them at once and vectorised over the sigma points: sigma point ``i``
 is the attitude ``A_i = apply_error(chi_i[:3], A)`` with bias ``beta_i =
 beta + chi_i[3:]``, carried through the exact kinematics with its own rates
-``omega_measured - beta_i`` (:func:`~attopt.solvers.filters.common.propagate_attitude`).
+``omega_measured - beta_i`` (:func:`~attopt.solvers.filters.common.propagate_quaternion`).
 The propagated reference is sigma point 0's attitude ``A_0'``; the
 propagated points are ``chi_i' = [error_vector(A_i', A_0'), chi_i[3:]]``
 (the bias is a random walk: its points do not move), and::
@@ -141,14 +141,15 @@ from attopt.solvers.filters.common import (
     PreparedGyro,
     apply_error,
     error_jacobian,
-    error_vector,
     gate,
     huber_noise,
     kalman_gain,
     linearised,
     noise_subset,
-    propagate_attitude,
+    perturb_quaternion,
     propagate_covariance,
+    propagate_quaternion,
+    quaternion_error_vector,
     repair_covariance,
     usable_rows,
 )
@@ -213,15 +214,19 @@ def propagate(
         return attitude, bias, covariance, False
     offsets, repaired = sigma_offsets(covariance)
     sigma_bias = bias + offsets[:, 3:]
-    propagated = propagate_attitude(
-        apply_error(offsets[:, :3], attitude), rates[None] - sigma_bias[:, None], dt
+    propagated = propagate_quaternion(
+        perturb_quaternion(offsets[:, :3], attitude.as_quat()),
+        rates[None] - sigma_bias[:, None],
+        dt,
     )
-    points = np.concatenate([error_vector(propagated, propagated[0]), offsets[:, 3:]], axis=1)
+    errors = quaternion_error_vector(propagated, propagated[0])
+    points = np.concatenate([errors, offsets[:, 3:]], axis=1)
     mean = WEIGHTS @ points  # (U3)
     spread = points - mean
     noise = interval_noise(rates - bias, gyro.hold_variance[steps], model, dt)
     covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + noise, mean)  # (U4)
-    return apply_error(mean[:3], propagated[0]), bias + mean[3:], covariance, repaired  # (U5)
+    attitude = Rotation.from_quat(perturb_quaternion(mean[:3], propagated[0]))  # (U5)
+    return attitude, bias + mean[3:], covariance, repaired
 
 
 def regression(deviation: Array, offsets: Array) -> tuple[Array, Array]:

@@ -55,6 +55,8 @@ are counted.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import lru_cache
 
 import gtsam
 import numpy as np
@@ -76,23 +78,51 @@ FD_STEP = 1e-6
 """Relative central-difference step of the innovation's derivative."""
 
 
-def block_members(blocks: NDArray[np.intp]) -> NDArray[np.intp]:
-    """``(m, s)``: for each row, the rows of its block in order (``-1`` padding), ``s``
-    the largest block size."""
-    labels, inverse, sizes = np.unique(blocks, return_inverse=True, return_counts=True)
+@dataclass(frozen=True)
+class BlockMembers:
+    """Where each row of a measurement sits in its block (:func:`block_members`).
+
+    Attributes:
+        members: ``(m, s)``, for each row the rows of its block in order (``-1``
+            padding), ``s`` the largest block size.
+        position: ``(m,)`` each row's position in its block.
+        valid: ``(m, s)`` where ``members`` is a row.
+        source: ``(m, s)`` ``members`` with the padding at row 0 (safe to index with).
+    """
+
+    members: NDArray[np.intp]
+    position: NDArray[np.intp]
+    valid: NDArray[np.bool_]
+    source: NDArray[np.intp]
+
+
+def block_members(blocks: NDArray[np.intp]) -> BlockMembers:
+    """The :class:`BlockMembers` of the block labels ``blocks`` ``(m,)``, computed once per
+    layout (a pass's epochs repeat a few; the arrays are shared, not to be modified)."""
+    return _block_members(np.ascontiguousarray(blocks, dtype=np.intp).tobytes())
+
+
+@lru_cache(maxsize=1024)
+def _block_members(blocks: bytes) -> BlockMembers:
+    labels = np.frombuffer(blocks, dtype=np.intp)
+    unique, inverse, sizes = np.unique(labels, return_inverse=True, return_counts=True)
     order = np.argsort(inverse, kind="stable")
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    members = np.full((labels.size, int(sizes.max()) if sizes.size else 0), -1, dtype=np.intp)
-    position = np.arange(blocks.size) - np.repeat(starts, sizes)
-    members[np.repeat(np.arange(labels.size), sizes), position] = order
-    return members[inverse]
+    members = np.full((unique.size, int(sizes.max()) if sizes.size else 0), -1, dtype=np.intp)
+    position = np.arange(labels.size) - np.repeat(starts, sizes)
+    members[np.repeat(np.arange(unique.size), sizes), position] = order
+    members = members[inverse]
+    positions = np.zeros(labels.size, dtype=np.intp)
+    positions[order] = position
+    valid = members >= 0
+    return BlockMembers(members, positions, valid, np.where(valid, members, 0))
 
 
 def innovation_jacobian(
     measurement: AttitudeMeasurement,
     predicted: Array,
     jacobian: Array,
-    members: NDArray[np.intp],
+    blocks: BlockMembers,
 ) -> Array:
     """``-d nu / d delta`` ``(m, 3)`` of the innovation ``nu = innovation(h)``.
 
@@ -106,25 +136,16 @@ def innovation_jacobian(
     leave out, moving its fixed point off the minimum of the cost by
     ``O(sigma^2)``.
     """
-    m, size = members.shape
+    m, size = blocks.members.shape
     step = FD_STEP * np.maximum(1.0, np.abs(predicted))
-    perturbed = np.tile(predicted, (2 * size, 1))
-    position = np.zeros(m, dtype=np.intp)
-    position[members[members >= 0]] = np.nonzero(members >= 0)[1]
-    for r in range(size):
-        on = position == r
-        perturbed[2 * r, on] += step[on]
-        perturbed[2 * r + 1, on] -= step[on]
+    signed = np.zeros((size, 2, m))
+    signed[blocks.position, :, np.arange(m)] = step[:, None] * np.array([1.0, -1.0])
     with np.errstate(invalid="ignore"):
-        nu = measurement.innovation(perturbed)
-    out = np.zeros((m, 3))
-    for r in range(size):
-        column = members[:, r]
-        valid = column >= 0
-        source = np.where(valid, column, 0)
-        derivative = (nu[2 * r] - nu[2 * r + 1]) / (2.0 * step[source])
-        out -= np.where(valid, derivative, 0.0)[:, None] * jacobian[source]
-    return out
+        nu = measurement.innovation(predicted + signed.reshape(2 * size, m)).reshape(size, 2, m)
+    # d nu_i / d h_j for the j at position r of row i's block: (nu[r, +] - nu[r, -])_i / 2 step_j
+    difference = (nu[:, 0] - nu[:, 1]).T
+    derivative = np.where(blocks.valid, difference / (2.0 * step[blocks.source]), 0.0)
+    return -np.einsum("ir,irk->ik", derivative, jacobian[blocks.source])
 
 
 class EpochFactor:
