@@ -524,6 +524,8 @@ class ReferencedMeasurement(AttitudeMeasurement):
         return self.inner.innovation(predicted)
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
+        if type(self.inner).noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
+            return self.noise_covariance  # the inner R does not depend on the attitude
         return self.inner.noise_covariance_at(attitude * self.frame_inverse)
 
     def with_offsets(self, offsets: Array) -> ReferencedMeasurement:

@@ -109,7 +109,13 @@ def kernel(function: ca.Function) -> ca.Function:
 
 def mapped(function: ca.Function, n: int) -> ca.Function:
     """:func:`kernel` ``(function)`` mapped over ``n`` points (serially)."""
-    return _map(kernel(function), n)
+    return _mapped(function, n, compiled_kernels())
+
+
+@lru_cache(maxsize=1024)
+def _mapped(function: ca.Function, n: int, compiled: bool) -> ca.Function:
+    """:func:`mapped` once per function, size and mode (one cache lookup per call)."""
+    return _map(_compiled(function) if compiled else function, n)
 
 
 @lru_cache(maxsize=512)
@@ -153,8 +159,7 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
         return [np.zeros((0, *shape)) for shape in layout.shapes_out]
     block = bucket(n) if n <= BLOCK else BLOCK
     size = -(-n // block) * block
-    pad = np.minimum(np.arange(size), n - 1)[:, None]
-    shared = np.zeros((size, 1), dtype=np.intp)
+    pad, shared = _point_indices(size, n)
     stacked = [  # (size, nnz), C-contiguous: one fancy index copies and pads
         a[pad if a.shape[0] == n else shared, rows, columns]
         for a, (rows, columns) in zip(arrays, layout.entries_in, strict=True)
@@ -175,6 +180,16 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
         dense[:, rows[0], columns[0]] = out[:n]
         result.append(dense)
     return result
+
+
+@lru_cache(maxsize=256)
+def _point_indices(size: int, n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """``(size, 1)`` indices of ``n`` points padded to ``size`` (the last repeated), and of
+    one shared point (read-only)."""
+    pad = np.minimum(np.arange(size), n - 1)[:, None]
+    shared = np.zeros((size, 1), dtype=np.intp)
+    pad.flags.writeable = shared.flags.writeable = False
+    return pad, shared
 
 
 @dataclass(frozen=True)

@@ -149,11 +149,11 @@ def test_a_shared_input_and_no_points() -> None:
 def fresh(tmp_path, monkeypatch: pytest.MonkeyPatch):
     """A new process's kernels: nothing loaded, the cache in ``tmp_path``."""
     monkeypatch.setenv("ATTOPT_CACHE_DIR", str(tmp_path))
-    kernels._compiled.cache_clear()
-    kernels.compiler.cache_clear()
+    for cached in (kernels._compiled, kernels._mapped, kernels.compiler):
+        cached.cache_clear()
     yield tmp_path
-    kernels._compiled.cache_clear()
-    kernels.compiler.cache_clear()
+    for cached in (kernels._compiled, kernels._mapped, kernels.compiler):
+        cached.cache_clear()
 
 
 @needs_compiler

@@ -481,7 +481,11 @@ def noise_sandwich(gain: Array, noise: Array) -> Array:
 
 
 def kalman_gain(
-    covariance: Array, h: Array, noise: Array, innovation: Array
+    covariance: Array,
+    h: Array,
+    noise: Array,
+    innovation: Array,
+    information: Array | None = None,
 ) -> tuple[Array, float, Array]:
     """Gain ``K = P H^T S^-1``, ``nu^T S^-1 nu`` and the posterior ``(I - K H) P``,
     ``S = H P H^T + R``, in information form.
@@ -490,10 +494,13 @@ def kalman_gain(
     matrix-inversion lemma for the normalised innovation: only ``6 x 6``
     inverses and work linear in the number of rows when ``R`` is given as
     variances (SNRs, unit vectors), however many rows an epoch has.
+    ``information``: ``P^-1`` when the caller has it (an iterated update's prior).
     """
     weighted = solve_noise(noise, np.column_stack([h, innovation]))
     r_inv_h, r_inv_nu = weighted[:, :-1], weighted[:, -1]
-    posterior = np.linalg.inv(np.linalg.inv(covariance) + h.T @ r_inv_h)
+    if information is None:
+        information = np.linalg.inv(covariance)
+    posterior = np.linalg.inv(information + h.T @ r_inv_h)
     projected = h.T @ r_inv_nu
     nis = float(innovation @ r_inv_nu - projected @ posterior @ projected)
     return posterior @ r_inv_h.T, nis, posterior

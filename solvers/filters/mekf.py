@@ -177,7 +177,7 @@ def update(
         accepted_state, accepted_cost, halvings = state, cost, 0
         h = h_all[rows]
         relinearised = nu + h @ state  # the innovation relinearised at the iterate
-        gain, nis, posterior = kalman_gain(covariance, h, r, relinearised)
+        gain, nis, posterior = kalman_gain(covariance, h, r, relinearised, prior_information)
         trial_step = gain @ relinearised - state
         state = state + trial_step
         counts["nis"], counts["nis_dof"] = nis, float(rows.size)

@@ -310,6 +310,7 @@ def update(
     r = noise_subset(r_all, rows)
     state = np.zeros(STATE_SIZE)
     posterior = covariance
+    information = np.linalg.inv(covariance)
     for iteration in range(options.max_update_iterations):
         if iteration > 0:
             if not finite(state, posterior):
@@ -338,7 +339,7 @@ def update(
         h, omega = regression(nu - innovations, offsets)  # pass 0: (U7)-(U8)
         noise = r + omega if r.ndim == 1 else r + np.diag(omega)
         relinearised = nu + h @ state  # the innovation relinearised at the iterate
-        gain, nis, posterior = kalman_gain(covariance, h, noise, relinearised)
+        gain, nis, posterior = kalman_gain(covariance, h, noise, relinearised, information)
         step = gain @ relinearised - state
         state = state + step
         counts["update_iterations"] = float(iteration + 1)
