@@ -533,6 +533,17 @@ def test_filter_options_change_their_filters_rows_alone():
         )
 
 
+AMBIGUOUS = "fewer than two antennas with a determined boresight direction"
+"""The two-step method's flag where an antenna's few cones fit a second boresight (at the
+start of the pass antenna 1 sees three to a few aircraft; offsets and outliers move its
+cones, so the flag can come before the residual test's)."""
+
+
+def _flags(method: str) -> tuple[str, ...]:
+    """The reasons a snapshot method gives an epoch whose SNRs the model does not fit."""
+    return ("model mismatch", AMBIGUOUS) if method == "deterministic" else ("model mismatch",)
+
+
 @pytest.mark.parametrize("offset_db", [1.0, 2.0])
 def test_unmodelled_power_offsets_are_flagged(offset_db):
     """Transmitter power offsets the SNR model does not have (real transponders differ by
@@ -543,13 +554,14 @@ def test_unmodelled_power_offsets_are_flagged(offset_db):
     smoother without offsets.  The smoother that models the offsets is valid where its
     residuals pass their test and consistent where valid (in this 12 s pass it starts
     from a filter without offsets and its residuals at the solution are about 3 times
-    their rows: flagged), and without offsets every one of them is valid."""
+    their rows: flagged), and without offsets every one of them is valid (but the two-step
+    method's epochs with a second boresight)."""
     methods = ["deterministic", "nlse", "nlp"]
     chosen = {"methods": methods, "filters": ["mekf_snr", "fg_batch", "fg_batch_offsets"]}
     rows = trial_rows({**chosen, "traffic": {"power_offset_sigma_db": offset_db}})
     for method in methods:  # (measured: 4 to 6 of the 6 epochs at 1 dB, all at 2 dB)
-        mismatch = _method(rows, method, NO_GYRO)["reason"].str.startswith("model mismatch")
-        assert mismatch.mean() >= (0.5 if offset_db < 2.0 else 1.0), method
+        flagged = _method(rows, method, NO_GYRO)["reason"].str.startswith(_flags(method))
+        assert flagged.mean() >= (0.5 if offset_db < 2.0 else 1.0), method
     mekf = _method(rows, "mekf_snr")
     assert not mekf["valid"].any()
     assert mekf["reason"].str.startswith("inconsistent").all()
@@ -562,7 +574,8 @@ def test_unmodelled_power_offsets_are_flagged(offset_db):
     assert (smoother["reason"][~valid].str.startswith("inconsistent: the residuals")).all()
     assert (smoother["nees"][valid] < 21.1).all()
     clean = trial_rows({**chosen, "filters": ["mekf_snr", "fg_batch_offsets"]})
-    assert clean["valid"].all()
+    assert (clean["valid"] | clean["reason"].str.startswith(AMBIGUOUS)).all()
+    assert clean.loc[~clean["valid"], "method"].eq("deterministic").all()
 
 
 def test_a_burst_of_outlier_snrs_is_flagged_and_its_end_recovered():
@@ -583,8 +596,9 @@ def test_a_burst_of_outlier_snrs_is_flagged_and_its_end_recovered():
     for method in snapshot:
         epochs = _method(rows, method, NO_GYRO)
         inside = (epochs["t_s"] >= 10.0) & (epochs["t_s"] < 20.0)
-        assert epochs.loc[inside, "reason"].str.startswith("model mismatch").all(), method
-        assert epochs.loc[~inside, "valid"].all(), method
+        assert epochs.loc[inside, "reason"].str.startswith(_flags(method)).all(), method
+        outside = epochs.loc[~inside]
+        assert (outside["valid"] | outside["reason"].str.startswith(AMBIGUOUS)).all(), method
     for method in ("mekf_snr", "rts_snr", "fg_batch"):
         epochs = _method(rows, method)
         assert epochs["valid"].all() and (epochs["nees"] < 21.1).all(), method

@@ -45,6 +45,7 @@ from attopt.solvers.snr import (
     NlpSolver,
     NlseSolver,
 )
+from attopt.solvers.snr.boresight import AMBIGUITY_GATE, estimate_boresight
 from attopt.solvers.snr.fit import (
     fit_at,
     least_squares_bias,
@@ -292,6 +293,63 @@ def test_two_observations_per_antenna_two_fold_resolved_by_prior():
     nominal = solver.solve(_snapshot(problem))
     assert nominal.diagnostics["two_fold_margin_deg"] < 3.0
     assert _error(nominal, truth) > 0.01
+
+
+def _near_coplanar_lines_of_sight(boresight, tilt, out_of_plane):
+    """Three unit directions (body) in a plane ``tilt`` rad from ``boresight`` (30 deg
+    apart about it) lifted ``out_of_plane`` rad off it: the boresight's mirror image in
+    that plane then fits their cones almost as well as the boresight."""
+    u = np.cross(boresight, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(boresight, u)
+    d0 = np.cos(tilt) * boresight + np.sin(tilt) * u
+    normal = np.cos(tilt) * u - np.sin(tilt) * boresight
+    phi = np.radians([-30.0, 0.0, 30.0])
+    lift = out_of_plane * np.array([1.0, -1.0, 1.0])
+    body = np.cos(phi)[:, None] * d0 + np.sin(phi)[:, None] * w + lift[:, None] * normal
+    return body / np.linalg.norm(body, axis=1, keepdims=True)
+
+
+def test_boresight_second_minimum_within_the_gate_is_reported():
+    """Noise-free cones of three nearly coplanar lines of sight: the global fit is the
+    true boresight, and its mirror image 40 deg away is a second minimum whose cost is
+    within the gate; well-spread lines of sight have no second minimum."""
+    b = BORESIGHTS[0]
+    los = _near_coplanar_lines_of_sight(b, np.radians(20.0), 0.01)
+    estimate = estimate_boresight(los, los @ b, np.full(3, 0.01), b)
+    assert np.linalg.norm(estimate.direction - b) < 1e-10
+    assert not estimate.two_fold and estimate.ambiguous
+    assert 0.0 < estimate.second_minimum_gap < AMBIGUITY_GATE
+    assert abs(np.degrees(estimate.second_minimum_angle) - 40.0) < 2.0
+    spread = _directions_at(np.tile(b, (12, 1)), np.full(12, 0.5), np.linspace(0, 6, 12))
+    clear = estimate_boresight(spread, spread @ b, np.full(12, 0.01), b)
+    assert clear.second_minimum_gap == np.inf and not clear.ambiguous
+
+
+def test_deterministic_flags_an_antenna_whose_cones_are_ambiguous():
+    """Three nearly coplanar observations on antenna 1 fit a second boresight: the
+    two-step method does not use that antenna, so the epoch is flagged unobservable
+    rather than reported with an error many times its sigma."""
+    rng = np.random.default_rng(11)
+    los, antenna, ranges, _, _ = _geometry(rng, TRUTH, (0, 12))
+    body = _near_coplanar_lines_of_sight(BORESIGHTS[0], np.radians(20.0), 0.01)
+    los = np.concatenate([TRUTH.inv().apply(body), los])
+    antenna = np.concatenate([np.zeros(3, dtype=int), antenna])
+    ranges = np.concatenate([np.full(3, 1.0e6), ranges])
+    snr, _ = predict_snr(
+        TRUTH,
+        los,
+        BORESIGHTS[antenna],
+        BUDGET.isotropic_power_dbw(ranges),
+        BUDGET.noise_power_dbw,
+        LIU2023_HELIX,
+    )
+    problem = _epoch((los, antenna, ranges, snr, None))
+    with pytest.raises(UnobservableError, match="a second direction 40 deg away"):
+        SOLVERS["deterministic"].solve(_snapshot(problem))
+    estimate = SOLVERS["deterministic"].estimate_epoch(problem, None)
+    assert estimate.diagnostics["ambiguous_antennas"] == 1
+    assert estimate.diagnostics["second_minimum_gap"] < AMBIGUITY_GATE
 
 
 # --- noisy problems ----------------------------------------------------------------------

@@ -25,6 +25,18 @@ lines of sight are coplanar.  The candidate closer to the caller's a-priori
 direction is chosen and the ambiguity is reported
 (:attr:`BoresightEstimate.two_fold`, :attr:`BoresightEstimate.two_fold_margin`).
 
+Second minimum.  Outside the hard case the fit on the sphere can still have a
+second, local minimum, with ``lambda`` between the two smallest eigenvalues of ``M``
+(a trust-region problem has at most one local minimiser that is not global;
+Martinez 1994): with three observations whose lines of sight are nearly
+coplanar, two directions far apart can fit the cones almost equally well, and
+noise decides which is global.  The linearised covariance describes one of the
+two basins only, so the estimate reports the second minimum's cost above the
+global one, ``gap = J(b_2) - J(b)`` (``J`` the weighted sum of squares,
+chi-square distributed; :attr:`BoresightEstimate.second_minimum_gap`, ``inf``
+without one): a gap within :data:`AMBIGUITY_GATE` means the cones do not tell
+the two directions apart.
+
 Covariance.  To first order the error of ``b`` lies in the plane tangent to
 the sphere at ``b``: ``P_b = (T^T L^T W L T)^-1`` in a basis ``T`` of that
 plane, returned as a ``3 x 3`` matrix of rank 2 (rad^2).
@@ -36,12 +48,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize_scalar
+from scipy.stats import chi2
 
 Array = NDArray[np.float64]
 
 HARD_CASE_RTOL = 1e-10
 """``t`` (relative to ``s_max``) at which the secular function is probed for the hard case."""
+AMBIGUITY_GATE = float(chi2.ppf(1.0 - 1e-4, 2))
+"""A second minimum whose cost is within this of the global one (the chi-square(2)
+``1 - 1e-4`` quantile, 18.4: two tangent-plane degrees of freedom) is not rejected by
+the data (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -54,12 +71,25 @@ class BoresightEstimate:
         two_fold: whether two directions fit equally well (the closer to the prior is kept).
         two_fold_margin: angle (rad) from the prior to the rejected candidate
             minus that to the kept one; NaN if not two-fold.
+        second_minimum_gap: the cost of the fit's second local minimum on the sphere
+            above that of ``direction`` (module docstring); ``inf`` if there is none,
+            0 when two-fold.
+        second_minimum_angle: angle (rad) from ``direction`` to that minimum; NaN
+            if there is none.
     """
 
     direction: Array
     covariance: Array
     two_fold: bool
     two_fold_margin: float
+    second_minimum_gap: float = np.inf
+    second_minimum_angle: float = np.nan
+
+    @property
+    def ambiguous(self) -> bool:
+        """Whether a second minimum fits the cones within :data:`AMBIGUITY_GATE` (or the
+        fit is two-fold)."""
+        return self.two_fold or self.second_minimum_gap <= AMBIGUITY_GATE
 
     @property
     def variance(self) -> float:
@@ -118,15 +148,62 @@ def estimate_boresight(
         t = brentq(excess, t_small, t_large, xtol=1e-300, rtol=4 * np.finfo(float).eps)
         b = v @ (gamma / (shift + t))
         b /= np.linalg.norm(b)
-        two_fold, margin = False, np.nan
-    else:
-        # Hard case: minimum-norm fit in the span of the larger eigenvectors,
-        # completed to unit length along v_min in the two possible directions.
-        base = v[:, 1:] @ (gamma[1:] / shift[1:])
-        tau = np.sqrt(max(1.0 - float(base @ base), 0.0))
-        candidates = [base + tau * v[:, 0], base - tau * v[:, 0]]
-        angles = [_angle(candidate, prior) for candidate in candidates]
-        keep = int(np.argmin(angles))
-        b = candidates[keep] / np.linalg.norm(candidates[keep])
-        two_fold, margin = True, abs(angles[1] - angles[0])
-    return BoresightEstimate(b, _tangent_covariance(b, los, w), two_fold, margin)
+        second = _second_minimum(shift, v, gamma)
+        if second is None:
+            return BoresightEstimate(b, _tangent_covariance(b, los, w), False, np.nan)
+        gap = max(_fit_cost(second, m_matrix, g) - _fit_cost(b, m_matrix, g), 0.0)
+        covariance = _tangent_covariance(b, los, w)
+        return BoresightEstimate(b, covariance, False, np.nan, gap, _angle(second, b))
+    # Hard case: minimum-norm fit in the span of the larger eigenvectors,
+    # completed to unit length along v_min in the two possible directions.
+    base = v[:, 1:] @ (gamma[1:] / shift[1:])
+    tau = np.sqrt(max(1.0 - float(base @ base), 0.0))
+    candidates = [base + tau * v[:, 0], base - tau * v[:, 0]]
+    angles = [_angle(candidate, prior) for candidate in candidates]
+    keep = int(np.argmin(angles))
+    b = candidates[keep] / np.linalg.norm(candidates[keep])
+    margin = abs(angles[1] - angles[0])
+    return BoresightEstimate(
+        b, _tangent_covariance(b, los, w), True, margin, 0.0, _angle(*candidates)
+    )
+
+
+def _fit_cost(b: Array, m_matrix: Array, g: Array) -> float:
+    """``J(b) - c^T W c = b^T M b - 2 g^T b``: the fit's cost up to a constant."""
+    return float(b @ m_matrix @ b - 2.0 * g @ b)
+
+
+def _second_minimum(shift: Array, v: Array, gamma: Array) -> Array | None:
+    """The fit's local minimiser on the sphere that is not global (module docstring), or
+    ``None``.
+
+    Stationary points are ``b(t) = V (gamma / (shift + t))`` with ``|b(t)| = 1``; the
+    second minimum has ``t`` in ``(-shift_1, 0)`` (``lambda`` between the two smallest
+    eigenvalues), where ``|b(t)|^2`` is convex with poles at both ends: it exists only
+    if that minimum of ``|b(t)|^2`` is below 1, and is the root whose Hessian on the
+    tangent plane, ``T^T (M - lambda I) T``, is positive definite.
+    """
+    width = float(shift[1])
+    if not width > 0.0 or gamma[0] == 0.0 or gamma[1] == 0.0:
+        return None
+
+    def excess(t: float) -> float:
+        return float(np.sum((gamma / (shift + t)) ** 2) - 1.0)
+
+    edge = 1e-12 * width
+    lowest = minimize_scalar(
+        excess, bounds=(-width + edge, -edge), method="bounded", options={"xatol": edge}
+    )
+    if not lowest.fun < 0.0:
+        return None
+    for low, high in ((-width + edge, lowest.x), (lowest.x, -edge)):
+        if excess(low) * excess(high) >= 0.0:
+            continue
+        t = brentq(excess, low, high, xtol=1e-300, rtol=4 * np.finfo(float).eps)
+        b = v @ (gamma / (shift + t))
+        b /= np.linalg.norm(b)
+        tangent = _tangent_basis(b)
+        hessian = tangent.T @ (v * (shift + t)) @ v.T @ tangent
+        if np.linalg.eigvalsh(hessian)[0] > 0.0:
+            return b
+    return None

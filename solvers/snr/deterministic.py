@@ -33,6 +33,19 @@ Earth-pointing attitude, body = orbit frame) and counted in the diagnostics
 the two candidates' angles to the prior, small when the choice is fragile).
 Noise-free, with three or more observations on each antenna whose lines of
 sight are not coplanar, the method is exact.
+
+Ambiguous cones.  With few observations (three, nearly coplanar lines of sight)
+an antenna's cones can be fitted almost as well by a second boresight direction
+tens of degrees away (:mod:`attopt.solvers.snr.boresight`, Second minimum); the
+linearised covariance then describes only the basin that noise made global.  An
+antenna whose second minimum lies within
+:data:`~attopt.solvers.snr.boresight.AMBIGUITY_GATE` of the global one (in the
+fit's chi-square units) is not used, as if it had too few observations, and
+counted in ``ambiguous_antennas`` (``second_minimum_gap`` is the smallest such
+gap): without two determined antennas the epoch is flagged
+(:class:`~attopt.formulations.errors.UnobservableError`) rather than reported
+with an error many times its sigma.  The exact two-fold case of two
+observations keeps the prior's choice above.
 """
 
 from __future__ import annotations
@@ -66,6 +79,8 @@ DETERMINISTIC_DIAGNOSTICS = (
     "antennas_used",
     "two_fold_antennas",
     "two_fold_margin_deg",
+    "ambiguous_antennas",
+    "second_minimum_gap",
     "clamped_cos",
     "wahba_loss",
     "quest_iterations",
@@ -118,21 +133,33 @@ def two_step(
         estimates.append(estimate)
         clamped += n_clamped
     two_fold = [e.two_fold_margin for e in estimates if e.two_fold]
+    ambiguous = np.array([e.ambiguous and not e.two_fold for e in estimates], dtype=bool)
+    gaps = [e.second_minimum_gap for e, a in zip(estimates, ambiguous, strict=True) if a]
     diagnostics.update(
-        antennas_used=float(len(estimates)),
+        antennas_used=float(len(estimates) - ambiguous.sum()),
         two_fold_antennas=float(len(two_fold)),
         two_fold_margin_deg=float(np.degrees(min(two_fold))) if two_fold else np.nan,
+        ambiguous_antennas=float(ambiguous.sum()),
+        second_minimum_gap=min(gaps) if gaps else np.nan,
         clamped_cos=float(clamped),
     )
     variance = np.array([e.variance for e in estimates])
-    usable = np.isfinite(variance) & (variance > 0)
+    usable = np.isfinite(variance) & (variance > 0) & ~ambiguous
     if usable.sum() < 2:
         return TwoStep(
             None,
             np.full((3, 3), np.nan),
             diagnostics,
             "fewer than two antennas with a determined boresight direction "
-            f"(variances {variance.tolist()} rad^2)",
+            f"(variances {variance.tolist()} rad^2"
+            + "".join(
+                f"; antenna {int(a)}: a second direction "
+                f"{np.degrees(e.second_minimum_angle):.0f} deg away fits its cones "
+                f"within a cost of {e.second_minimum_gap:.1f}"
+                for a, e, amb in zip(antennas, estimates, ambiguous, strict=True)
+                if amb
+            )
+            + ")",
             UnobservableError,
             tuple(estimates),
         )
