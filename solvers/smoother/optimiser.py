@@ -26,7 +26,9 @@ and GTSAM never calls back.  Each iteration of :func:`levenberg_marquardt` on a
    relative_tolerance * cost`` (converged); or when a rejected step changes
    the cost by less than the rounding level (converged); otherwise after
    ``max_iterations`` trial steps or when ``lambda`` exceeds ``max_lambda``
-   (not converged, with the reason in ``message``).
+   (not converged, with the reason in ``message``).  ``max_iterations = 0``
+   evaluates the cost at the start and returns it, not converged (the posterior
+   bound's smoother at the truth, :mod:`attopt.solvers.bounds`).
 
 Parameters: :class:`~attopt.solvers.smoother.optimiser_params.LevenbergMarquardtParams`.
 """
@@ -135,7 +137,7 @@ def levenberg_marquardt(
     iterations = evaluations = rebuilds = 0
     history: list[Step] = []
     converged, message = False, f"maximum iterations ({params.max_iterations}) reached"
-    while True:
+    while params.max_iterations > 0:  # none asked for: the start evaluated, not linearised
         linear = problem.linearize(values)
         tolerance = params.absolute_tolerance + params.relative_tolerance * abs(cost)
         system = damped(linear, n, problem.n_offsets, lam)
