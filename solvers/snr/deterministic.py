@@ -150,16 +150,15 @@ def two_step(
             None,
             np.full((3, 3), np.nan),
             diagnostics,
-            "fewer than two antennas with a determined boresight direction "
-            f"(variances {variance.tolist()} rad^2"
+            "fewer than two antennas with a determined boresight direction: "
+            f"variances {np.array2string(variance, precision=3)} rad^2"
             + "".join(
-                f"; antenna {int(a)}: a second direction "
+                f"; antenna {int(a)}, a second direction "
                 f"{np.degrees(e.second_minimum_angle):.0f} deg away fits its cones "
                 f"within a cost of {e.second_minimum_gap:.1f}"
                 for a, e, amb in zip(antennas, estimates, ambiguous, strict=True)
                 if amb
-            )
-            + ")",
+            ),
             UnobservableError,
             tuple(estimates),
         )
