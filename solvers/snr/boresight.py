@@ -87,9 +87,9 @@ class BoresightEstimate:
 
     @property
     def ambiguous(self) -> bool:
-        """Whether a second minimum fits the cones within :data:`AMBIGUITY_GATE` (or the
-        fit is two-fold)."""
-        return self.two_fold or self.second_minimum_gap <= AMBIGUITY_GATE
+        """Whether a second local minimum fits the cones within :data:`AMBIGUITY_GATE`
+        (not the exact two-fold case, whose choice the prior makes)."""
+        return not self.two_fold and self.second_minimum_gap <= AMBIGUITY_GATE
 
     @property
     def variance(self) -> float:

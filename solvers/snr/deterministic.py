@@ -133,7 +133,7 @@ def two_step(
         estimates.append(estimate)
         clamped += n_clamped
     two_fold = [e.two_fold_margin for e in estimates if e.two_fold]
-    ambiguous = np.array([e.ambiguous and not e.two_fold for e in estimates], dtype=bool)
+    ambiguous = np.array([e.ambiguous for e in estimates], dtype=bool)
     gaps = [e.second_minimum_gap for e, a in zip(estimates, ambiguous, strict=True) if a]
     diagnostics.update(
         antennas_used=float(len(estimates) - ambiguous.sum()),
