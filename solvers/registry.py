@@ -102,13 +102,15 @@ INTEGRITY_TESTS: dict[str, Any] = {
     "consistency_window": 0,
     "mismatch_false_alarm": 0.0,
     "max_variance_factor": 1.0,
+    "gyro_exclusions": 0,
 }
 """The options fields of the integrity tests and the value that turns each off: the
 filters' windowed innovation test
 (:func:`attopt.solvers.sequential.inconsistent_epochs`), the snapshot estimators'
-residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`) and the batch
+residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`), the batch
 smoother's covariance scaling by the whole-pass variance factor, which acts on that
-test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`)."""
+test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`), and its gyro
+fault test (:func:`attopt.solvers.smoother.batch.gyro_fault`)."""
 
 
 def integrity_tests_off(found: Any) -> dict[str, Any]:

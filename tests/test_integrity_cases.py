@@ -47,9 +47,9 @@ def test_the_filters_and_the_snapshot_least_squares_have_their_tests_switchable(
         assert "consistency_window" in str(integrity_tests_off(ESTIMATORS[name]))
     for name in ("deterministic", "nlse", "nlp", "nlp_truncated"):
         assert integrity_tests_off(ESTIMATORS[name]) == {"mismatch_false_alarm": 0.0}
-    for name in ("fg_batch", "fg_batch_offsets"):  # the window and the variance factor
+    for name in ("fg_batch", "fg_batch_offsets"):  # the window, variance factor, gyro test
         table = integrity_tests_off(ESTIMATORS[name])
-        assert table["max_variance_factor"] == 1.0
+        assert table["max_variance_factor"] == 1.0 and table["gyro_exclusions"] == 0
         assert table["filter"] == {"consistency_window": 0}
 
 

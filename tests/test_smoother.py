@@ -507,25 +507,32 @@ def test_outlier_is_gated_once_and_counted():
 
 def test_huber_loss_downweights_an_ungated_outlier():
     """With gating off, the turned vector pulls the least-squares estimate at epoch
-    10 by degrees, and the residual test flags the window of epochs it is in; the
-    Huber loss (switchable, reported) down-weights it and keeps the error near the
-    clean solution's."""
+    10 by degrees, and the residual test flags the window of epochs it is in; with the
+    gyro fault test on, the gyro factors on either side of epoch 10 fail instead, are
+    removed, and epoch 10 is split off: only it and the next are flagged and the pass is
+    consistent.  The Huber loss (switchable, reported) down-weights the vector and
+    keeps the error near the clean solution's."""
     run, prior, clean = _outlier_pass()
+    ungated = FilterOptions(gate_probability=1.0)
     tested = solve_with(
-        BatchSmoother(filter=FilterOptions(gate_probability=1.0)),
-        run.gyro,
-        run.t,
-        run.measurements,
-        prior,
+        BatchSmoother(filter=ungated, gyro_exclusions=0), run.gyro, run.t, run.measurements, prior
     )
     # the residual test sees the outlier; the least-squares fit spreads it over the pass
     window = FilterOptions().consistency_window
     assert not tested.valid[10 : 10 + window].any()
     assert all(r.startswith("inconsistent: the residuals") for r in tested.reason[10:20])
     assert not tested.report.consistent and tested.report.chi_square_p < 1e-6
+    split = solve_with(BatchSmoother(filter=ungated), run.gyro, run.t, run.measurements, prior)
+    assert np.flatnonzero(~split.valid).tolist() == [10, 11]
+    assert all(r.startswith("inconsistent: the gyro up to") for r in split.reason[10:12])
+    assert split.report.excluded_intervals == 2 and split.report.consistent
     no_gate = FilterOptions(gate_probability=1.0, consistency_window=0)  # accuracy alone
-    plain = solve_with(BatchSmoother(filter=no_gate), run.gyro, run.t, run.measurements, prior)
-    huber = BatchSmoother(graph=GraphOptions(huber_threshold=1.345), filter=no_gate)
+    plain = solve_with(
+        BatchSmoother(filter=no_gate, gyro_exclusions=0), run.gyro, run.t, run.measurements, prior
+    )
+    huber = BatchSmoother(
+        graph=GraphOptions(huber_threshold=1.345), filter=no_gate, gyro_exclusions=0
+    )
     robust = solve_with(huber, run.gyro, run.t, run.measurements, prior)
     reference = solve_with(BatchSmoother(), run.gyro, run.t, clean, prior)
     assert reference.valid.all() and reference.report.consistent

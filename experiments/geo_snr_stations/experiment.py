@@ -69,10 +69,11 @@ carrying the estimated boresight to body ``+z``
 this convention, not an estimate, and only its boresight ``q_est^-1 z`` means something
 (the filters' yaw is an estimate, weakly observed). ``q_true_*``: the true attitude.
 ``nees``: against the method's own covariance, over the two axes across the boresight
-for ``cone``, ``lsq`` and the one-step solvers (whose yaw variance is infinite:
-:func:`~attopt.experiments.geo_snr_stations.pointing.pointing_nees`, 2 dof) and over
-the three axes for the filters and smoothers (3 dof), ``nees_dof`` saying which (the
-integrity statistic tests each row against its own quantile). ``n_stations``: the stations whose
+(:func:`~attopt.experiments.geo_snr_stations.pointing.pointing_nees`, ``nees_dof`` 2),
+the axes the SNRs see, for every method: the one-step solvers' yaw variance is
+infinite, and the filters' yaw comes from the prior carried by the assumed rates, which
+no SNR checks; the filters' ``yaw_nees`` (``yaw_err^2 / sigma_z^2``, 1 dof) is kept for
+the record. ``n_stations``: the stations whose
 SNRs the method was given at the epoch. ``usque_detect`` rows add the windowed test's
 ``p_value``, ``detected`` at the epochs it restarted and ``since_manoeuvre_s`` (time
 from the manoeuvre's start, negative before it); the filters' rows their normalised

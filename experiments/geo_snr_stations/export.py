@@ -38,10 +38,11 @@ trial's filter tracks bit for bit when run with the trial's options
 a 90 deg validity limit).  ``attopt estimate`` runs the registry's defaults (an
 innovation gate, a 30 deg validity limit), so its ``usque`` and ``mekf`` rows are the
 trial's only where neither acts, typically without the manoeuvre (``sigma``,
-``nees``, ``valid`` and the quaternions bit for bit; ``err_z_deg`` is the trial's
+``valid`` and the quaternions bit for bit; ``err_z_deg`` is the trial's
 ``yaw_err_deg``, while the trial's ``err_{x,y}_deg`` are pointing errors,
 :func:`attopt.experiments.metrics.pointing_error`, not ``attopt estimate``'s attitude
-errors).  Not reproduced: ``usque_detect`` (manoeuvre detection and restarts,
+errors, and the trial's ``nees`` is over the two axes across the boresight, not
+``attopt estimate``'s three).  Not reproduced: ``usque_detect`` (manoeuvre detection and restarts,
 :mod:`attopt.solvers.geo.manoeuvre`, not a registry estimator), the smoothers the trial
 starts from it (``fg_batch``, ``fg_batch_offsets``), ``cone`` (``geo_cone`` on these
 stations, but its rows are a boresight's: pointing error, two-axis NEES, Cramer-Rao

@@ -5,9 +5,13 @@ the rows (columns: :mod:`attopt.experiments.geo_snr_stations.experiment`).  The
 snapshot boresight estimators (:func:`boresight_pointing`) and the one-step SNR solvers
 started from the least-squares boresight (:func:`one_step_pointing`) carry the
 Cramer-Rao bound of their stations' SNRs (:func:`crb_sigma`); the filters and smoothers
-(:func:`track_pointing`) their own sigma.  NEES (:func:`pointing_nees`,
-:func:`attitude_nees`): the boresight methods' covariance has an infinite variance about
-the boresight, so theirs is over the two axes across it; the filters' is over the three.
+(:func:`track_pointing`) their own sigma.  NEES (:func:`pointing_nees`): over the two
+axes across the boresight for every method, the axes the SNRs see.  The boresight
+methods' variance about the boresight is infinite; the filters' and smoothers' yaw
+rests on the prior carried by the assumed rates, which no SNR can check (after an
+unmodelled manoeuvre it is wrong by the manoeuvre's angle with no sign in the
+innovations, ``docs/geo.md``), so its normalised error is kept apart
+(``yaw_nees``, 1 dof), for the record.
 """
 
 from __future__ import annotations
@@ -29,22 +33,20 @@ from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.geo.boresight import check_elevations, estimated_boresight
 from attopt.solvers.registry import estimator
-from attopt.solvers.results import Track, attitude_errors, normalised_errors, observable_sigma
+from attopt.solvers.results import Track, observable_sigma
 from attopt.solvers.snr.one_step import OneStepSolver
 
 Array = NDArray[np.float64]
 POINTING_DOF = 2
 """Degrees of freedom of a boresight's NEES (:func:`pointing_nees`)."""
-ATTITUDE_DOF = 3
-"""Degrees of freedom of an attitude's NEES (:func:`attitude_nees`)."""
 
 
 @dataclass
 class Pointing:
     """One method's estimates at the ``N`` epochs: boresights ``(N, 3)`` (ECI), the stored
     quaternions ``(N, 4)`` (ECI -> body, scipy scalar-last), ``sigma`` ``(N, 3)`` rad,
-    ``bound`` ``(N, 2)`` rad, the filters' ``yaw`` error (rad), ``nees`` over ``nees_dof``
-    axes (:data:`POINTING_DOF` across the boresight, 3 for an attitude), the stations whose
+    ``bound`` ``(N, 2)`` rad, the filters' ``yaw`` error (rad), ``nees`` over the
+    :data:`POINTING_DOF` axes across the boresight, the stations whose
     SNRs the method was given (``n_stations``), the ``reason`` of each epoch without
     estimate and extra columns."""
 
@@ -57,7 +59,6 @@ class Pointing:
     n_stations: NDArray[np.intp]
     reason: NDArray[np.object_]
     extra: dict[str, Array] = field(default_factory=dict)
-    nees_dof: int = POINTING_DOF
 
     @classmethod
     def empty(cls, n_stations: NDArray[np.intp]) -> Pointing:
@@ -101,7 +102,7 @@ class Pointing:
             "reason": np.where(valid, "", self.reason),
             **attitude_columns(np.where(valid[:, None], self.quaternion, np.nan), scenario.truth),
             "nees": np.where(valid, self.nees, np.nan),
-            "nees_dof": self.nees_dof,
+            "nees_dof": POINTING_DOF,
             "n_stations": self.n_stations,
             **self.extra,
         }
@@ -129,13 +130,6 @@ def pointing_nees(estimate: Rotation, truth: Rotation, covariance: Array) -> Arr
     error = pointing_error(estimate, truth.inv().apply(BORESIGHT_BODY))[:, :2]
     block = np.asarray(covariance, dtype=float)[:, :2, :2]
     return np.einsum("ei,eij,ej->e", error, np.linalg.inv(block), error)
-
-
-def attitude_nees(track: Track, truth: Rotation) -> Array:
-    """``(N,)`` NEES of a filter's or smoother's attitude error (its three axes; the
-    rows' ``nees`` of the other experiments, :func:`~attopt.solvers.results.normalised_errors`)."""
-    quaternion = np.where(track.valid[:, None], track.quaternion, np.nan)
-    return normalised_errors(attitude_errors(quaternion, truth), track.covariance)
 
 
 def epoch_snapshot(
@@ -235,7 +229,8 @@ def track_pointing(
     scenario: GeoSnrScenario, track: Track, n_stations: NDArray[np.intp]
 ) -> Pointing:
     """A filter's or smoother's track as boresights, its own sigma (also the bound), its
-    yaw error, its three-axis NEES and its normalised innovations (``nis``)."""
+    yaw error with its normalised square (``yaw_nees``), its pointing NEES and its
+    normalised innovations (``nis``)."""
     pointing = Pointing.empty(n_stations)
     valid = track.valid
     pointing.reason[~valid] = track.reason[~valid]
@@ -244,9 +239,11 @@ def track_pointing(
         pointing.boresight[valid] = estimate.inv().apply(BORESIGHT_BODY)
         pointing.quaternion[valid] = track.quaternion[valid]
         pointing.yaw[valid] = (estimate * scenario.truth[valid].inv()).as_rotvec()[:, 2]
+        pointing.nees[valid] = pointing_nees(
+            estimate, scenario.truth[valid], track.covariance[valid]
+        )
     pointing.sigma = observable_sigma(track.covariance)
     pointing.bound = pointing.sigma[:, :2]
-    pointing.nees = attitude_nees(track, scenario.truth)
-    pointing.nees_dof = ATTITUDE_DOF
+    pointing.extra["yaw_nees"] = (pointing.yaw / pointing.sigma[:, 2]) ** 2
     pointing.extra["nis"] = track.loss
     return pointing

@@ -27,7 +27,13 @@ solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed over the last
 ``filter.consistency_window`` epochs with measurements and tested against chi-square
 with their rows (conservative: the smoothed estimate absorbs part of each epoch's
 noise, so the residuals' expected sum is below the rows) when the optimiser
-converged.  The whole pass is tested too (:func:`pass_chi_square`), and the report
+converged.  So is each gyro interval (:func:`gyro_fault`): the worst AHRS factor whose
+residual at the solution fails chi-square(3) is removed, the pass split there as at a
+long gyro gap and the problem re-solved, one interval at a time up to
+``gyro_exclusions``, and the epoch after each removed interval is flagged
+``inconsistent`` (:class:`~attopt.formulations.errors.ModelMismatchError`; counted in
+the report's ``excluded_intervals``).  The whole pass is tested too
+(:func:`pass_chi_square`), and the report
 says whether it is consistent.  A pass that fails it by a variance factor ``s = 2 J /
 dof`` of at most ``max_variance_factor`` has its noise model taken as ``s R`` (the a
 posteriori variance factor of least-squares adjustment, Teunissen 2003 ch. 4): every
@@ -51,7 +57,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from attopt.formulations.errors import ConvergenceError
+from attopt.formulations.errors import ConvergenceError, ModelMismatchError
 from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.filters.common import FilterOptions, GyroPass, repair_covariance
 from attopt.solvers.results import Track
@@ -83,7 +89,8 @@ class SmootherReport:
     ``chi_square_p`` are the whole-pass test of :func:`pass_chi_square`;
     ``consistent`` is ``chi_square_p >= filter.consistency_false_alarm``;
     ``variance_factor`` the factor the covariances were scaled by
-    (:func:`variance_factor`; 1: none).
+    (:func:`variance_factor`; 1: none); ``excluded_intervals`` the gyro intervals
+    removed after failing their test (:func:`gyro_fault`).
     """
 
     converged: bool
@@ -106,6 +113,7 @@ class SmootherReport:
     chi_square_p: float
     consistent: bool
     variance_factor: float
+    excluded_intervals: int
     initialisation: str
     seconds: dict[str, float]
     quaternion: Array
@@ -151,6 +159,30 @@ def pass_chi_square(problem: SmootherProblem, final_cost: float) -> tuple[float,
     statistic = 2.0 * final_cost
     p = float(chi_square_tail(statistic, dof)) if dof > 0 else np.nan
     return statistic, int(dof), p
+
+
+def gyro_fault(
+    problem: SmootherProblem, outcome: LevenbergMarquardtResult, false_alarm: float
+) -> int | None:
+    """The interval whose gyro the converged solution contradicts most, if any: the
+    largest AHRS-factor whitened squared residual ``r``
+    (:meth:`SmootherProblem.gyro_chi_square`) with ``P(chi2(3) >= r) < false_alarm``;
+    ``None`` when there is none or the optimiser did not converge.
+
+    At the minimum each residual is below chi-square(3) (the solution absorbs part of
+    it), so the test is conservative for a consistent gyro.  An unmodelled rotation (a
+    manoeuvre the record misses, a stuck or saturated axis) is spread by the least
+    squares over its neighbours through the bias, so only the worst interval is taken
+    at a time, and the problem re-solved without it, until none fails (the exclusion of
+    fault detection and exclusion, one measurement at a time as in RAIM).
+    """
+    if not outcome.converged:
+        return None
+    statistic = problem.gyro_chi_square(outcome.values)
+    if not np.isfinite(statistic).any():
+        return None
+    worst = int(np.nanargmax(statistic))
+    return worst if chi_square_tail(statistic[worst], 3) < false_alarm else None
 
 
 def variance_factor(
@@ -243,6 +275,12 @@ def batch_track(
     record.diagnostics["covariance_repairs"] = repairs
     if marginals.error:
         record.reason[:] = marginals.error
+    excluded = np.flatnonzero(problem.excluded) + 1 - offset
+    excluded = excluded[(excluded >= 0) & (record.reason[excluded] == "")]
+    record.reason[excluded] = (
+        f"inconsistent: the gyro up to this epoch contradicts the measurements around it "
+        f"(chi-square test at {rules.consistency_false_alarm:g}); the pass is split there"
+    )
     # no lost-track rule, and a long gyro gap splits the pass instead of being flagged
     result = filter_result(
         method,
@@ -256,6 +294,7 @@ def batch_track(
         inputs.t,
         tested="residuals at the solution of the last {window} epochs with measurements",
     )
+    result.error[excluded] = ModelMismatchError
     message = outcome.message
     if not outcome.converged:
         message = (
@@ -285,6 +324,7 @@ def batch_track(
         chi_square_p=p,
         consistent=bool(p >= rules.consistency_false_alarm),
         variance_factor=factor,
+        excluded_intervals=int(problem.excluded.sum()),
         initialisation=label,
         seconds=clock.split(),
         quaternion=record.quaternion.copy(),

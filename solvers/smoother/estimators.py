@@ -48,7 +48,7 @@ from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import FilterOptions, gyro_pass
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import TrackMonitor, run_filter
-from attopt.solvers.smoother.batch import Stopwatch, batch_track
+from attopt.solvers.smoother.batch import Stopwatch, batch_track, gyro_fault
 from attopt.solvers.smoother.gyro_factors import check_model
 from attopt.solvers.smoother.initial import (
     INITIALISATIONS,
@@ -58,9 +58,9 @@ from attopt.solvers.smoother.initial import (
 )
 from attopt.solvers.smoother.marginals import MarginalOptions, problem_marginals
 from attopt.solvers.smoother.online import OnlineFilter, OnlineOptions
-from attopt.solvers.smoother.optimiser import levenberg_marquardt
+from attopt.solvers.smoother.optimiser import LevenbergMarquardtResult, levenberg_marquardt
 from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
-from attopt.solvers.smoother.problem import GraphOptions, build_problem
+from attopt.solvers.smoother.problem import GraphOptions, SmootherProblem, build_problem
 
 OFFSET_PRIOR_SIGMA_DB = 2.0
 """Default prior standard deviation (dB) of a transmitter's power offset."""
@@ -133,6 +133,11 @@ class BatchSmoother(PassEstimator):
         initialisation: the start when none is given
             (:func:`~attopt.solvers.smoother.initial.filter_start`): ``"mekf"``
             (the MEKF and its RTS pass) or ``"gyro"`` (gyro integration from the prior).
+        gyro_exclusions: most gyro intervals removed by the fault test at the solution
+            (:func:`~attopt.solvers.smoother.batch.gyro_fault`): the interval whose AHRS
+            factor fails its chi-square test worst is removed, the pass split there and
+            the problem re-solved, one at a time; the epochs after them are flagged
+            ``inconsistent`` (an unmodelled manoeuvre, a stuck gyro axis); 0 turns it off.
         max_variance_factor: a pass whose residuals fail the whole-pass chi-square
             test by at most this variance factor has its covariances scaled by it
             (:func:`~attopt.solvers.smoother.batch.variance_factor`; 1: never).  Measured
@@ -147,6 +152,7 @@ class BatchSmoother(PassEstimator):
     filter: FilterOptions = field(default_factory=FilterOptions)
     flag_unconverged: bool = True
     initialisation: str = "mekf"
+    gyro_exclusions: int = 10
     max_variance_factor: float = 2.0
 
     name: ClassVar[str] = "fg_batch"
@@ -162,12 +168,22 @@ class BatchSmoother(PassEstimator):
             raise ValueError(f"initialisation must be one of {INITIALISATIONS}")
         if self.noise_updates < 0:
             raise ValueError("need noise_updates >= 0")
+        if self.gyro_exclusions < 0:
+            raise ValueError("need gyro_exclusions >= 0")
         if not self.max_variance_factor >= 1.0:
             raise ValueError("need max_variance_factor >= 1")
 
     def modelled_offsets(self) -> float | None:
         """Prior sigma of the transmitter offsets the problem models (``None``: none)."""
         return None
+
+    def _resolved(
+        self, problem: SmootherProblem, outcome: LevenbergMarquardtResult
+    ) -> LevenbergMarquardtResult:
+        """Levenberg-Marquardt on ``problem`` (changed since) from ``outcome``'s estimate."""
+        return levenberg_marquardt(
+            problem, outcome.attitudes, outcome.bias, outcome.offsets, self.optimiser
+        )
 
     def solve(self, pass_: Pass, initial: Track | None = None) -> Track:
         """The smoothed track with its :class:`~attopt.solvers.smoother.batch.SmootherReport`
@@ -203,11 +219,13 @@ class BatchSmoother(PassEstimator):
             )
             for _ in range(self.noise_updates):
                 problem.update_noise(outcome.attitudes, outcome.offsets)
-                outcome = outcome.then(
-                    levenberg_marquardt(
-                        problem, outcome.attitudes, outcome.bias, outcome.offsets, self.optimiser
-                    )
-                )
+                outcome = outcome.then(self._resolved(problem, outcome))
+            for _ in range(self.gyro_exclusions):
+                fault = gyro_fault(problem, outcome, self.filter.consistency_false_alarm)
+                if fault is None:
+                    break
+                problem.exclude_interval(fault, outcome.attitudes)
+                outcome = outcome.then(self._resolved(problem, outcome))
         with clock.stage("marginals"):
             marginals = problem_marginals(problem, outcome.values, self.marginals)
         return batch_track(

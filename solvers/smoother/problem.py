@@ -18,9 +18,10 @@ Factors (:func:`build_problem`):
   first node and rebuilt about the current estimate when ``|b - b_hat| T`` exceeds
   ``GraphOptions.bias_relinearise_angle`` (:meth:`SmootherProblem.bias_drifted`);
 * segment priors: a node after a gyro gap longer than ``max_gyro_gap_s`` (no AHRS
-  factor spans it) gets a diffuse attitude prior, ``sigma = UNDETERMINED_SIGMA``
-  about its initial estimate, which keeps a node without measurements from making
-  the system singular;
+  factor spans it), or after an interval whose gyro the solution contradicts
+  (:meth:`SmootherProblem.exclude_interval`), gets a diffuse attitude prior, ``sigma
+  = UNDETERMINED_SIGMA`` about its estimate then, which keeps a node without
+  measurements from making the system singular;
 * offset priors ``N(0, offset_sigma^2)`` on the transmitter offsets;
 * one stacked measurement factor per epoch
   (:mod:`attopt.solvers.smoother.measurement_factors`: SNRs of Liu et al. 2023 eq. 10
@@ -39,7 +40,7 @@ marginals, :mod:`attopt.solvers.smoother.marginals`, work on).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import gtsam
 import numpy as np
@@ -136,6 +137,8 @@ class SmootherProblem:
     offset_ids: NDArray[np.intp]
     ordering: gtsam.Ordering | None
     """Elimination ordering (with offsets: :func:`time_ordering`; else GTSAM's default)."""
+    excluded: NDArray[np.bool_]
+    """``(n - 1,)`` intervals whose AHRS factor :meth:`exclude_interval` removed."""
     graph: gtsam.NonlinearFactorGraph | None = None
     bias_hat: Array | None = None
 
@@ -161,6 +164,29 @@ class SmootherProblem:
         """Whether some interval's ``|b - b_hat| T`` exceeds ``bias_relinearise_angle``."""
         drift = np.max(np.abs(bias[:-1] - self.bias_hat[:-1]), axis=1) * self.intervals.duration
         return bool(drift.size and drift.max() > self.options.bias_relinearise_angle)
+
+    def gyro_chi_square(self, values: gtsam.Values) -> Array:
+        """``(n - 1,)`` each interval's AHRS factor residual at ``values``, whitened and
+        squared (``2 x`` its cost: chi-square with 3 degrees of freedom when the gyro and
+        its noise model are right); NaN where no AHRS factor spans the interval."""
+        statistic = np.full(self.n - 1, np.nan)
+        for i in range(self.graph.size()):
+            factor = self.graph.at(i)
+            if isinstance(factor, gtsam.AHRSFactor):
+                statistic[gtsam.Symbol(factor.keys()[0]).index()] = 2.0 * factor.error(values)
+        return statistic
+
+    def exclude_interval(self, i: int, attitudes: Rotation) -> None:
+        """Remove the AHRS factor of interval ``i`` (nodes ``i``, ``i + 1``): the pass is
+        split there as at a long gyro gap, the new segment starting with a diffuse prior
+        about ``attitudes[i + 1]`` (its node's estimate); the bias walk still links the
+        segments."""
+        self.excluded[i] = True
+        broken = self.intervals.broken.copy()
+        broken[i] = True
+        self.intervals = replace(self.intervals, broken=broken)
+        self.fixed.add(segment_prior(i + 1, attitudes[i + 1]))
+        self.relinearise_bias(self.bias_hat)
 
     def measurement_cost(self) -> float:
         return sum(f.current_cost(self.huber_threshold) for f in self.factors)
@@ -231,9 +257,8 @@ def build_problem(
 
     intervals = gyro_intervals(nodes, inputs.gyro, inputs.model, rules.max_gyro_gap_s)
     fixed = offset_priors(offset_ids.size, offset_sigma)
-    diffuse = gtsam.noiseModel.Isotropic.Sigma(3, UNDETERMINED_SIGMA)
     for k in intervals.segment_starts:
-        fixed.add(gtsam.PriorFactorRot3(attitude_key(int(k)), rot3(start.attitudes[k]), diffuse))
+        fixed.add(segment_prior(int(k), start.attitudes[k]))
     problem = SmootherProblem(
         prior=JointPrior(inputs.prior),
         factors=factors,
@@ -246,9 +271,17 @@ def build_problem(
         counts=counts,
         offset_ids=offset_ids,
         ordering=time_ordering(nodes.size, factors, offset_ids.size) if offset_ids.size else None,
+        excluded=np.zeros(nodes.size - 1, dtype=bool),
     )
     problem.relinearise_bias(start.bias)
     return problem
+
+
+def segment_prior(k: int, attitude: Rotation) -> gtsam.PriorFactorRot3:
+    """The diffuse prior (``sigma = UNDETERMINED_SIGMA``) on node ``k``'s attitude about
+    ``attitude``, which starts a segment (module docstring)."""
+    diffuse = gtsam.noiseModel.Isotropic.Sigma(3, UNDETERMINED_SIGMA)
+    return gtsam.PriorFactorRot3(attitude_key(k), rot3(attitude), diffuse)
 
 
 def offset_priors(n_offsets: int, sigma: float | None) -> gtsam.NonlinearFactorGraph:
