@@ -110,7 +110,7 @@ filters' windowed innovation test
 residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`), the batch
 smoother's covariance scaling by the whole-pass variance factor, which acts on that
 test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`), and its gyro
-fault test (:func:`attopt.solvers.smoother.batch.gyro_fault`)."""
+fault test (:func:`attopt.solvers.smoother.batch.gyro_faults`)."""
 
 
 def integrity_tests_off(found: Any) -> dict[str, Any]:

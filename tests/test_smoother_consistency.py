@@ -121,3 +121,25 @@ def test_a_gyro_fault_is_excluded_and_its_epoch_flagged():
     spread = solve_with(blind, gyro, run.t, run.measurements, prior)
     assert spread.report.excluded_intervals == 0 and not spread.report.consistent
     assert np.mean(~spread.valid) > 0.3
+
+
+def test_a_gyro_fault_behind_gated_epochs_excludes_the_whole_stretch():
+    """The same missed turn with the gate on: the MEKF start follows the gyro, gates the
+    vectors of epochs 61-69 and restarts at 70, so the smoother has no measurement
+    between epochs 60 and 70 and the least squares share the turn equally among those
+    ten intervals.  Nothing locates it there, and an epoch left hanging from a faulty
+    interval would take its word: all ten are removed, epochs 61-70 are flagged, and no
+    valid epoch is beyond the quantile (before: the gyro bridge was reported valid with
+    NEES above 3e5)."""
+    rng = np.random.default_rng(7)
+    run = simulate_pass(rng, duration=120.0)
+    prior = drawn_prior(rng, run, prior_covariance(np.radians(1.0)))
+    rates = run.gyro.rates.copy()
+    rates[(run.gyro.t[:-1] >= 60.0) & (run.gyro.t[:-1] < 61.0)] += np.radians([10.0, 0.0, 0.0])
+    gyro = dataclasses.replace(run.gyro, rates=rates)
+    result = solve_with(BatchSmoother(), gyro, run.t, run.measurements, prior)
+    assert np.flatnonzero(result.diagnostics["n_gated"]).tolist() == list(range(61, 70))
+    assert np.flatnonzero(~result.valid).tolist() == list(range(61, 71))
+    assert all(r.startswith("inconsistent: the gyro up to") for r in result.reason[61:71])
+    assert result.report.excluded_intervals == 10 and result.report.consistent
+    assert np.max(_nees(result, run)) < QUANTILE

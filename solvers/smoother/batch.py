@@ -27,10 +27,11 @@ solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed over the last
 ``filter.consistency_window`` epochs with measurements and tested against chi-square
 with their rows (conservative: the smoothed estimate absorbs part of each epoch's
 noise, so the residuals' expected sum is below the rows) when the optimiser
-converged.  So is each gyro interval (:func:`gyro_fault`): the worst AHRS factor whose
-residual at the solution fails chi-square(3) is removed, the pass split there as at a
-long gyro gap and the problem re-solved, one interval at a time up to
-``gyro_exclusions``, and the epoch after each removed interval is flagged
+converged.  So is each gyro interval (:func:`gyro_faults`): the worst AHRS factor whose
+residual at the solution fails chi-square(3) is removed (with the rest of its stretch
+between nodes with measurements), the
+pass split there as at a long gyro gap and the problem re-solved, up to
+``gyro_exclusions`` rounds, and the epoch after each removed interval is flagged
 ``inconsistent`` (:class:`~attopt.formulations.errors.ModelMismatchError`; counted in
 the report's ``excluded_intervals``).  The whole pass is tested too
 (:func:`pass_chi_square`), and the report
@@ -90,7 +91,7 @@ class SmootherReport:
     ``consistent`` is ``chi_square_p >= filter.consistency_false_alarm``;
     ``variance_factor`` the factor the covariances were scaled by
     (:func:`variance_factor`; 1: none); ``excluded_intervals`` the gyro intervals
-    removed after failing their test (:func:`gyro_fault`).
+    removed after failing their test (:func:`gyro_faults`).
     """
 
     converged: bool
@@ -161,28 +162,40 @@ def pass_chi_square(problem: SmootherProblem, final_cost: float) -> tuple[float,
     return statistic, int(dof), p
 
 
-def gyro_fault(
+def gyro_faults(
     problem: SmootherProblem, outcome: LevenbergMarquardtResult, false_alarm: float
-) -> int | None:
-    """The interval whose gyro the converged solution contradicts most, if any: the
-    largest AHRS-factor whitened squared residual ``r``
-    (:meth:`SmootherProblem.gyro_chi_square`) with ``P(chi2(3) >= r) < false_alarm``;
-    ``None`` when there is none or the optimiser did not converge.
+) -> NDArray[np.intp]:
+    """The intervals whose gyro the converged solution contradicts most: the interval
+    with the largest AHRS-factor whitened squared residual ``r``
+    (:meth:`SmootherProblem.gyro_chi_square`) if ``P(chi2(3) >= r) < false_alarm``, with
+    every interval between the nearest nodes with measurements on either side of it;
+    none when no interval fails or the optimiser did not converge.
 
     At the minimum each residual is below chi-square(3) (the solution absorbs part of
     it), so the test is conservative for a consistent gyro.  An unmodelled rotation (a
-    manoeuvre the record misses, a stuck or saturated axis) is spread by the least
-    squares over its neighbours through the bias, so only the worst interval is taken
-    at a time, and the problem re-solved without it, until none fails (the exclusion of
-    fault detection and exclusion, one measurement at a time as in RAIM).
+    manoeuvre the record misses, a saturated axis) is spread by the least squares over
+    its neighbours through the bias, so only the worst interval is taken at a time, and
+    the problem re-solved without it, until none fails (the exclusion of fault
+    detection and exclusion, one measurement at a time as in RAIM).  Between nodes
+    without measurements (gated, missing) nothing locates the fault, and a node left
+    hanging from a faulty interval would take its word: every interval of that stretch
+    is taken.
     """
+    none = np.zeros(0, dtype=np.intp)
     if not outcome.converged:
-        return None
+        return none
     statistic = problem.gyro_chi_square(outcome.values)
     if not np.isfinite(statistic).any():
-        return None
+        return none
     worst = int(np.nanargmax(statistic))
-    return worst if chi_square_tail(statistic[worst], 3) < false_alarm else None
+    if not chi_square_tail(statistic[worst], 3) < false_alarm:
+        return none
+    measured = np.flatnonzero(problem.measured_nodes())
+    before, after = measured[measured <= worst], measured[measured > worst]
+    first = before[-1] if before.size else 0
+    stop = after[0] if after.size else problem.n - 1
+    stretch = np.arange(first, stop)
+    return stretch[~problem.intervals.broken[stretch]]
 
 
 def variance_factor(

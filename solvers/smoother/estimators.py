@@ -48,7 +48,7 @@ from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import FilterOptions, gyro_pass
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import TrackMonitor, run_filter
-from attopt.solvers.smoother.batch import Stopwatch, batch_track, gyro_fault
+from attopt.solvers.smoother.batch import Stopwatch, batch_track, gyro_faults
 from attopt.solvers.smoother.gyro_factors import check_model
 from attopt.solvers.smoother.initial import (
     INITIALISATIONS,
@@ -133,11 +133,13 @@ class BatchSmoother(PassEstimator):
         initialisation: the start when none is given
             (:func:`~attopt.solvers.smoother.initial.filter_start`): ``"mekf"``
             (the MEKF and its RTS pass) or ``"gyro"`` (gyro integration from the prior).
-        gyro_exclusions: most gyro intervals removed by the fault test at the solution
-            (:func:`~attopt.solvers.smoother.batch.gyro_fault`): the interval whose AHRS
-            factor fails its chi-square test worst is removed, the pass split there and
-            the problem re-solved, one at a time; the epochs after them are flagged
-            ``inconsistent`` (an unmodelled manoeuvre, a stuck gyro axis); 0 turns it off.
+        gyro_exclusions: rounds of the gyro fault test at the solution
+            (:func:`~attopt.solvers.smoother.batch.gyro_faults`): the interval whose AHRS
+            factor fails its chi-square test worst is removed (with the rest of its stretch
+            between nodes with measurements),
+            the pass split there and the problem re-solved; the epochs after the removed
+            intervals are flagged ``inconsistent`` (a manoeuvre or turn the gyro record
+            misses); 0 turns it off.
         max_variance_factor: a pass whose residuals fail the whole-pass chi-square
             test by at most this variance factor has its covariances scaled by it
             (:func:`~attopt.solvers.smoother.batch.variance_factor`; 1: never).  Measured
@@ -221,10 +223,10 @@ class BatchSmoother(PassEstimator):
                 problem.update_noise(outcome.attitudes, outcome.offsets)
                 outcome = outcome.then(self._resolved(problem, outcome))
             for _ in range(self.gyro_exclusions):
-                fault = gyro_fault(problem, outcome, self.filter.consistency_false_alarm)
-                if fault is None:
+                faults = gyro_faults(problem, outcome, self.filter.consistency_false_alarm)
+                if not faults.size:
                     break
-                problem.exclude_interval(fault, outcome.attitudes)
+                problem.exclude_intervals(faults, outcome.attitudes)
                 outcome = outcome.then(self._resolved(problem, outcome))
         with clock.stage("marginals"):
             marginals = problem_marginals(problem, outcome.values, self.marginals)

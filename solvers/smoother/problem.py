@@ -19,7 +19,7 @@ Factors (:func:`build_problem`):
   ``GraphOptions.bias_relinearise_angle`` (:meth:`SmootherProblem.bias_drifted`);
 * segment priors: a node after a gyro gap longer than ``max_gyro_gap_s`` (no AHRS
   factor spans it), or after an interval whose gyro the solution contradicts
-  (:meth:`SmootherProblem.exclude_interval`), gets a diffuse attitude prior, ``sigma
+  (:meth:`SmootherProblem.exclude_intervals`), gets a diffuse attitude prior, ``sigma
   = UNDETERMINED_SIGMA`` about its estimate then, which keeps a node without
   measurements from making the system singular;
 * offset priors ``N(0, offset_sigma^2)`` on the transmitter offsets;
@@ -138,7 +138,7 @@ class SmootherProblem:
     ordering: gtsam.Ordering | None
     """Elimination ordering (with offsets: :func:`time_ordering`; else GTSAM's default)."""
     excluded: NDArray[np.bool_]
-    """``(n - 1,)`` intervals whose AHRS factor :meth:`exclude_interval` removed."""
+    """``(n - 1,)`` intervals whose AHRS factor :meth:`exclude_intervals` removed."""
     graph: gtsam.NonlinearFactorGraph | None = None
     bias_hat: Array | None = None
 
@@ -176,16 +176,23 @@ class SmootherProblem:
                 statistic[gtsam.Symbol(factor.keys()[0]).index()] = 2.0 * factor.error(values)
         return statistic
 
-    def exclude_interval(self, i: int, attitudes: Rotation) -> None:
-        """Remove the AHRS factor of interval ``i`` (nodes ``i``, ``i + 1``): the pass is
-        split there as at a long gyro gap, the new segment starting with a diffuse prior
-        about ``attitudes[i + 1]`` (its node's estimate); the bias walk still links the
-        segments."""
-        self.excluded[i] = True
+    def measured_nodes(self) -> NDArray[np.bool_]:
+        """``(n,)`` the nodes with a measurement factor that has rows."""
+        measured = np.zeros(self.n, dtype=bool)
+        measured[[f.node for f in self.factors if f.rows.size]] = True
+        return measured
+
+    def exclude_intervals(self, intervals: NDArray[np.intp], attitudes: Rotation) -> None:
+        """Remove the AHRS factors of ``intervals`` (interval ``i`` joins nodes ``i`` and
+        ``i + 1``): the pass is split there as at a long gyro gap, each new segment
+        starting with a diffuse prior about ``attitudes[i + 1]`` (its node's estimate);
+        the bias walk still links the segments."""
+        self.excluded[intervals] = True
         broken = self.intervals.broken.copy()
-        broken[i] = True
+        broken[intervals] = True
         self.intervals = replace(self.intervals, broken=broken)
-        self.fixed.add(segment_prior(i + 1, attitudes[i + 1]))
+        for i in intervals:
+            self.fixed.add(segment_prior(int(i) + 1, attitudes[int(i) + 1]))
         self.relinearise_bias(self.bias_hat)
 
     def measurement_cost(self) -> float:
