@@ -54,6 +54,7 @@ from attopt.formulations.attitude_measurement import (
 )
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import FilterOptions, GyroPass, PreparedGyro
+from attopt.solvers.sequential import rejected_epoch
 from attopt.solvers.smoother.conventions import (
     Array,
     attitude_key,
@@ -177,9 +178,14 @@ class SmootherProblem:
         return statistic
 
     def measured_nodes(self) -> NDArray[np.bool_]:
-        """``(n,)`` the nodes with a measurement factor that has rows."""
+        """``(n,)`` the nodes whose epoch has used rows and is not a rejected epoch (at
+        least as many blocks gated as used, :func:`~attopt.solvers.sequential.rejected_epoch`:
+        with two vectors, one gated leaves the rotation about the other unmeasured)."""
         measured = np.zeros(self.n, dtype=bool)
-        measured[[f.node for f in self.factors if f.rows.size]] = True
+        gated = self.counts["n_gated"]
+        for f in self.factors:
+            k = f.node - self.offset
+            measured[f.node] = f.rows.size > 0 and not rejected_epoch(gated[k], f.counts["n_used"])
         return measured
 
     def exclude_intervals(self, intervals: NDArray[np.intp], attitudes: Rotation) -> None:
