@@ -106,11 +106,12 @@ AT_THE_TRUTH = BatchSmoother(
     marginals=MarginalOptions(cross_covariance=False),
     filter=FilterOptions(gate_probability=1.0, consistency_window=0),
     flag_unconverged=False,
+    gyro_exclusions=0,
     max_variance_factor=1.0,
 )
 """The batch smoother that :func:`posterior_bound` evaluates at the truth: no step, no
-gate, no consistency test nor variance factor (the bound does not depend on the noise
-drawn), per-key marginals."""
+gate, no consistency test, variance factor nor gyro fault test (the bound does not depend
+on the noise drawn), per-key marginals."""
 
 
 def posterior_bound(pass_: Pass, truth_attitude: Rotation, truth_bias: ArrayLike) -> Array:

@@ -28,10 +28,10 @@ solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed over the last
 with their rows (conservative: the smoothed estimate absorbs part of each epoch's
 noise, so the residuals' expected sum is below the rows) when the optimiser
 converged.  So is each gyro interval (:func:`gyro_faults`): the worst AHRS factor whose
-residual at the solution fails chi-square(3) is removed (with the rest of its stretch
-between nodes with measurements), the
-pass split there as at a long gyro gap and the problem re-solved, up to
-``gyro_exclusions`` rounds, and the epoch after each removed interval is flagged
+residual at the solution fails chi-square(3) is removed, with the rest of its stretch
+between measured nodes, the pass split there as at a long gyro gap and the problem
+re-solved, up to ``gyro_exclusions`` rounds, and the epoch after each removed interval
+is flagged
 ``inconsistent`` (:class:`~attopt.formulations.errors.ModelMismatchError`; counted in
 the report's ``excluded_intervals``).  The whole pass is tested too
 (:func:`pass_chi_square`), and the report
@@ -168,7 +168,8 @@ def gyro_faults(
     """The intervals whose gyro the converged solution contradicts most: the interval
     with the largest AHRS-factor whitened squared residual ``r``
     (:meth:`SmootherProblem.gyro_chi_square`) if ``P(chi2(3) >= r) < false_alarm``, with
-    every interval between the nearest nodes with measurements on either side of it;
+    every interval between the nearest measured nodes
+    (:meth:`SmootherProblem.measured_nodes`) on either side of it;
     none when no interval fails or the optimiser did not converge.
 
     At the minimum each residual is below chi-square(3) (the solution absorbs part of

@@ -135,11 +135,10 @@ class BatchSmoother(PassEstimator):
             (the MEKF and its RTS pass) or ``"gyro"`` (gyro integration from the prior).
         gyro_exclusions: rounds of the gyro fault test at the solution
             (:func:`~attopt.solvers.smoother.batch.gyro_faults`): the interval whose AHRS
-            factor fails its chi-square test worst is removed (with the rest of its stretch
-            between nodes with measurements),
-            the pass split there and the problem re-solved; the epochs after the removed
-            intervals are flagged ``inconsistent`` (a manoeuvre or turn the gyro record
-            misses); 0 turns it off.
+            factor fails its chi-square test worst is removed, with the rest of its
+            stretch between measured nodes, the pass split there and the problem
+            re-solved; the epochs after the removed intervals are flagged
+            ``inconsistent`` (a manoeuvre or turn the gyro record misses); 0 turns it off.
         max_variance_factor: a pass whose residuals fail the whole-pass chi-square
             test by at most this variance factor has its covariances scaled by it
             (:func:`~attopt.solvers.smoother.batch.variance_factor`; 1: never).  Measured
