@@ -632,6 +632,22 @@ def test_a_spoofed_position_moves_the_estimates_not_the_truth():
     assert moved.any()
 
 
+def test_the_sky_tables_change_what_the_receiver_hears():
+    """``[traffic.transmitters]``, ``[receiver.collisions]`` with ``squitter_rate_hz`` and
+    ``[receiver.chain]`` each change the counts or the bias of the received messages
+    (``tests/test_adsb_sky.py`` tests each part)."""
+    paper = epoch_rows()
+    transmitters = epoch_rows({"traffic": {"transmitters": {"class1_share": 0.5}}})
+    assert transmitters["n_obs"].sum() < paper["n_obs"].sum()
+    # 1000 messages/s from each of about 90 aircraft per channel, none captured: every
+    # message overlaps another
+    jammed = {"capture_margin_db": 60.0}
+    crowded = {"traffic": {"squitter_rate_hz": 1000.0}, "receiver": {"collisions": jammed}}
+    assert epoch_rows(crowded)["n_obs"].sum() < 0.1 * paper["n_obs"].sum()
+    chain = epoch_rows({"receiver": {"chain": {"table_messages": 200, "calibrated": False}}})
+    assert (chain["snr_bias_db"] > 0.0).all() and (paper["snr_bias_db"].abs() < 0.4).all()
+
+
 def test_every_parameter_is_overridden_by_a_test():
     """The key paths of the defaults, a circular orbit and the other gain patterns and gyro
     tables, each set to another value by one of the tests above."""

@@ -75,11 +75,33 @@ def _sphere_mean(gain) -> float:
 @given(seed=st.integers(0, 2**32 - 1))
 def test_ideal_gives_zero_offsets_for_every_row(seed: int) -> None:
     rng = np.random.default_rng(seed)
-    transmitters = draw_transmitters(AircraftTransmitterParameters(ideal=True), 30, HORIZON_S, rng)
+    transmitters = draw_transmitters(
+        AircraftTransmitterParameters(power="nominal", antenna="isotropic"), 30, HORIZON_S, rng
+    )
     offsets = _offsets(transmitters, leo_rows(30, 5, HORIZON_S, rng))
     assert offsets.shape == (150,)
     assert np.array_equal(offsets, np.zeros(150))
     assert np.array_equal(transmitters.power_offset_db, np.zeros(30))
+
+
+def test_each_part_switches_alone_and_keeps_the_other_parts_draws() -> None:
+    """``power = "nominal"`` leaves the antenna gain as the whole offset, ``antenna =
+    "isotropic"`` the power's; the real sky's offset is their sum, from the same draws."""
+    rows = _rows(40, 6, 3)
+
+    def offsets(**switches) -> np.ndarray:
+        parameters = AircraftTransmitterParameters(**switches)
+        return _offsets(
+            draw_transmitters(parameters, 40, HORIZON_S, np.random.default_rng(8)), rows
+        )
+
+    real = offsets()
+    power_only = offsets(antenna="isotropic")
+    antenna_only = offsets(power="nominal")
+    real_power = draw_transmitters(DEFAULT, 40, HORIZON_S, np.random.default_rng(8))
+    np.testing.assert_array_equal(power_only, real_power.power_offset_db[rows.aircraft])
+    np.testing.assert_allclose(power_only + antenna_only, real, rtol=0, atol=1e-12)
+    assert np.std(power_only) > 0.5 and np.std(antenna_only) > 1.0
 
 
 def test_each_class_power_lies_in_its_range_after_cable_loss() -> None:

@@ -131,6 +131,13 @@ from attopt.experiments.adsb_snr.filters import (
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.report import MANY_OBSERVATIONS, report
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observation_chunks
+from attopt.experiments.adsb_snr.sky import (
+    Reception,
+    gaussian_measurements,
+    reception,
+    transmitter_offsets,
+)
+from attopt.experiments.adsb_snr.sky import Rows as SkyRows
 from attopt.experiments.adsb_snr.spoofing import Decoded, spoofed_decoding
 from attopt.experiments.config.components import Gyro, GyroFault, gyro_model
 from attopt.experiments.estimators import (
@@ -359,6 +366,12 @@ class NoisyPass:
     epochs: list[SnrEpoch]
     true_snr_db: NDArray[np.float64]
     decoded: Decoded
+    sigma_db: NDArray[np.float64] | float
+    """The standard deviation the receiver states, per row or one for all."""
+    threshold_db: float
+    """The epochs' reception threshold (``-inf`` for the receiver chain)."""
+    messages: NDArray[np.int64] | None = None
+    """Messages decoded per row, when messages are modelled (:mod:`.sky`)."""
 
 
 def power_offsets(
@@ -382,18 +395,22 @@ def simulate_pass(
     offset_db: NDArray[np.float64] | None = None,
     fault_db: NDArray[np.float64] | None = None,
     decoded: Decoded | None = None,
+    reception: Reception | None = None,
 ) -> NoisyPass:
     """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
     3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset, ``fault_db``
     ``(M,)`` an error of the receiver's measurement (``receiver.outliers``), ``decoded``
     replaces the true lines of sight and powers of the epochs by what the receiver
-    decodes (``traffic.spoofer``)."""
+    decodes (``traffic.spoofer``), ``reception`` replaces the Gaussian receiver by
+    message collisions and the receiver chain (:mod:`attopt.experiments.adsb_snr.sky`)."""
     decoded = Decoded.of(scenario) if decoded is None else decoded
     true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
-    measured = true_snr + sigma_db * rng.standard_normal(true_snr.size)
-    if fault_db is not None:
-        measured = measured + fault_db
-    received = measured >= threshold_db
+    if reception is None:
+        reports = gaussian_measurements(true_snr, rng, sigma_db, threshold_db, fault_db)
+    else:
+        reports = reception.measure(true_snr, rng, sigma_db, threshold_db, fault_db)
+    measured, received = reports.measured_db, reports.received
+    row_sigma = np.broadcast_to(reports.sigma_db, true_snr.shape)
     rows = np.flatnonzero(received)
     bounds = np.searchsorted(scenario.epoch_index[rows], np.arange(scenario.n_epochs + 1))
     epochs = [
@@ -405,13 +422,22 @@ def simulate_pass(
             p0_dbw=decoded.p0_dbw[take],
             noise_dbw=scenario.link_budget.noise_power_dbw,
             pattern=scenario.pattern,
-            sigma_db=sigma_db,
-            threshold_db=threshold_db,
+            sigma_db=reports.sigma_db if np.ndim(reports.sigma_db) == 0 else row_sigma[take],
+            threshold_db=reports.threshold_db,
             transmitter=scenario.aircraft[take],
         )
         for take in (rows[start:stop] for start, stop in itertools.pairwise(bounds))
     ]
-    return NoisyPass(measured, received, epochs, true_snr, decoded)
+    return NoisyPass(
+        measured,
+        received,
+        epochs,
+        true_snr,
+        decoded,
+        reports.sigma_db,
+        reports.threshold_db,
+        reports.messages,
+    )
 
 
 def _per_epoch_sum(values: np.ndarray, epoch: np.ndarray, n_epochs: int) -> np.ndarray:
@@ -429,7 +455,10 @@ def antenna_count_columns(n_antennas: int) -> list[str]:
 
 
 def epoch_statistics(
-    scenario: NoiseFreePass, noisy: NoisyPass, sigma_db: float, threshold_db: float
+    scenario: NoiseFreePass,
+    noisy: NoisyPass,
+    sigma_db: float | NDArray[np.float64],
+    threshold_db: float,
 ) -> dict[str, np.ndarray]:
     """Per-epoch columns shared by every method: time, counts, selection bias, CRBs at the
     truth and the rotation the received messages cannot see (module docstring).
@@ -457,8 +486,9 @@ def epoch_statistics(
     )
     n_obs = counts.sum(axis=1)
     jac = scenario.jacobian[kept]
-    outer = jac[:, :, None] * jac[:, None, :] / sigma_db**2
-    factor = truncated_information_factor(noisy.true_snr_db[kept], sigma_db, threshold_db)
+    sigma = np.broadcast_to(np.asarray(sigma_db, dtype=float), kept.shape)[kept]
+    outer = jac[:, :, None] * jac[:, None, :] / sigma[:, None, None] ** 2
+    factor = truncated_information_factor(noisy.true_snr_db[kept], sigma, threshold_db)
     fishers = {
         "bound": _per_epoch_sum(outer, epoch, n),
         "bound_truncated": _per_epoch_sum(factor[:, None, None] * outer, epoch, n),
@@ -585,6 +615,12 @@ def trial_pass(
     scenario = noise_free_pass(parameters)
     receiver = parameters.receiver
     offsets = power_offsets(scenario, seed, parameters.traffic.power_offset_sigma_db)
+    rows = SkyRows(
+        scenario.epoch_index, scenario.antenna, scenario.aircraft, scenario.aircraft_ecef_km
+    )
+    eirp = transmitter_offsets(parameters, rows, seed)
+    if eirp is not None:
+        offsets = offsets + eirp
     burst = receiver.outliers
     fault = None if burst is None else burst.offsets(scenario.t[scenario.epoch_index])
     noisy = simulate_pass(
@@ -595,6 +631,7 @@ def trial_pass(
         offsets,
         fault,
         spoofed_decoding(parameters, scenario, seed),
+        reception(parameters, rows, scenario.true_snr_db + offsets, seed),
     )
     return scenario, noisy
 
@@ -604,8 +641,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     filter in ``setting["filters"]`` (:mod:`attopt.experiments.adsb_snr.filters`)."""
     parameters = AdsbSnrParameters.model_validate(setting)
     scenario, noisy = trial_pass(parameters, seed)
-    receiver = parameters.receiver
-    common = epoch_statistics(scenario, noisy, receiver.snr_sigma_db, receiver.threshold_db)
+    common = epoch_statistics(scenario, noisy, noisy.sigma_db, noisy.threshold_db)
     snapshots = snr_snapshots(noisy.epochs)
     frames, solutions = [], {}
     for label, solver in method_estimators(parameters).items():

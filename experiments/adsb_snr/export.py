@@ -81,7 +81,6 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
     decoded = noisy.decoded
     _, times = window_times(parameters.start_utc, parameters.duration_s, parameters.step_s)
     to_eci = ecef_to_eci_matrices(times)[epoch]
-    receiver = parameters.receiver
     antennas = tuple(
         AntennaEntry(
             name=f"antenna{i + 1}",
@@ -98,7 +97,7 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
         gyro=gyro_entry(inputs.model),
         snr=SnrEntry(
             noise_dbw=scenario.link_budget.noise_power_dbw,
-            threshold_db=receiver.threshold_db,
+            threshold_db=noisy.threshold_db,
             truncated=parameters.filter_snr_model == "truncated",
             antennas=antennas,
         ),
@@ -115,7 +114,7 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
             los=decoded.los_orbit[received],
             p0_dbw=decoded.p0_dbw[received],
             snr_db=noisy.measured_db[received],
-            sigma_db=receiver.snr_sigma_db,
+            sigma_db=np.broadcast_to(noisy.sigma_db, noisy.received.shape)[received],
         ),
         "position": position_table(geometry.t, geometry.position_eci_km, geometry.velocity_eci_kms),
         "truth": truth_table(scenario.t, scenario.truth),

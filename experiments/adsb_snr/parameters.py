@@ -29,6 +29,9 @@ others.
   broadcast a wrong position (:class:`Spoofer`).
 * Receiver (:class:`ReceiverParameters`): the noise power, the polarisation loss, the SNR
   noise and the reception threshold (``P_SNR^req = 6 dB``, sec. 5.1).
+* The real sky (:mod:`attopt.experiments.adsb_snr.sky`): ``[traffic.transmitters]``,
+  ``[receiver.collisions]`` and ``[receiver.chain]`` replace the paper's ideal
+  transmitters, collision-free channel and Gaussian receiver; absent by default.
 """
 
 from __future__ import annotations
@@ -48,6 +51,9 @@ from attopt.experiments.config.components import (
     TleOrbit,
     UtcTime,
 )
+from attopt.experiments.environment.adsb_collisions import SQUITTER_RATE_HZ, CaptureRule
+from attopt.experiments.environment.adsb_receiver import ReceiverChain
+from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.environment.orbit import checked_window
 from attopt.experiments.environment.traffic import TrafficModel
 from attopt.formulations.conventions import attitude_from_euler321
@@ -210,6 +216,18 @@ class TrafficParameters(Parameters):
     spoofer: Spoofer | None = Field(
         None, description="Aircraft broadcasting a wrong position (a fault); none by default."
     )
+    transmitters: AircraftTransmitterParameters | None = Field(
+        None,
+        description=(
+            "Real transponder powers and aircraft antennas (docs/adsb_transmitters.md); "
+            "none: every aircraft the nominal power through 0 dBi (Liu et al. 2023)."
+        ),
+    )
+    squitter_rate_hz: float = Field(
+        SQUITTER_RATE_HZ,
+        gt=0.0,
+        description="Messages per second of each aircraft (with collisions or the receiver chain).",
+    )
 
     @model_validator(mode="after")
     def _bands(self) -> TrafficParameters:
@@ -273,6 +291,20 @@ class ReceiverParameters(Parameters):
     outliers: OutlierBurst | None = Field(
         None, description="A burst of outlier SNRs (a receiver fault); none by default."
     )
+    collisions: CaptureRule | None = Field(
+        None,
+        description=(
+            "Overlapping messages resolved by power capture (docs/adsb_collisions.md); "
+            "none: messages never collide (Liu et al. 2023)."
+        ),
+    )
+    chain: ReceiverChain | None = Field(
+        None,
+        description=(
+            "The simulated 1090ES receiver chain's reception and SNR error "
+            "(docs/adsb_receiver.md); none: Gaussian SNR noise and the hard threshold."
+        ),
+    )
 
     def link_budget(self, traffic: TrafficParameters) -> LinkBudget:
         """The link from ``traffic``'s transmitters to this receiver."""
@@ -284,6 +316,10 @@ class ReceiverParameters(Parameters):
             noise_temperature_k=self.noise_temperature_k,
             bandwidth_hz=self.bandwidth_hz,
         )
+
+
+SKY_FIELDS = {"traffic": {"transmitters", "squitter_rate_hz"}, "receiver": {"collisions", "chain"}}
+"""The tables of the real sky (:mod:`attopt.experiments.adsb_snr.sky`), by table."""
 
 
 class AdsbScenario(Parameters):
@@ -333,5 +369,9 @@ class AdsbScenario(Parameters):
 
     def key(self) -> str:
         """The scenario's fields as JSON (of a subclass too: its other fields left out), the
-        cache key of the simulated geometry; ``AdsbScenario.model_validate_json`` reads it."""
-        return self.model_dump_json(include=set(AdsbScenario.model_fields))
+        cache key of the simulated geometry; ``AdsbScenario.model_validate_json`` reads it.
+
+        The sky's tables (:data:`SKY_FIELDS`) are left out too: they act on each trial's
+        measurements, not on the geometry or the noise-free SNRs, so every sky shares the
+        scenario's cached geometry."""
+        return self.model_dump_json(include=set(AdsbScenario.model_fields), exclude=SKY_FIELDS)

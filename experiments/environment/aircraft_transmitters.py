@@ -3,7 +3,9 @@
 Liu et al. 2023 give every aircraft the same known power through an isotropic antenna
 (:class:`attopt.formulations.link_budget.LinkBudget`: 250 W, 0 dBi).  This module
 replaces that by a model of real installations; ``docs/adsb_transmitters.md`` gives
-the equations, the defaults and their sources.
+the equations, the defaults and their sources.  Two switches keep the paper's ideal
+as an option, each part alone: ``power = "nominal"`` (every aircraft the nominal
+power) and ``antenna = "isotropic"`` (0 dBi, no bank, no diversity).
 
 Power.  ICAO Annex 10 Vol. IV (3.1.2.10.2) bounds the peak pulse power at the
 antenna end of the transmission line: at least 21 dBW (125 W) for aircraft that fly
@@ -99,11 +101,18 @@ class AircraftTransmitterParameters(Parameters):
     """The aircraft's 1090ES transmitters (module docstring; defaults in
     ``docs/adsb_transmitters.md``)."""
 
-    ideal: bool = Field(
-        False,
+    power: Literal["classes", "nominal"] = Field(
+        "classes",
         description=(
-            "Liu et al. 2023: every aircraft the nominal power, isotropic antenna, no bank "
-            "(every offset 0)."
+            "Transmit power: drawn from the Annex 10 classes with cable loss, or every "
+            "aircraft the nominal power (Liu et al. 2023)."
+        ),
+    )
+    antenna: Literal["monopole", "isotropic"] = Field(
+        "monopole",
+        description=(
+            "Aircraft antennas: monopoles with bank and diversity, or isotropic 0 dBi "
+            "(Liu et al. 2023)."
         ),
     )
     nominal_power_w: float = Field(
@@ -184,6 +193,12 @@ class AircraftTransmitterParameters(Parameters):
     def nominal_power_dbw(self) -> float:
         return 10.0 * math.log10(self.nominal_power_w)
 
+    @property
+    def ideal(self) -> bool:
+        """Liu et al. 2023's transmitters: the nominal power through isotropic antennas
+        (every offset exactly 0)."""
+        return self.power == "nominal" and self.antenna == "isotropic"
+
 
 @dataclass(frozen=True)
 class BankSchedule:
@@ -206,7 +221,7 @@ class BankSchedule:
     ) -> BankSchedule:
         """Turns from the stationary alternating process of ``parameters``."""
         duration = parameters.turn_duration_s
-        fraction = 0.0 if parameters.ideal else parameters.turn_time_fraction
+        fraction = 0.0 if parameters.antenna == "isotropic" else parameters.turn_time_fraction
         unused = horizon_s + duration + 1.0
         if fraction == 0.0:
             return cls(
@@ -278,18 +293,10 @@ def draw_transmitters(
     rng: np.random.Generator,
 ) -> Transmitters:
     """Each aircraft's class, power, cable loss, antennas and turns over ``[0, horizon_s]``
-    (module docstring); ``parameters.ideal``: the nominal power, no diversity, no turns."""
+    (module docstring).  Every draw is made whatever the switches, so that switching one
+    part leaves the others' draws unchanged; ``power = "nominal"``: the nominal power and
+    no cable loss; ``antenna = "isotropic"``: no diversity and no turns."""
     p = parameters
-    if p.ideal:
-        return Transmitters(
-            parameters=p,
-            class1=np.ones(n_aircraft, dtype=bool),
-            output_power_dbw=np.full(n_aircraft, p.nominal_power_dbw),
-            cable_loss_db=np.zeros(n_aircraft),
-            diversity=np.zeros(n_aircraft, dtype=bool),
-            alternation_bit=np.zeros(n_aircraft, dtype=int),
-            bank=BankSchedule.draw(n_aircraft, horizon_s, p, rng),
-        )
     class1 = rng.random(n_aircraft) < p.class1_share
     output = np.where(
         class1,
@@ -300,6 +307,10 @@ def draw_transmitters(
     diversity_share = np.where(class1, p.diversity_share_class1, p.diversity_share_class2)
     diversity = rng.random(n_aircraft) < diversity_share
     bit = rng.integers(0, 2, n_aircraft)
+    if p.power == "nominal":
+        output, cable = np.full(n_aircraft, p.nominal_power_dbw), np.zeros(n_aircraft)
+    if p.antenna == "isotropic":
+        diversity = np.zeros(n_aircraft, dtype=bool)
     return Transmitters(
         parameters=p,
         class1=class1,
@@ -431,13 +442,16 @@ def transmitter_offset_db(
 
     Rows ``(M,)``: aircraft index, time (s, in the bank schedule's horizon), aircraft
     ECEF position (km), flight direction (ECEF; :func:`flight_direction_ecef`) and unit
-    line of sight aircraft -> satellite (ECEF).  Zeros if ``parameters.ideal``.
+    line of sight aircraft -> satellite (ECEF).  With ``antenna = "isotropic"`` the gain
+    is the nominal 0 dBi (the offset is the power's alone); zeros if ``parameters.ideal``.
     """
     p = transmitters.parameters
     index = np.atleast_1d(np.asarray(aircraft))
     t = np.broadcast_to(np.asarray(t_s, dtype=float), index.shape)
     if p.ideal:
         return np.zeros(index.shape)
+    if p.antenna == "isotropic":
+        return transmitters.power_offset_db[index]
     attitude = body_attitude(
         local_vertical(np.atleast_2d(position_ecef_km)),
         heading_ecef,

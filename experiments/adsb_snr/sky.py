@@ -1,0 +1,285 @@
+"""The ADS-B sky of a trial: aircraft transmitters, message collisions, the receiver chain.
+
+Liu et al. 2023 (sec. 5.1) simulate an ideal sky: every aircraft transmits the same
+known power through an isotropic antenna, each visible aircraft gives one SNR per
+epoch with Gaussian noise of ``receiver.snr_sigma_db``, received iff that SNR reaches
+``receiver.threshold_db``, and messages never collide.  Three tables of the scenario
+replace the parts of that ideal, each alone or together (``docs/adsb_sky.md``); a
+scenario without them is the paper's, draw for draw.
+
+* ``[traffic.transmitters]``
+  (:class:`~attopt.experiments.environment.aircraft_transmitters.AircraftTransmitterParameters`):
+  each aircraft's transponder power and its antennas' gain toward the satellite, with
+  bank and diversity, add each row's EIRP offset to its true SNR
+  (:func:`transmitter_offsets`).  The receiver does not know them.
+* ``[receiver.collisions]``
+  (:class:`~attopt.experiments.environment.adsb_collisions.CaptureRule`): every
+  aircraft sends ``Poisson(traffic.squitter_rate_hz * step_s)`` messages in an epoch,
+  and on each antenna's channel the messages of the aircraft visible in that antenna
+  overlap and are resolved by the capture rule, at their true SNRs
+  (:func:`message_counts`).  An aircraft is heard in an epoch only if one of its
+  messages survives.
+* ``[receiver.chain]``
+  (:class:`~attopt.experiments.environment.adsb_receiver.ReceiverChain`): each
+  surviving message is decoded (its parity checks) with the probability the simulated
+  1090ES receiver measured at its SNR, and the receiver reports, for each aircraft it
+  decoded in the epoch, the mean of its messages' estimated SNRs
+  (:func:`chain_measurements`).  That replaces the Gaussian noise and the hard
+  threshold: the epochs' ``threshold_db`` is then ``-inf``, and each row's
+  ``sigma_db`` is the table's standard deviation over the square root of the number
+  of messages averaged.
+
+SNRs.  The link budget's SNR is the signal over the noise in ``receiver.bandwidth_hz``
+(Liu et al. 2023 eq. 2); the chain's table is indexed by the SNR per complex sample at
+its sample rate ``fs``, ``10 lg(bandwidth / fs)`` dB higher for the same noise density
+(``docs/adsb_receiver.md``).  The chain looks its table up at that per-sample SNR and
+reports in the link budget's units, so the conversion is a known constant, not an
+error.
+
+Random streams: the transmitters, the messages and the chain draw from their own child
+streams of the trial's seed (:data:`TRANSMITTER_STREAM`, :data:`MESSAGE_STREAM`,
+:data:`CHAIN_STREAM`); the paper's Gaussian SNR noise keeps ``default_rng(seed)``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from attopt.experiments.adsb_snr.parameters import AdsbScenario
+from attopt.experiments.adsb_snr.scenario import build_adsb_geometry
+from attopt.experiments.environment.adsb_collisions import CaptureRule, simulate_messages
+from attopt.experiments.environment.adsb_receiver import ReceiverChain, error_table, table_at
+from attopt.experiments.environment.aircraft_transmitters import (
+    draw_transmitters,
+    flight_direction_ecef,
+    transmitter_offset_db,
+)
+from attopt.experiments.simulation import child_rng
+
+TRANSMITTER_STREAM = 101
+"""Child stream of the trial's seed that draws the aircraft transmitters."""
+MESSAGE_STREAM = 102
+"""Child stream that draws the messages' times (and their collisions)."""
+CHAIN_STREAM = 103
+"""Child stream that draws the receiver chain's decoding and SNR errors."""
+_SLOPE_STEP_DB = 0.5
+"""Step of the bias table's slope in the calibrated chain's stated sigma (its grid)."""
+
+
+@dataclass(frozen=True)
+class Rows:
+    """The visible (epoch, antenna, aircraft) rows of a pass that the sky acts on."""
+
+    epoch_index: NDArray[np.intp]
+    antenna: NDArray[np.intp]
+    aircraft: NDArray[np.intp]
+    aircraft_ecef_km: NDArray[np.float64]
+    """True aircraft positions, ECEF (km), ``(M, 3)``."""
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """What the receiver reports for each row.
+
+    ``measured_db`` is NaN where the row is not received; ``sigma_db`` the standard
+    deviation the receiver states for it (a scalar for the paper's Gaussian model);
+    ``threshold_db`` the reception threshold of the epochs (``-inf`` for the chain);
+    ``messages`` the messages decoded per row (``None`` for the paper's one SNR per
+    aircraft and epoch).
+    """
+
+    measured_db: NDArray[np.float64]
+    received: NDArray[np.bool_]
+    sigma_db: NDArray[np.float64] | float
+    threshold_db: float
+    messages: NDArray[np.int64] | None = None
+
+
+def transmitter_offsets(
+    scenario: AdsbScenario, rows: Rows, seed: np.random.SeedSequence
+) -> NDArray[np.float64] | None:
+    """Each row's EIRP offset (dB) from ``[traffic.transmitters]``, drawn per trial from
+    :data:`TRANSMITTER_STREAM`; ``None`` without that table (Liu et al. 2023's ideal).
+
+    The line of sight runs from the aircraft to the satellite (ECEF); the aircraft fly
+    along their routes (``flight_direction_ecef`` of
+    :mod:`~attopt.experiments.environment.aircraft_transmitters`).
+    """
+    parameters = scenario.traffic.transmitters
+    if parameters is None:
+        return None
+    geometry = build_adsb_geometry(scenario)
+    transmitters = draw_transmitters(
+        parameters,
+        geometry.traffic.size,
+        float(geometry.t[-1]),
+        child_rng(seed, TRANSMITTER_STREAM),
+    )
+    t = geometry.t[rows.epoch_index]
+    los = geometry.position_ecef_km[rows.epoch_index] - rows.aircraft_ecef_km
+    los /= np.linalg.norm(los, axis=-1, keepdims=True)
+    heading = flight_direction_ecef(geometry.traffic, t, rows.aircraft)
+    return transmitter_offset_db(
+        transmitters, rows.aircraft, t, rows.aircraft_ecef_km, heading, los
+    )
+
+
+def message_counts(
+    true_snr_db: NDArray[np.float64],
+    rows: Rows,
+    n_antennas: int,
+    rule: CaptureRule | None,
+    rate_hz: float,
+    step_s: float,
+    rng: np.random.Generator,
+) -> NDArray[np.int64]:
+    """Messages of each row's aircraft in its epoch that survive collisions on its
+    antenna's channel (module docstring): without a ``rule``, every message sent
+    (``Poisson(rate_hz * step_s)``); with one, a Monte Carlo of each channel's epoch
+    (:func:`~attopt.experiments.environment.adsb_collisions.simulate_messages`), the
+    channels one after the other from ``rng``."""
+    if rule is None:
+        return rng.poisson(rate_hz * step_s, true_snr_db.size)
+    channel = rows.epoch_index * n_antennas + rows.antenna
+    bounds = np.flatnonzero(np.diff(channel, prepend=-1, append=-1))
+    survived = np.zeros(true_snr_db.size, dtype=np.int64)
+    for start, stop in itertools.pairwise(bounds):
+        messages = simulate_messages(
+            true_snr_db[start:stop], rule, rng, window_s=step_s, rate_hz=rate_hz
+        )
+        survived[start:stop] = np.bincount(
+            messages.aircraft[messages.survives], minlength=stop - start
+        )
+    return survived
+
+
+def chain_measurements(
+    true_snr_db: NDArray[np.float64],
+    messages: NDArray[np.int64],
+    chain: ReceiverChain,
+    bandwidth_hz: float,
+    rng: np.random.Generator,
+) -> Measurements:
+    """The chain's reports of rows whose aircraft got ``messages`` to the receiver
+    (module docstring).
+
+    Each message is decoded with the table's probability ``p`` at its per-sample SNR, so
+    ``k ~ Binomial(messages, p)``; a row is received iff ``k >= 1``, and reported as the
+    mean of ``k`` estimates, ``true + bias + std z / sqrt(k)`` (the table's bias and
+    standard deviation, ``z`` standard normal).  A calibrated chain subtracts the bias
+    at its estimate of the true SNR, ``b(y - b(y))`` for the report ``y`` (one
+    fixed-point step), and states ``(1 - b') std(y - b) / sqrt(k)``: the bias falls
+    with the SNR (``b' < 0``), so removing it stretches the error by ``1 - b'``
+    (``b'`` the table's slope over :data:`_SLOPE_STEP_DB`).  An uncalibrated chain
+    states ``std(y) / sqrt(k)`` and leaves the bias in its reports.
+    """
+    table = error_table(chain).frame
+    to_sample = 10.0 * math.log10(bandwidth_hz / chain.sample_rate_hz)
+    p, bias, std = table_at(table, true_snr_db + to_sample)
+    decoded = rng.binomial(messages, p)
+    received = decoded >= 1
+    averaged = np.maximum(decoded, 1)
+    measured = true_snr_db + bias + std * rng.standard_normal(true_snr_db.size) / np.sqrt(averaged)
+    sample = measured + to_sample
+    gain = 1.0
+    if chain.calibrated:
+        _, first, _ = table_at(table, sample)
+        estimate = sample - first
+        _, correction, _ = table_at(table, estimate)
+        _, ahead, _ = table_at(table, estimate + _SLOPE_STEP_DB)
+        gain = 1.0 - (ahead - correction) / _SLOPE_STEP_DB
+        measured = measured - correction
+        sample = estimate
+    _, _, stated = table_at(table, sample)
+    return Measurements(
+        measured_db=np.where(received, measured, np.nan),
+        received=received,
+        sigma_db=gain * stated / np.sqrt(averaged),
+        threshold_db=-math.inf,
+        messages=decoded,
+    )
+
+
+def gaussian_measurements(
+    true_snr_db: NDArray[np.float64],
+    rng: np.random.Generator,
+    sigma_db: float,
+    threshold_db: float,
+    fault_db: NDArray[np.float64] | None,
+) -> Measurements:
+    """Liu et al. 2023 sec. 5.1: ``true + sigma_db z`` per row (``z`` from ``rng``, in the
+    rows' order), plus a receiver fault, received iff it reaches ``threshold_db``."""
+    measured = true_snr_db + sigma_db * rng.standard_normal(true_snr_db.size)
+    if fault_db is not None:
+        measured = measured + fault_db
+    return Measurements(measured, measured >= threshold_db, sigma_db, threshold_db)
+
+
+@dataclass(frozen=True)
+class Reception:
+    """How a trial's receiver hears the rows: the messages of each row that reach the
+    receiver (sent, and surviving collisions if they are modelled), and the receiver
+    chain (``None``: the Gaussian SNR and the hard threshold of Liu et al. 2023)."""
+
+    survived: NDArray[np.int64]
+    chain: ReceiverChain | None
+    bandwidth_hz: float
+    rng: np.random.Generator
+
+    def measure(
+        self,
+        true_snr_db: NDArray[np.float64],
+        gaussian_rng: np.random.Generator,
+        sigma_db: float,
+        threshold_db: float,
+        fault_db: NDArray[np.float64] | None,
+    ) -> Measurements:
+        """The receiver's reports: the chain's, or the paper's Gaussian model restricted
+        to the rows with a message that reached the receiver; a receiver fault adds to
+        the reports."""
+        if self.chain is None:
+            paper = gaussian_measurements(
+                true_snr_db, gaussian_rng, sigma_db, threshold_db, fault_db
+            )
+            received = paper.received & (self.survived >= 1)
+            return Measurements(paper.measured_db, received, sigma_db, threshold_db, self.survived)
+        chain = chain_measurements(
+            true_snr_db, self.survived, self.chain, self.bandwidth_hz, self.rng
+        )
+        if fault_db is None:
+            return chain
+        return Measurements(
+            chain.measured_db + fault_db,
+            chain.received,
+            chain.sigma_db,
+            chain.threshold_db,
+            chain.messages,
+        )
+
+
+def reception(
+    scenario: AdsbScenario,
+    rows: Rows,
+    true_snr_db: NDArray[np.float64],
+    seed: np.random.SeedSequence,
+) -> Reception | None:
+    """The trial's :class:`Reception` from ``[receiver.collisions]`` and
+    ``[receiver.chain]``; ``None`` without either (Liu et al. 2023's receiver)."""
+    receiver = scenario.receiver
+    if receiver.collisions is None and receiver.chain is None:
+        return None
+    survived = message_counts(
+        true_snr_db,
+        rows,
+        scenario.n_antennas,
+        receiver.collisions,
+        scenario.traffic.squitter_rate_hz,
+        scenario.step_s,
+        child_rng(seed, MESSAGE_STREAM),
+    )
+    return Reception(survived, receiver.chain, receiver.bandwidth_hz, child_rng(seed, CHAIN_STREAM))
