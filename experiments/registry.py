@@ -18,6 +18,7 @@ EXPERIMENTS: dict[str, str] = {
     "noop": "attopt.experiments.sweep.toys:NOOP",
     "wahba-mag-sun": "attopt.experiments.wahba_mag_sun.experiment:EXPERIMENT",
     "adsb-snr": "attopt.experiments.adsb_snr.experiment:EXPERIMENT",
+    "adsb-sky": "attopt.experiments.adsb_sky.experiment:EXPERIMENT",
     "doa-ground": "attopt.experiments.doa_ground.experiment:EXPERIMENT",
     "geo-snr-stations": "attopt.experiments.geo_snr_stations.experiment:EXPERIMENT",
 }

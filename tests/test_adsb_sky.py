@@ -22,7 +22,7 @@ from attopt.experiments.adsb_snr.experiment import (
     noise_free_pass,
     trial_pass,
 )
-from attopt.experiments.adsb_snr.sky import Rows, message_counts, transmitter_offsets
+from attopt.experiments.adsb_snr.sky import Rows, calibrated, message_counts, transmitter_offsets
 from attopt.experiments.config import resolve_parameters
 from attopt.experiments.config.loading import deep_merge
 from attopt.experiments.environment.adsb_collisions import (
@@ -145,7 +145,22 @@ def test_calibrated_chain_states_a_sigma_its_errors_follow() -> None:
     z = ((noisy.measured_db - noisy.true_snr_db) / noisy.sigma_db)[heard]
     assert noisy.threshold_db == -math.inf and np.all(np.isnan(noisy.measured_db[~heard]))
     assert abs(z.mean()) < 0.1 and 0.9 < z.std() < 1.1
-    assert np.mean(np.abs(z) > stats.norm.isf(0.5e-3)) < 3e-3
+    # the table summarises a skewed error by a Gaussian (docs/adsb_receiver.md, Limits):
+    # beyond 3.29 sigma its tail is 2-3x the Gaussian's 1e-3 (1.8e-3 with 2000 messages)
+    assert np.mean(np.abs(z) > stats.norm.isf(0.5e-3)) < 4e-3
+
+
+def test_calibration_inverts_the_mean_report_curve() -> None:
+    """``calibrated(x + b(x)) = x`` and its slope is ``1 + b'(x)``, below 1 where the bias
+    falls with the SNR."""
+    frame = error_table(ReceiverChain(**CHAIN)).frame
+    x = np.linspace(7.0, 20.0, 27)
+    _, bias, _ = table_at(frame, x)
+    estimate, slope = calibrated(frame, x + bias)
+    np.testing.assert_allclose(estimate, x, atol=1e-9)
+    _, ahead, _ = table_at(frame, x + 0.01)
+    np.testing.assert_allclose(slope, 1.0 + (ahead - bias) / 0.01, atol=0.05)
+    assert np.all(slope > 0.0) and slope[0] < 1.0
 
 
 def test_uncalibrated_chain_keeps_its_positive_bias() -> None:

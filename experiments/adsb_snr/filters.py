@@ -49,6 +49,7 @@ every gyro the filters get, after the draws.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -205,9 +206,15 @@ def considered_input_error(track: Track, source: Track) -> Track:
 
 
 def snr_measurements(epochs: list[SnrEpoch], model: str) -> list[AttitudeMeasurement | None]:
-    """One :class:`SnrMeasurement` per epoch with at least one received message."""
+    """One :class:`SnrMeasurement` per epoch with at least one received message; the
+    truncated model only for epochs with a finite reception threshold (without one, as
+    from the receiver chain of :mod:`attopt.experiments.adsb_snr.sky`, the truncated
+    likelihood is the Gaussian one)."""
     truncated = model == "truncated"
-    return [SnrMeasurement(e, truncated=truncated) if e.m else None for e in epochs]
+    return [
+        SnrMeasurement(e, truncated=truncated and math.isfinite(e.threshold_db)) if e.m else None
+        for e in epochs
+    ]
 
 
 def _rows(

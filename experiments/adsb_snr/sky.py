@@ -48,6 +48,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
@@ -67,8 +68,8 @@ MESSAGE_STREAM = 102
 """Child stream that draws the messages' times (and their collisions)."""
 CHAIN_STREAM = 103
 """Child stream that draws the receiver chain's decoding and SNR errors."""
-_SLOPE_STEP_DB = 0.5
-"""Step of the bias table's slope in the calibrated chain's stated sigma (its grid)."""
+_CALIBRATION_STEP_DB = 0.01
+"""Grid of the calibration's inverse of the mean-report curve (:func:`calibrated`)."""
 
 
 @dataclass(frozen=True)
@@ -171,12 +172,11 @@ def chain_measurements(
     Each message is decoded with the table's probability ``p`` at its per-sample SNR, so
     ``k ~ Binomial(messages, p)``; a row is received iff ``k >= 1``, and reported as the
     mean of ``k`` estimates, ``true + bias + std z / sqrt(k)`` (the table's bias and
-    standard deviation, ``z`` standard normal).  A calibrated chain subtracts the bias
-    at its estimate of the true SNR, ``b(y - b(y))`` for the report ``y`` (one
-    fixed-point step), and states ``(1 - b') std(y - b) / sqrt(k)``: the bias falls
-    with the SNR (``b' < 0``), so removing it stretches the error by ``1 - b'``
-    (``b'`` the table's slope over :data:`_SLOPE_STEP_DB`).  An uncalibrated chain
-    states ``std(y) / sqrt(k)`` and leaves the bias in its reports.
+    standard deviation, ``z`` standard normal).  A calibrated chain reports the true SNR
+    whose mean report is ``y`` (:func:`calibrated`) and states ``std / (sqrt(k) m')``
+    there: the bias falls with the SNR, so removing it stretches the error by ``1 / m'
+    = 1 / (1 + b')``.  An uncalibrated chain states ``std(y) / sqrt(k)`` and leaves the
+    bias in its reports.
     """
     table = error_table(chain).frame
     to_sample = 10.0 * math.log10(bandwidth_hz / chain.sample_rate_hz)
@@ -188,13 +188,9 @@ def chain_measurements(
     sample = measured + to_sample
     gain = 1.0
     if chain.calibrated:
-        _, first, _ = table_at(table, sample)
-        estimate = sample - first
-        _, correction, _ = table_at(table, estimate)
-        _, ahead, _ = table_at(table, estimate + _SLOPE_STEP_DB)
-        gain = 1.0 - (ahead - correction) / _SLOPE_STEP_DB
-        measured = measured - correction
-        sample = estimate
+        sample, slope = calibrated(table, sample)
+        measured = sample - to_sample
+        gain = 1.0 / slope
     _, _, stated = table_at(table, sample)
     return Measurements(
         measured_db=np.where(received, measured, np.nan),
@@ -203,6 +199,25 @@ def chain_measurements(
         threshold_db=-math.inf,
         messages=decoded,
     )
+
+
+def calibrated(
+    table: pd.DataFrame, sample_db: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The true SNRs whose mean reports are ``sample_db``, and the mean curve's slope there.
+
+    The chain's mean report at the true SNR ``x`` is ``m(x) = x + b(x)`` (``b`` the table's
+    bias): increasing, since ``b' > -1``.  Its inverse, on a grid of
+    :data:`_CALIBRATION_STEP_DB`, is the calibration; a report ``y = m(x) + e`` maps to
+    ``m^-1(y) ~ x + e / m'(x)``, so the calibrated error's sigma is the report's over
+    ``m'``.
+    """
+    grid = np.arange(table["snr_db"].min(), table["snr_db"].max(), _CALIBRATION_STEP_DB)
+    _, bias, _ = table_at(table, grid)
+    mean_report = grid + bias
+    estimate = np.interp(sample_db, mean_report, grid)
+    slope = np.interp(estimate, grid[:-1], np.diff(mean_report) / _CALIBRATION_STEP_DB)
+    return estimate, slope
 
 
 def gaussian_measurements(

@@ -1,0 +1,1 @@
+"""The `adsb-sky` experiment: every ADS-B estimator under the paper's sky and the real one."""
