@@ -21,6 +21,7 @@ from attopt.experiments.adsb_sky.experiment import (
 from attopt.experiments.adsb_sky.report import heard_half_the_time_db
 from attopt.experiments.adsb_snr import experiment as adsb
 from attopt.experiments.environment.adsb_receiver import ReceiverChain
+from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import run_sweep
 
@@ -63,6 +64,18 @@ def test_a_configured_part_keeps_its_numbers_in_every_sky_that_has_it() -> None:
     assert by_sky["ideal"] is None and by_sky["chain"] is None
     for sky in ("power", "antennas", "real"):
         assert by_sky[sky]["class1_share"] == 0.3
+
+
+def test_where_the_powers_are_real_the_single_frame_methods_are_told_their_distribution():
+    configured = {**TINY, "estimator_options": {"nlp": {"power_offset_sigma_db": 3.0}}}
+    document = AdsbSkyParameters.model_validate(configured).model_dump(mode="json")
+    mean, sigma = AircraftTransmitterParameters().power_offset_moments()
+    for sky in ("power", "real"):
+        options = sky_document(document, sky)["estimator_options"]
+        assert options["nlse"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": sigma}
+        assert options["nlp"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": 3.0}
+    for sky in ("ideal", "antennas", "chain", "collisions"):
+        assert sky_document(document, sky)["estimator_options"] == configured["estimator_options"]
 
 
 def test_every_sky_draws_trial_j_from_one_seed() -> None:

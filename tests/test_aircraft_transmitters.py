@@ -104,6 +104,16 @@ def test_each_part_switches_alone_and_keeps_the_other_parts_draws() -> None:
     assert np.std(power_only) > 0.5 and np.std(antenna_only) > 1.0
 
 
+def test_power_offset_moments_match_the_draws() -> None:
+    parameters = AircraftTransmitterParameters(class1_share=0.6)
+    drawn = draw_transmitters(parameters, 100_000, HORIZON_S, np.random.default_rng(5))
+    mean, sigma = parameters.power_offset_moments()
+    offsets = drawn.power_offset_db
+    assert mean == pytest.approx(offsets.mean(), abs=4 * offsets.std() / math.sqrt(offsets.size))
+    assert sigma == pytest.approx(offsets.std(), rel=0.01)
+    assert AircraftTransmitterParameters(power="nominal").power_offset_moments() == (0.0, 0.0)
+
+
 def test_each_class_power_lies_in_its_range_after_cable_loss() -> None:
     parameters = AircraftTransmitterParameters(class1_share=0.5)
     t = draw_transmitters(parameters, 20_000, HORIZON_S, np.random.default_rng(1))

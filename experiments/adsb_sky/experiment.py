@@ -16,8 +16,12 @@ run once per *sky* (``skies``), each a setting of the sweep:
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
 their documented defaults (:mod:`attopt.experiments.adsb_snr.sky`); the ``ideal`` sky
-leaves them all out.  The skies are compared on common random numbers: trial ``j`` of
-every sky draws from the same seed, ``SeedSequence(root, spawn_key=(0, j))``, so the
+leaves them all out.  Where the powers are real, the single-frame methods are told
+their distribution (:func:`told_the_powers`), as a user who knows the transponder
+classes would configure them; nothing else about the sky is told to any estimator.
+
+The skies are compared on common random numbers: trial ``j`` of every sky draws from
+the same seed, ``SeedSequence(root, spawn_key=(0, j))``, so the
 paper's SNR noise, the gyros, the transmitters and the messages are the same draws in
 every sky that has them, and a difference between two skies is the sky's.
 
@@ -39,6 +43,8 @@ from pydantic import Field
 
 from attopt.experiments.adsb_sky.report import report
 from attopt.experiments.adsb_snr import experiment as adsb
+from attopt.experiments.adsb_snr.filters import PAPER_SOURCE
+from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.experiment import Experiment, Setting
 
 Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real"]
@@ -79,7 +85,25 @@ def sky_document(parameters: Mapping[str, Any], sky: str) -> dict[str, Any]:
     }.get(sky)
     receiver["chain"] = chain if sky in ("chain", "real") else None
     receiver["collisions"] = collisions if sky in ("collisions", "real") else None
+    if traffic["transmitters"] is not None and traffic["transmitters"]["power"] == "classes":
+        document["estimator_options"] = told_the_powers(document)
     return adsb.AdsbSnrParameters.model_validate(document).model_dump(mode="json")
+
+
+def told_the_powers(document: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """``estimator_options`` with every single-frame SNR method (``methods``, and the NLSE
+    that Liu et al. 2023's MEKF starts from) told the transmitters' power distribution:
+    the mean and standard deviation of the power offsets of ``[traffic.transmitters]``
+    (``power_offset_moments``), unless the options set them already.  The antenna
+    patterns' share of the offsets is not told: it depends on the geometry and is far
+    from normal (``docs/adsb_sky.md``)."""
+    parameters = AircraftTransmitterParameters.model_validate(document["traffic"]["transmitters"])
+    mean, sigma = parameters.power_offset_moments()
+    options = copy.deepcopy(dict(document.get("estimator_options") or {}))
+    for name in dict.fromkeys([*document["methods"], PAPER_SOURCE]):
+        told = {"power_offset_mean_db": mean, "power_offset_sigma_db": sigma}
+        options[name] = {**told, **options.get(name, {})}
+    return options
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:

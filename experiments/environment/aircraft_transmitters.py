@@ -193,6 +193,32 @@ class AircraftTransmitterParameters(Parameters):
     def nominal_power_dbw(self) -> float:
         return 10.0 * math.log10(self.nominal_power_w)
 
+    def power_offset_moments(self) -> tuple[float, float]:
+        """Mean and standard deviation (dB) of an aircraft's antenna power offset from
+        ``nominal_power_w`` (:attr:`Transmitters.power_offset_db`): a mixture of the two
+        classes' uniform outputs minus an independent uniform cable loss; ``(0, 0)`` for
+        ``power = "nominal"``.
+
+        Example::
+
+            >>> mean, sigma = AircraftTransmitterParameters().power_offset_moments()
+            >>> round(mean, 3), round(sigma, 3)  # 25.5 - 2 - 10 lg 250 dBW; sqrt(9 + 4) / sqrt(12)
+            (-0.479, 1.041)
+        """
+        if self.power == "nominal":
+            return 0.0, 0.0
+        share = self.class1_share
+        bands = (
+            (share, self.class1_output_min_dbw, self.class1_output_max_dbw),
+            (1.0 - share, self.class2_output_min_dbw, self.class2_output_max_dbw),
+        )
+        mean = sum(w * 0.5 * (a + b) for w, a, b in bands)
+        second = sum(w * ((b - a) ** 2 / 12.0 + (0.5 * (a + b)) ** 2) for w, a, b in bands)
+        loss_mean = 0.5 * (self.cable_loss_min_db + self.cable_loss_max_db)
+        loss_variance = (self.cable_loss_max_db - self.cable_loss_min_db) ** 2 / 12.0
+        variance = second - mean**2 + loss_variance
+        return mean - loss_mean - self.nominal_power_dbw, math.sqrt(variance)
+
     @property
     def ideal(self) -> bool:
         """Liu et al. 2023's transmitters: the nominal power through isotropic antennas

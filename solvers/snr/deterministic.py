@@ -192,6 +192,7 @@ class DeterministicSolver(SnrSolver):
     diagnostic_names: ClassVar[tuple[str, ...]] = DETERMINISTIC_DIAGNOSTICS
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.min_per_antenna < 2:
             raise ValueError("a boresight needs at least two cones (min_per_antenna >= 2)")
 

@@ -121,14 +121,55 @@ class SnrSolver(SnapshotEstimator):
             the method's covariance alone (for the least squares eq. 22, Liu et al.
             2023's). The truncated likelihood models the threshold and is never
             widened.
+        power_offset_mean_db, power_offset_sigma_db: the distribution of the
+            transmitters' unknown power offsets from the epoch's ``10 lg P0`` (dB): every
+            epoch is solved with ``P0`` raised by the mean and each SNR's sigma widened
+            to ``sqrt(sigma^2 + s^2)`` (:meth:`SnrSolver.with_power_prior`).  Exact for
+            offsets drawn independently per transmitter from a normal distribution, one
+            SNR per transmitter and epoch: the offset is then another independent
+            Gaussian error of the SNR (Liu et al. 2023 eq. 13's ``10 lg P0`` known only in
+            distribution).  Both 0 (default): the powers are known.
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
     mismatch_false_alarm: float = MISMATCH_FALSE_ALARM
     fault_exclusion: bool = DEFAULT_FAULT_EXCLUSION
     selection_bias: bool = True
+    power_offset_mean_db: float = 0.0
+    power_offset_sigma_db: float = 0.0
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
     diagnostic_names: ClassVar[tuple[str, ...]]
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.power_offset_mean_db) and self.power_offset_sigma_db >= 0.0):
+            raise ValueError(
+                "power_offset_mean_db must be finite and power_offset_sigma_db non-negative"
+            )
+
+    def with_power_prior(self, problem: SnrEpoch) -> SnrEpoch:
+        """``problem`` with the transmitters' power prior (class docstring): ``10 lg P0 +
+        mean`` and ``sigma_k = sqrt(sigma_k^2 + s^2)``; unchanged without a prior.
+
+        Example::
+
+            >>> from attopt import CosinePowerPattern, LinkBudget, SnrEpoch
+            >>> from attopt.solvers.snr.nlp import NlpSolver
+            >>> helix = CosinePowerPattern(peak_gain=14.46, exponent=6.0, min_gain_dbi=4.0)
+            >>> epoch = SnrEpoch.from_ranges(
+            ...     [12.0, 10.0], [[0, 0, 1.0], [0.1, 0, 0.995]], [0, 0], [[0.0, 0.0, 1.0]],
+            ...     [1.2e6, 1.5e6], helix, LinkBudget(),
+            ... )
+            >>> solver = NlpSolver(power_offset_mean_db=0.5, power_offset_sigma_db=0.75)
+            >>> solver.with_power_prior(epoch).sigma_db.tolist()  # sqrt(1 + 0.75^2)
+            [1.25, 1.25]
+        """
+        if self.power_offset_mean_db == 0.0 and self.power_offset_sigma_db == 0.0:
+            return problem
+        return replace(
+            problem,
+            p0_dbw=problem.p0_dbw + self.power_offset_mean_db,
+            sigma_db=np.hypot(problem.sigma_db, self.power_offset_sigma_db),
+        )
 
     def issue(self, problem: SnrEpoch) -> EpochIssue | None:
         """Why ``problem`` cannot be solved by this method, or ``None`` (the one-step rule)."""
@@ -205,7 +246,9 @@ class SnrSolver(SnapshotEstimator):
     def solve_epochs(
         self, problems: Sequence[SnrEpoch | EpochIssue | None], prior: Rotation | None = None
     ) -> Track:
-        """:meth:`solve_sequence` on the epochs themselves (``None``: no measurement)."""
+        """:meth:`solve_sequence` on the epochs themselves (``None``: no measurement), each
+        with the transmitters' power prior (:meth:`with_power_prior`)."""
+        problems = [self.with_power_prior(p) if isinstance(p, SnrEpoch) else p for p in problems]
         return solve_in_sequence(
             self.name,
             problems,

@@ -231,11 +231,16 @@ def least_squares_bias(problem: SnrEpoch, attitude: Rotation, covariance: Array)
     """The attitude bias ``d = P J^T C b`` that the SNR errors ``b``
     (:func:`threshold_bias`) cause through the least-squares gain (``P = (J^T C J)^-1``,
     eq. 22; ``J`` the SNRs' Jacobian at ``attitude``, ``C = diag(1 / sigma_k^2)``),
-    evaluated at the estimate."""
+    evaluated at the estimate.  Without a selection (every ``b_k`` 0, e.g. no threshold)
+    ``d = 0``; with an unobservable rotation (infinite entries of ``P``) ``d`` is not
+    finite, and :func:`widened` leaves ``P`` as it is."""
     predicted, jac = model_at(problem, attitude)
     sigma = np.asarray(problem.sigma_db, dtype=float)
     bias = threshold_bias(problem, predicted)
-    return np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
+    if not np.any(bias):
+        return np.zeros(3)
+    with np.errstate(invalid="ignore"):
+        return np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
 
 
 def widened(covariance: Array, bias: Array) -> Array:

@@ -235,6 +235,7 @@ class NlpSolver(OneStepSolver):
     status_label: ClassVar[str] = "IPOPT"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
 
