@@ -38,7 +38,8 @@ error.
 
 Random streams: the transmitters, the messages and the chain draw from their own child
 streams of the trial's seed (:data:`TRANSMITTER_STREAM`, :data:`MESSAGE_STREAM`,
-:data:`CHAIN_STREAM`); the paper's Gaussian SNR noise keeps ``default_rng(seed)``.
+:data:`CHAIN_STREAM`; the power offsets and the spoofer have 100 and 101); the paper's
+Gaussian SNR noise keeps ``default_rng(seed)``.
 """
 
 from __future__ import annotations
@@ -62,11 +63,11 @@ from attopt.experiments.environment.aircraft_transmitters import (
 )
 from attopt.experiments.simulation import child_rng
 
-TRANSMITTER_STREAM = 101
+TRANSMITTER_STREAM = 102
 """Child stream of the trial's seed that draws the aircraft transmitters."""
-MESSAGE_STREAM = 102
+MESSAGE_STREAM = 103
 """Child stream that draws the messages' times (and their collisions)."""
-CHAIN_STREAM = 103
+CHAIN_STREAM = 104
 """Child stream that draws the receiver chain's decoding and SNR errors."""
 _CALIBRATION_STEP_DB = 0.01
 """Grid of the calibration's inverse of the mean-report curve (:func:`calibrated`)."""
