@@ -80,10 +80,16 @@ def _by_hand(step_filter, pass_: Pass):
 @pytest.mark.parametrize("kind", ["mekf", "usque", "fg_online"])
 def test_gyro_filter_steps_by_hand_equal_solve(kind: str) -> None:
     """``predict(t)`` then ``update(measurement)`` at every epoch, state read from the
-    attributes, bit for bit the estimator's track (no gated epoch: the monitor is idle)."""
+    attributes, bit for bit the estimator's track (no gated epoch: the monitor is idle;
+    ``recovery = "inflate"``: the start from a single frame is the recovery's,
+    tests/test_filter_recovery.py)."""
     pass_ = _vector_pass()
-    options = FilterOptions()
-    estimator = {"mekf": Mekf(), "usque": Usque(), "fg_online": OnlineSmoother()}[kind]
+    options = FilterOptions(recovery="inflate")
+    estimator = {
+        "mekf": Mekf(filter=options),
+        "usque": Usque(filter=options),
+        "fg_online": OnlineSmoother(filter=options),
+    }[kind]
     inputs = gyro_pass(pass_, estimator, options)
     args = (inputs.gyro, inputs.model, inputs.prior)
     step_filter = {

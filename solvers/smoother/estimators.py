@@ -46,6 +46,7 @@ from attopt.formulations.passes import Pass
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import FilterOptions, gyro_pass
+from attopt.solvers.filters.recovery import SingleFrameStart
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import TrackMonitor, run_filter
 from attopt.solvers.smoother.batch import Stopwatch, batch_track, gyro_faults
@@ -74,7 +75,9 @@ class OnlineSmoother(PassEstimator):
         online: the iSAM2 window (lag, relinearisation).
         filter: gating, gyro-gap and validity rules shared with the filters;
             ``max_update_iterations`` bounds the iSAM2 updates per epoch.
-            Lost tracks are flagged, never re-acquired (no inflation).
+            Lost tracks are flagged, never re-acquired (no inflation); with
+            ``recovery = "restart"`` the first measured node is linearised at its single
+            frame (:class:`~attopt.solvers.filters.recovery.SingleFrameStart`).
     """
 
     online: OnlineOptions = field(default_factory=OnlineOptions)
@@ -110,6 +113,7 @@ class OnlineSmoother(PassEstimator):
             TrackMonitor(self.filter.max_rejected_epochs),
             self.filter,
             self.name,
+            SingleFrameStart(self.filter),
         )
         return online.report(track)
 

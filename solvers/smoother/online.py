@@ -451,6 +451,13 @@ class OnlineFilter(SequentialFilter):
         self.seconds["factors"] += time.perf_counter() - start
         return {"gyro_gap_s": self.gyro.gap_at(int(self.nodes[i]))}
 
+    def start_at(self, attitude: Rotation) -> None:
+        """Linearise the current node at ``attitude`` instead of its prediction: its initial
+        value and the point its measurement factor is prepared at
+        (:class:`~attopt.solvers.filters.recovery.SingleFrameStart`)."""
+        self.attitude = attitude
+        self.new_values.update(attitude_key(self.i), rot3(attitude))
+
     def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float]:
         start = time.perf_counter()
         i, predicted, predicted_covariance = self.i, self.attitude, self.covariance
