@@ -38,8 +38,8 @@ gyro timeline, :func:`attopt.solvers.filters.common.gyro_pass`)::
     f.attitude, f.bias, f.covariance
 
 Lost track (:class:`TrackMonitor`): after ``max_rejected_epochs`` consecutive
-measurement epochs with at least as many gated observation blocks as used
-ones (:func:`rejected_epoch`), epochs are flagged as a lost track until one
+measurement epochs with at least as many gated or unpredictable observation blocks
+as used ones (:func:`rejected_epoch`), epochs are flagged as a lost track until one
 is accepted; a monitor with an ``inflation`` then adds it to the covariance
 (repeatedly, every ``max_rejected_epochs`` such epochs) to re-acquire,
 counted as ``recoveries`` (the gyro filters inflate the attitude by
@@ -153,14 +153,21 @@ def stored_rotations(quaternion: ArrayLike) -> Rotation:
     return Rotation(np.asarray(quaternion, dtype=float), normalize=False)
 
 
-def rejected_epoch(n_gated: float, n_used: float) -> bool:
-    """An epoch whose gated observation blocks are at least as many as its used ones.
+def rejected_epoch(n_gated: float, n_used: float, n_unpredictable: float = 0.0) -> bool:
+    """An epoch whose rejected observation blocks are at least as many as its used ones:
+    gated, or ``n_unpredictable`` blocks the model cannot predict at the estimate (an SNR
+    received from an aircraft outside every main lobe at the estimated attitude, which the
+    model says cannot be received).
 
     With two vectors, a Sun vector rejected while the magnetometer is used
     counts (the filter has lost the rotation about the field); with many SNRs
-    a few gated outliers do not.
+    a few gated outliers do not; nor do a few SNRs at the edge of a main lobe,
+    while an epoch none of whose SNRs the estimate can predict does (measured in
+    ``adsb-sky``'s real sky: without them, such epochs reset the lost-track count
+    and the online smoother was reported valid 90-180 deg off).
     """
-    return n_gated > 0 and n_gated >= n_used
+    rejected = n_gated + n_unpredictable
+    return rejected > 0 and rejected >= n_used
 
 
 LOST = "lost"
@@ -213,7 +220,7 @@ class TrackMonitor:
         rejected epochs, :data:`INCONSISTENT` after ``max_rejected_epochs`` consecutive
         updates whose window fails the chi-square test, else ``None``."""
         n_used = counts.get("n_used", 0.0)
-        if rejected_epoch(counts.get("n_gated", 0.0), n_used):
+        if rejected_epoch(counts.get("n_gated", 0.0), n_used, counts.get("n_unpredictable", 0.0)):
             self.rejected += 1
             self.since_inflation += 1
         elif n_used > 0:

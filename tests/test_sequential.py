@@ -274,6 +274,23 @@ def test_monitor_follows_its_rule(epochs, limit) -> None:
             inflations += expected
         assert monitor.lost == (run >= limit)
     assert rejected_epoch(1, 1) and not rejected_epoch(0, 0) and not rejected_epoch(1, 2)
+    # SNRs the estimate cannot predict count against it: none usable is a rejection
+    assert rejected_epoch(0, 0, 90) and rejected_epoch(2, 4, 2) and not rejected_epoch(0, 150, 3)
+
+
+def test_epochs_of_unpredictable_observations_keep_a_track_lost() -> None:
+    """After a lost track, epochs whose every observation the estimate cannot predict
+    (none used, none gated) keep it lost instead of leaving the count where it was, so the
+    estimate is not reported valid while the model says none of them could be received."""
+    monitor = TrackMonitor(3)
+    for _ in range(3):
+        monitor.due({"n_used": 1.0, "n_gated": 5.0})
+    assert monitor.lost
+    monitor.due({"n_used": 5.0, "n_gated": 3.0})  # one accepted epoch ends it
+    assert not monitor.lost
+    for _ in range(3):
+        monitor.due({"n_used": 0.0, "n_gated": 0.0, "n_unpredictable": 90.0})
+    assert monitor.lost
 
 
 def test_monitors_of_the_filters() -> None:
