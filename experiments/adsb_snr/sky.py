@@ -54,7 +54,7 @@ from numpy.typing import NDArray
 
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
 from attopt.experiments.adsb_snr.scenario import build_adsb_geometry
-from attopt.experiments.environment.adsb_collisions import CaptureRule, simulate_messages
+from attopt.experiments.environment.adsb_collisions import CaptureRule, surviving_message_counts
 from attopt.experiments.environment.adsb_receiver import ReceiverChain, error_table, table_at
 from attopt.experiments.environment.aircraft_transmitters import (
     draw_transmitters,
@@ -142,20 +142,17 @@ def message_counts(
 ) -> NDArray[np.int64]:
     """Messages of each row's aircraft in its epoch that survive collisions on its
     antenna's channel (module docstring): without a ``rule``, every message sent
-    (``Poisson(rate_hz * step_s)``); with one, a Monte Carlo of each channel's epoch
-    (:func:`~attopt.experiments.environment.adsb_collisions.simulate_messages`), the
-    channels one after the other from ``rng``."""
+    (``Poisson(rate_hz * step_s)``); with one, a Monte Carlo of each channel's epoch, the
+    channels one after the other from ``rng``
+    (:func:`~attopt.experiments.environment.adsb_collisions.surviving_message_counts`)."""
     if rule is None:
         return rng.poisson(rate_hz * step_s, true_snr_db.size)
     channel = rows.epoch_index * n_antennas + rows.antenna
     bounds = np.flatnonzero(np.diff(channel, prepend=-1, append=-1))
     survived = np.zeros(true_snr_db.size, dtype=np.int64)
     for start, stop in itertools.pairwise(bounds):
-        messages = simulate_messages(
-            true_snr_db[start:stop], rule, rng, window_s=step_s, rate_hz=rate_hz
-        )
-        survived[start:stop] = np.bincount(
-            messages.aircraft[messages.survives], minlength=stop - start
+        survived[start:stop] = surviving_message_counts(
+            true_snr_db[start:stop], rule, rng, epoch_s=step_s, rate_hz=rate_hz
         )
     return survived
 
