@@ -637,9 +637,10 @@ def test_a_spoofed_position_moves_the_estimates_not_the_truth():
 
 
 def test_the_sky_tables_change_what_the_receiver_hears():
-    """``[traffic.transmitters]``, ``[receiver.collisions]`` with ``squitter_rate_hz`` and
-    ``[receiver.chain]`` each change the counts or the bias of the received messages
-    (``tests/test_adsb_sky.py`` tests each part)."""
+    """``[traffic.transmitters]``, ``[receiver.collisions]`` with ``squitter_rate_hz``,
+    ``[receiver.chain]`` and ``[receiver.aircraft_model]`` each change the counts, the bias
+    or the stated noise of the received messages (``tests/test_adsb_sky.py`` tests each
+    part)."""
     paper = epoch_rows()
     transmitters = epoch_rows({"traffic": {"transmitters": {"class1_share": 0.5}}})
     assert transmitters["n_obs"].sum() < paper["n_obs"].sum()
@@ -650,6 +651,9 @@ def test_the_sky_tables_change_what_the_receiver_hears():
     assert epoch_rows(crowded)["n_obs"].sum() < 0.1 * paper["n_obs"].sum()
     chain = epoch_rows({"receiver": {"chain": {"table_messages": 200, "calibrated": False}}})
     assert (chain["snr_bias_db"] > 0.0).all() and (paper["snr_bias_db"].abs() < 0.4).all()
+    # the receiver's aircraft model widens every SNR's sigma: the NLP's grows with it
+    modelled = trial_rows({"receiver": {"aircraft_model": {"antennas": False}}})
+    assert (modelled["sigma_x_deg"] > trial_rows()["sigma_x_deg"]).all()
 
 
 def test_every_parameter_is_overridden_by_a_test():

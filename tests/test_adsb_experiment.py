@@ -67,10 +67,16 @@ def test_summary_has_the_issue_columns_for_every_method(sweep):
 
 
 def test_nlp_and_nlse_agree_epoch_by_epoch(sweep):
+    """Both minimise eq. 19: the same epochs valid, the same estimates.  The first three
+    epochs are flagged by both: a second minimum about 50 deg away fits them as well
+    (``ambiguous``, 2 dL = 1.5-4.4), and the epochs started without a prior are checked
+    for one."""
     rows = sweep.rows[sweep.rows["valid"]]
     nlp = rows[rows["method"] == "nlp"].set_index("t_s")
     nlse = rows[rows["method"] == "nlse"].set_index("t_s")
-    assert len(nlp) == len(nlse) == int(SHORT["duration_s"])
+    assert nlp.index.equals(nlse.index) and len(nlp) == int(SHORT["duration_s"]) - 3
+    flagged = sweep.rows[(sweep.rows["method"] == "nlp") & ~sweep.rows["valid"]]
+    assert flagged["reason"].str.startswith("ambiguous").all()
     for axis in "xyz":
         # Both minimise eq. 19; LM stops on its loss tolerance within ~1e-6 deg of IPOPT.
         np.testing.assert_allclose(nlp[f"err_{axis}_deg"], nlse[f"err_{axis}_deg"], atol=1e-4)
@@ -142,13 +148,15 @@ def test_report_tables_recompute_from_the_rows(sweep):
 def test_wrong_minima_are_checked_on_every_20th_epoch(sweep):
     rows = _single_frame(sweep.rows)
     checked = rows.dropna(subset=["wrong_minimum"])
-    assert set(checked["t_s"]) == set(np.arange(0.0, SHORT["duration_s"], 20.0))
+    every_20th = set(np.arange(0.0, SHORT["duration_s"], 20.0))
+    assert every_20th - {0.0} <= set(checked["t_s"]) <= every_20th  # epoch 0: ambiguous
     assert set(checked["wrong_minimum"]) <= {0.0, 1.0}
     summary = _single_frame(sweep.summary).set_index("method")
     # every valid 20th epoch; the two-step method flags one of them (a second boresight)
     valid_checked = checked[checked["valid"]].groupby("method").size()
     assert (summary["wrong_minimum_checked"] == valid_checked[summary.index]).all()
-    assert (summary["wrong_minimum_checked"].drop("deterministic") == 6).all()
+    # the one-step methods flag epoch 0 as ambiguous: the other five are checked
+    assert (summary["wrong_minimum_checked"].drop("deterministic") == 5).all()
     filters = sweep.summary[sweep.summary["gyro"] != NO_GYRO]
     assert (filters["wrong_minimum_checked"] == 0).all()
 

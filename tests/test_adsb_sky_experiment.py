@@ -55,6 +55,10 @@ def test_each_sky_switches_on_its_own_tables() -> None:
     assert tables["collisions"][2]["capture_margin_db"] == 4.0 and tables["collisions"][1] is None
     real = tables["real"]
     assert real[0]["antenna"] == "monopole" and real[1] is not None and real[2] is not None
+    assert tables["modelled"] == real
+    for sky in SKIES:
+        model = sky_document(document, sky)["receiver"]["aircraft_model"]
+        assert (model is not None) == (sky == "modelled")
 
 
 def test_a_configured_part_keeps_its_numbers_in_every_sky_that_has_it() -> None:
@@ -74,7 +78,7 @@ def test_where_the_powers_are_real_the_single_frame_methods_are_told_their_distr
         options = sky_document(document, sky)["estimator_options"]
         assert options["nlse"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": sigma}
         assert options["nlp"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": 3.0}
-    for sky in ("ideal", "antennas", "chain", "collisions"):
+    for sky in ("ideal", "antennas", "chain", "collisions", "modelled"):
         assert sky_document(document, sky)["estimator_options"] == configured["estimator_options"]
 
 

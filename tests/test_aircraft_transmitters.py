@@ -26,6 +26,7 @@ from attopt.experiments.environment.aircraft_transmitters import (
     flight_direction_ecef,
     ideal_monopole_gain,
     leo_rows,
+    level_flight_gain_dbi,
     local_vertical,
     monopole_gain_dbi,
     transmitter_offset_db,
@@ -102,6 +103,16 @@ def test_each_part_switches_alone_and_keeps_the_other_parts_draws() -> None:
     np.testing.assert_array_equal(power_only, real_power.power_offset_db[rows.aircraft])
     np.testing.assert_allclose(power_only + antenna_only, real, rtol=0, atol=1e-12)
     assert np.std(power_only) > 0.5 and np.std(antenna_only) > 1.0
+
+
+def test_level_flight_gain_is_the_better_antennas() -> None:
+    elevation = np.radians(np.linspace(-90.0, 90.0, 37))
+    gain = level_flight_gain_dbi(elevation, DEFAULT)
+    expected = np.maximum(
+        monopole_gain_dbi(elevation, DEFAULT), monopole_gain_dbi(-elevation, DEFAULT)
+    )
+    np.testing.assert_array_equal(gain, expected)
+    np.testing.assert_array_equal(gain, gain[::-1])
 
 
 def test_power_offset_moments_match_the_draws() -> None:

@@ -34,9 +34,14 @@ def _rows(name: str, **options):
 
 @pytest.mark.parametrize("name", ["nlp", "nlp_truncated", "deterministic"])
 def test_told_the_spread_the_solvers_are_valid_and_consistent(name: str) -> None:
+    """Valid and consistent; the one-step methods flag the epochs started without a prior
+    whose data a second minimum fits about as well (``ambiguous``; measured: 9 and 7 of
+    the 120 epochs for the NLP and the truncated NLP, at the start of the pass)."""
     rows = _rows(name, power_offset_sigma_db=OFFSET_SIGMA_DB)
     statistic = integrity(rows, ["method"]).iloc[0]
-    assert statistic["valid_fraction"] > 0.95
+    assert statistic["valid_fraction"] > 0.9
+    flagged = rows.loc[~rows["valid"], "reason"]
+    assert flagged.str.startswith(("ambiguous", "model mismatch", "fewer than two")).all()
     assert statistic["share_beyond"] <= 1e-3
     assert 1.0 < statistic["mean_nees"] < 3.5
 

@@ -11,14 +11,19 @@ run once per *sky* (``skies``), each a setting of the sweep:
   (``power = "nominal"``);
 * ``chain``: the simulated 1090ES receiver chain alone (``[receiver.chain]``);
 * ``collisions``: message collisions alone (``[receiver.collisions]``);
-* ``real``: all of them together.
+* ``real``: all of them together;
+* ``modelled``: the real sky, with the receiver's aircraft model
+  (``[receiver.aircraft_model]``): every estimator is told each message's expected
+  EIRP, the transponder classes' mean power through the better placed antenna in
+  level flight, with the model's uncertainty in each SNR's sigma.
 
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
 their documented defaults (:mod:`attopt.experiments.adsb_snr.sky`); the ``ideal`` sky
-leaves them all out.  Where the powers are real, the single-frame methods are told
-their distribution (:func:`told_the_powers`), as a user who knows the transponder
-classes would configure them; nothing else about the sky is told to any estimator.
+leaves them all out.  Where the powers are real and not modelled by the receiver
+(``power``, ``real``), the single-frame methods are told their distribution
+(:func:`told_the_powers`), as a user who knows the transponder classes would configure
+them; nothing else about the sky is told to any estimator but in ``modelled``.
 
 The skies are compared on common random numbers: trial ``j`` of every sky draws from
 the same seed, ``SeedSequence(root, spawn_key=(0, j))``, so the
@@ -47,8 +52,16 @@ from attopt.experiments.adsb_snr.filters import PAPER_SOURCE
 from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.experiment import Experiment, Setting
 
-Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real"]
-SKIES: tuple[str, ...] = ("ideal", "power", "antennas", "chain", "collisions", "real")
+Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real", "modelled"]
+SKIES: tuple[str, ...] = (
+    "ideal",
+    "power",
+    "antennas",
+    "chain",
+    "collisions",
+    "real",
+    "modelled",
+)
 """Every sky, in the report's order."""
 
 
@@ -58,7 +71,9 @@ class AdsbSkyParameters(adsb.AdsbSnrParameters):
     skies: list[Sky] = Field(
         default_factory=lambda: list(SKIES),
         min_length=1,
-        description="Skies to compare: ideal, power, antennas, chain, collisions, real.",
+        description=(
+            "Skies to compare: ideal, power, antennas, chain, collisions, real, modelled."
+        ),
     )
 
 
@@ -78,14 +93,19 @@ def sky_document(parameters: Mapping[str, Any], sky: str) -> dict[str, Any]:
     traffic, receiver = document["traffic"], document["receiver"]
     transmitters = traffic.get("transmitters") or {}
     chain, collisions = receiver.get("chain") or {}, receiver.get("collisions") or {}
+    whole = ("real", "modelled")
+    real = {**transmitters, "power": "classes", "antenna": "monopole"}
     traffic["transmitters"] = {
         "power": {**transmitters, "power": "classes", "antenna": "isotropic"},
         "antennas": {**transmitters, "power": "nominal", "antenna": "monopole"},
-        "real": {**transmitters, "power": "classes", "antenna": "monopole"},
+        **dict.fromkeys(whole, real),
     }.get(sky)
-    receiver["chain"] = chain if sky in ("chain", "real") else None
-    receiver["collisions"] = collisions if sky in ("collisions", "real") else None
-    if traffic["transmitters"] is not None and traffic["transmitters"]["power"] == "classes":
+    receiver["chain"] = chain if sky in ("chain", *whole) else None
+    receiver["collisions"] = collisions if sky in ("collisions", *whole) else None
+    receiver["aircraft_model"] = (
+        (receiver.get("aircraft_model") or {}) if sky == "modelled" else None
+    )
+    if sky in ("power", "real"):
         document["estimator_options"] = told_the_powers(document)
     return adsb.AdsbSnrParameters.model_validate(document).model_dump(mode="json")
 

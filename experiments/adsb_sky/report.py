@@ -219,7 +219,7 @@ def _threshold_claim(ctx: ReportContext) -> Callable[[str], tuple[str, str]]:
     half = heard_half_the_time_db(chain, receiver["bandwidth_hz"])
 
     def decide(sky: str) -> tuple[str, str]:
-        if sky not in ("chain", "real"):
+        if sky not in ("chain", "real", "modelled"):
             return "assumed", "the paper's hard 6 dB threshold is the model of this sky"
         verdict = "holds" if abs(half - THRESHOLD_DB) <= THRESHOLD_TOLERANCE_DB else "does not hold"
         return verdict, f"heard in half the epochs at {half:.2f} dB (link SNR)"

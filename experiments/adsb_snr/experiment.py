@@ -110,7 +110,7 @@ import functools
 import itertools
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -134,6 +134,7 @@ from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observatio
 from attopt.experiments.adsb_snr.sky import (
     Reception,
     gaussian_measurements,
+    modelled_eirp,
     reception,
     transmitter_offsets,
 )
@@ -396,19 +397,24 @@ def simulate_pass(
     fault_db: NDArray[np.float64] | None = None,
     decoded: Decoded | None = None,
     reception: Reception | None = None,
+    model_sigma_db: float = 0.0,
 ) -> NoisyPass:
     """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
     3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset, ``fault_db``
     ``(M,)`` an error of the receiver's measurement (``receiver.outliers``), ``decoded``
     replaces the true lines of sight and powers of the epochs by what the receiver
     decodes (``traffic.spoofer``), ``reception`` replaces the Gaussian receiver by
-    message collisions and the receiver chain (:mod:`attopt.experiments.adsb_snr.sky`)."""
+    message collisions and the receiver chain (:mod:`attopt.experiments.adsb_snr.sky`),
+    ``model_sigma_db`` widens every stated sigma in quadrature (the receiver's aircraft
+    model)."""
     decoded = Decoded.of(scenario) if decoded is None else decoded
     true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
     if reception is None:
         reports = gaussian_measurements(true_snr, rng, sigma_db, threshold_db, fault_db)
     else:
         reports = reception.measure(true_snr, rng, sigma_db, threshold_db, fault_db)
+    if model_sigma_db:
+        reports = replace(reports, sigma_db=np.hypot(reports.sigma_db, model_sigma_db))
     measured, received = reports.measured_db, reports.received
     row_sigma = np.broadcast_to(reports.sigma_db, true_snr.shape)
     rows = np.flatnonzero(received)
@@ -623,6 +629,10 @@ def trial_pass(
         offsets = offsets + eirp
     burst = receiver.outliers
     fault = None if burst is None else burst.offsets(scenario.t[scenario.epoch_index])
+    decoded = spoofed_decoding(parameters, scenario, seed)
+    model = modelled_eirp(parameters, rows, decoded.aircraft_ecef_km)
+    if model is not None:
+        decoded = replace(decoded, p0_dbw=decoded.p0_dbw + model.offset_db)
     noisy = simulate_pass(
         scenario,
         np.random.default_rng(seed),
@@ -630,8 +640,9 @@ def trial_pass(
         receiver.threshold_db,
         offsets,
         fault,
-        spoofed_decoding(parameters, scenario, seed),
+        decoded,
         reception(parameters, rows, scenario.true_snr_db + offsets, seed),
+        0.0 if model is None else model.sigma_db,
     )
     return scenario, noisy
 

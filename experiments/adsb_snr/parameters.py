@@ -272,6 +272,29 @@ class OutlierBurst(Parameters):
         return np.where(inside, self.offset_db, 0.0)
 
 
+class AircraftModel(Parameters):
+    """``[receiver.aircraft_model]``: what the receiver assumes about the transmitters it
+    cannot know one by one (:mod:`attopt.experiments.adsb_snr.sky`): each message's
+    ``10 lg P0`` raised by the transponder classes' mean power offset and by the gain of
+    the better placed aircraft antenna in level flight toward the satellite, and each
+    SNR's sigma widened by the classes' power spread and ``antenna_sigma_db`` in
+    quadrature.  Its numbers are those of ``[traffic.transmitters]`` (the defaults
+    without that table)."""
+
+    power: bool = Field(True, description="Whether the classes' mean power and spread are used.")
+    antennas: bool = Field(
+        True, description="Whether the level-flight gain of the better placed antenna is used."
+    )
+    antenna_sigma_db: float = Field(
+        0.8,
+        ge=0.0,
+        description=(
+            "Allowance for what the level-flight antenna model leaves out (bank, the other "
+            "antenna): measured 0.77 dB over the received messages (docs/adsb_sky.md)."
+        ),
+    )
+
+
 class ReceiverParameters(Parameters):
     """The satellite's ADS-B receiver: noise power (Liu et al. 2023 eq. 2), polarisation
     loss, SNR measurement noise and reception threshold (sec. 5.1)."""
@@ -305,6 +328,13 @@ class ReceiverParameters(Parameters):
             "(docs/adsb_receiver.md); none: Gaussian SNR noise and the hard threshold."
         ),
     )
+    aircraft_model: AircraftModel | None = Field(
+        None,
+        description=(
+            "The receiver's model of the aircraft transmitters' powers and antennas "
+            "(docs/adsb_sky.md); none: the nominal power through 0 dBi (Liu et al. 2023)."
+        ),
+    )
 
     def link_budget(self, traffic: TrafficParameters) -> LinkBudget:
         """The link from ``traffic``'s transmitters to this receiver."""
@@ -318,7 +348,10 @@ class ReceiverParameters(Parameters):
         )
 
 
-SKY_FIELDS = {"traffic": {"transmitters", "squitter_rate_hz"}, "receiver": {"collisions", "chain"}}
+SKY_FIELDS = {
+    "traffic": {"transmitters", "squitter_rate_hz"},
+    "receiver": {"collisions", "chain", "aircraft_model"},
+}
 """The tables of the real sky (:mod:`attopt.experiments.adsb_snr.sky`), by table."""
 
 

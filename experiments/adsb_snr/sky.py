@@ -29,6 +29,11 @@ scenario without them is the paper's, draw for draw.
   ``sigma_db`` is the table's standard deviation over the square root of the number
   of messages averaged.
 
+* ``[receiver.aircraft_model]`` (:class:`~attopt.experiments.adsb_snr.parameters.AircraftModel`):
+  what the receiver assumes about the transmitters it cannot know one by one: each
+  message's ``10 lg P0`` is raised by the offset it expects and each SNR's sigma widened
+  by the model's uncertainty (:func:`modelled_eirp`), for every estimator.
+
 SNRs.  The link budget's SNR is the signal over the noise in ``receiver.bandwidth_hz``
 (Liu et al. 2023 eq. 2); the chain's table is indexed by the SNR per complex sample at
 its sample rate ``fs``, ``10 lg(bandwidth / fs)`` dB higher for the same noise density
@@ -57,11 +62,15 @@ from attopt.experiments.adsb_snr.scenario import build_adsb_geometry
 from attopt.experiments.environment.adsb_collisions import CaptureRule, surviving_message_counts
 from attopt.experiments.environment.adsb_receiver import ReceiverChain, error_table, table_at
 from attopt.experiments.environment.aircraft_transmitters import (
+    AircraftTransmitterParameters,
     draw_transmitters,
     flight_direction_ecef,
+    level_flight_gain_dbi,
+    local_vertical,
     transmitter_offset_db,
 )
 from attopt.experiments.simulation import child_rng
+from attopt.formulations.link_budget import LinkBudget
 
 TRANSMITTER_STREAM = 102
 """Child stream of the trial's seed that draws the aircraft transmitters."""
@@ -69,6 +78,8 @@ MESSAGE_STREAM = 103
 """Child stream that draws the messages' times (and their collisions)."""
 CHAIN_STREAM = 104
 """Child stream that draws the receiver chain's decoding and SNR errors."""
+_NOMINAL_GAIN_DBI = LinkBudget().transmit_gain_dbi
+"""The aircraft antenna gain of Liu et al. 2023's link budget (0 dBi), the offsets' reference."""
 _CALIBRATION_STEP_DB = 0.01
 """Grid of the calibration's inverse of the mean-report curve (:func:`calibrated`)."""
 
@@ -129,6 +140,44 @@ def transmitter_offsets(
     return transmitter_offset_db(
         transmitters, rows.aircraft, t, rows.aircraft_ecef_km, heading, los
     )
+
+
+@dataclass(frozen=True)
+class ModelledEirp:
+    """The receiver's aircraft model (:func:`modelled_eirp`): each row's expected EIRP
+    offset (dB) and the standard deviation it states for what the model leaves out."""
+
+    offset_db: NDArray[np.float64]
+    sigma_db: float
+
+
+def modelled_eirp(
+    scenario: AdsbScenario, rows: Rows, decoded_ecef_km: NDArray[np.float64]
+) -> ModelledEirp | None:
+    """``[receiver.aircraft_model]`` for the rows (``None`` without it): the offset the
+    receiver expects, the transponder classes' mean power offset plus the level-flight
+    gain of the better placed antenna toward the satellite at the elevation of the
+    satellite above the decoded position's horizontal plane
+    (:func:`~attopt.experiments.environment.aircraft_transmitters.level_flight_gain_dbi`),
+    and ``sqrt(s_p^2 + s_a^2)`` with ``s_p`` the classes' power spread
+    (``power_offset_moments``) and ``s_a`` the model's ``antenna_sigma_db``.  The numbers
+    are those of ``[traffic.transmitters]``, or their defaults."""
+    model = scenario.receiver.aircraft_model
+    if model is None:
+        return None
+    installation = scenario.traffic.transmitters or AircraftTransmitterParameters()
+    mean, spread = installation.power_offset_moments() if model.power else (0.0, 0.0)
+    offset = np.full(rows.epoch_index.size, mean)
+    sigma = spread
+    if model.antennas:
+        geometry = build_adsb_geometry(scenario)
+        los = geometry.position_ecef_km[rows.epoch_index] - decoded_ecef_km
+        los /= np.linalg.norm(los, axis=-1, keepdims=True)
+        up = local_vertical(decoded_ecef_km)
+        elevation = np.arcsin(np.clip(np.sum(up * los, axis=-1), -1.0, 1.0))
+        offset = offset + level_flight_gain_dbi(elevation, installation) - _NOMINAL_GAIN_DBI
+        sigma = math.hypot(spread, model.antenna_sigma_db)
+    return ModelledEirp(offset, sigma)
 
 
 def message_counts(

@@ -407,6 +407,29 @@ def monopole_gain_dbi(
     return 10.0 * math.log10(MONOPOLE_DIRECTIVITY) + shape + _normalisation_db(*args)
 
 
+def level_flight_gain_dbi(
+    elevation_rad: ArrayLike, parameters: AircraftTransmitterParameters
+) -> NDArray[np.float64]:
+    """The gain a receiver expects from an aircraft whose installation it knows only by
+    type: the better placed of a top and a bottom monopole (:func:`monopole_gain_dbi`) in
+    level flight, toward a receiver at ``elevation_rad`` above the aircraft's horizontal
+    plane, ``max(G(e), G(-e))``.  A message received from far out in the weaker
+    antenna's shadow is rare, so this is the gain of most received messages; bank, the
+    alternation of diversity antennas and aircraft with a bottom antenna only make the
+    rest (``docs/adsb_sky.md``, the receiver's aircraft model).
+
+    Example::
+
+        >>> import numpy as np
+        >>> parameters = AircraftTransmitterParameters()
+        >>> gain = level_flight_gain_dbi(np.radians([30.0, -30.0]), parameters)
+        >>> bool(gain[0] == gain[1]), bool(gain[0] > 0.0)
+        (True, True)
+    """
+    e = np.asarray(elevation_rad, dtype=float)
+    return np.maximum(monopole_gain_dbi(e, parameters), monopole_gain_dbi(-e, parameters))
+
+
 def local_vertical(position_ecef_km: ArrayLike) -> NDArray[np.float64]:
     """Unit WGS84 geodetic normals at ECEF positions (km), ``(..., 3)``."""
     longitude, latitude, _ = erfa.gc2gd(erfa.WGS84, 1000.0 * np.asarray(position_ecef_km))

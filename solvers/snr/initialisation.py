@@ -33,6 +33,7 @@ from typing import TypeVar
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.snr_problem import SnrEpoch
@@ -162,6 +163,47 @@ def multistart(
         distinct_minima=count_distinct([results[i].attitude for i in converged]),
         local_solves=already + len(results),
     )
+
+
+AMBIGUITY_PROBABILITY = 1e-4
+"""Tail probability of the chi-square(3) quantile of :func:`rival_minimum` (21.1)."""
+
+
+def rival_minimum(
+    problem: Problem,
+    local_solve: LocalSolve[Problem],
+    best: LocalResult,
+    covariance: np.ndarray,
+    starts: Rotation = START_ATTITUDES,
+) -> tuple[float, float] | None:
+    """A second local minimum the data cannot tell from ``best``, or ``None``.
+
+    Local solves from every one of ``starts``; a converged one is a rival when its
+    loss is within the chi-square(3) ``1 - AMBIGUITY_PROBABILITY`` quantile ``q`` of
+    ``best``'s (``2 (L_r - L_b) <= q``: the likelihood ratio cannot reject it; lower
+    losses count too) and it lies outside ``best``'s covariance (``d^T P^-1 d > q``,
+    ``d`` the rotation vector from ``best`` to it).  Returns the rival of lowest loss as
+    ``(angle in degrees, 2 (L_r - L_b))``.  The covariance describes one basin only:
+    with weak data (few SNRs, wide sigmas) the SNR loss can have a second minimum tens
+    of degrees away that fits as well (measured in ``adsb-sky``'s modelled sky: 54 deg
+    away with a lower loss, ``2 dL = -0.8``).
+    """
+    quantile = float(chi2.isf(AMBIGUITY_PROBABILITY, 3))
+    rivals = []
+    for i in range(len(starts)):
+        result = local_solve(problem, starts[i])
+        if not (result.converged and np.isfinite(result.loss)):
+            continue
+        gap = 2.0 * (result.loss - best.loss)
+        d = (result.attitude * best.attitude.inv()).as_rotvec()
+        with np.errstate(invalid="ignore", over="ignore"):
+            distance = float(d @ np.linalg.lstsq(covariance, d, rcond=None)[0])
+        if gap <= quantile and not distance <= quantile:
+            rivals.append((gap, float(np.degrees(np.linalg.norm(d)))))
+    if not rivals:
+        return None
+    gap, angle = min(rivals)
+    return angle, gap
 
 
 def two_step_start(problem: SnrEpoch) -> Rotation | None:
