@@ -19,7 +19,9 @@ from attopt.experiments.adsb_snr.experiment import (
     EXPERIMENT,
     AdsbSnrParameters,
     epoch_statistics,
+    method_estimators,
     noise_free_pass,
+    snapshot_defaults,
     snr_snapshots,
     trial_pass,
 )
@@ -27,6 +29,7 @@ from attopt.experiments.adsb_snr.sky import (
     Rows,
     calibrated,
     message_counts,
+    model_allowance_db,
     modelled_eirp,
     transmitter_offsets,
 )
@@ -41,7 +44,6 @@ from attopt.experiments.environment.adsb_receiver import ReceiverChain, error_ta
 from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.reporting.statistics import integrity
 from attopt.experiments.sweep import run_sweep
-from attopt.solvers.registry import estimator
 
 MINUTE = {"duration_s": 60.0}
 CHAIN = {"table_messages": 200}
@@ -233,20 +235,27 @@ def test_a_paper_method_flags_the_whole_sky_as_model_mismatch(tmp_path) -> None:
     assert np.isfinite(nlp["bound_x_deg"]).all() and (nlp["n_obs"] > 20).all()
 
 
-def test_the_aircraft_model_raises_p0_by_the_expected_eirp_and_widens_sigma() -> None:
+def test_the_aircraft_model_raises_p0_by_the_expected_eirp_and_tells_the_single_frames() -> None:
+    """Every estimator reads the expected EIRP in ``10 lg P0``; the stated SNR sigmas are
+    the receiver's; the single-frame methods (and the NLSE that Liu et al. 2023's MEKF
+    reads) are told the model's allowance as their power prior."""
     parameters, scenario, noisy = _trial("modelled")
     rows = _rows(scenario)
-    model = modelled_eirp(parameters, rows, scenario.aircraft_ecef_km)
+    expected = modelled_eirp(parameters, rows, scenario.aircraft_ecef_km)
     mean, spread = AircraftTransmitterParameters().power_offset_moments()
-    assert model.sigma_db == pytest.approx(math.hypot(spread, 0.8), rel=1e-12)
-    chain_only = _trial("sky")[2]
-    np.testing.assert_allclose(noisy.sigma_db, np.hypot(chain_only.sigma_db, model.sigma_db))
+    assert model_allowance_db(parameters) == pytest.approx(math.hypot(spread, 0.8), rel=1e-12)
+    np.testing.assert_array_equal(noisy.sigma_db, _trial("sky")[2].sigma_db)
     epoch = noisy.epochs[7]
     taken = np.flatnonzero(noisy.received & (scenario.epoch_index == 7))
-    np.testing.assert_array_equal(epoch.p0_dbw, scenario.p0_dbw[taken] + model.offset_db[taken])
+    np.testing.assert_array_equal(epoch.p0_dbw, scenario.p0_dbw[taken] + expected[taken])
     assert modelled_eirp(_parameters(WHOLE_SKY), rows, scenario.aircraft_ecef_km) is None
-    gain = model.offset_db - mean
+    assert model_allowance_db(_parameters(WHOLE_SKY)) == 0.0
+    gain = expected - mean
     assert gain.min() > -20.0 and gain.max() < 6.0
+    defaults = snapshot_defaults(parameters)
+    for name in ("deterministic", "nlse", "nlp", "nlp_truncated"):
+        assert defaults[name]["power_offset_sigma_db"] == model_allowance_db(parameters)
+    assert defaults["deterministic"]["min_per_antenna"] == parameters.deterministic_min_per_antenna
 
 
 def test_the_level_flight_antenna_model_leaves_a_small_offset_on_received_messages() -> None:
@@ -256,15 +265,16 @@ def test_the_level_flight_antenna_model_leaves_a_small_offset_on_received_messag
     parameters, scenario, noisy = _trial("antennas modelled")
     rows = _rows(scenario)
     offsets = transmitter_offsets(parameters, rows, SEED)
-    model = modelled_eirp(parameters, rows, scenario.aircraft_ecef_km)
-    left = (offsets - model.offset_db)[noisy.received]
+    expected = modelled_eirp(parameters, rows, scenario.aircraft_ecef_km)
+    left = (offsets - expected)[noisy.received]
     assert abs(left.mean()) < 0.3 and left.std() < 1.2
     assert offsets.std() > 5.0
 
 
 def test_told_the_aircraft_model_the_nlp_is_valid_and_consistent_under_the_real_sky() -> None:
-    _, scenario, noisy = _trial("modelled")
-    rows = estimator("nlp").solve_sequence(snr_snapshots(noisy.epochs)).to_dataframe(scenario.truth)
+    parameters, scenario, noisy = _trial("modelled")
+    nlp = method_estimators(parameters.model_copy(update={"methods": ["nlp"]}))["nlp"]
+    rows = nlp.solve_sequence(snr_snapshots(noisy.epochs)).to_dataframe(scenario.truth)
     statistic = integrity(rows.assign(method="nlp"), ["method"]).iloc[0]
     assert statistic["valid_fraction"] > 0.85  # measured 0.90: the rest ambiguous at the start
     assert statistic["share_beyond"] <= 1e-3

@@ -21,7 +21,6 @@ from attopt.experiments.adsb_sky.experiment import (
 from attopt.experiments.adsb_sky.report import heard_half_the_time_db
 from attopt.experiments.adsb_snr import experiment as adsb
 from attopt.experiments.environment.adsb_receiver import ReceiverChain
-from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.registry import get_experiment
 from attopt.experiments.sweep import run_sweep
 
@@ -56,9 +55,12 @@ def test_each_sky_switches_on_its_own_tables() -> None:
     real = tables["real"]
     assert real[0]["antenna"] == "monopole" and real[1] is not None and real[2] is not None
     assert tables["modelled"] == real
-    for sky in SKIES:
-        model = sky_document(document, sky)["receiver"]["aircraft_model"]
-        assert (model is not None) == (sky == "modelled")
+    models = {sky: sky_document(document, sky)["receiver"]["aircraft_model"] for sky in SKIES}
+    assert models["modelled"]["antennas"] and models["modelled"]["power"]
+    for sky in ("power", "real"):  # the transponder classes, not the antennas
+        assert models[sky]["power"] and not models[sky]["antennas"]
+    for sky in ("ideal", "antennas", "chain", "collisions"):
+        assert models[sky] is None
 
 
 def test_a_configured_part_keeps_its_numbers_in_every_sky_that_has_it() -> None:
@@ -70,16 +72,16 @@ def test_a_configured_part_keeps_its_numbers_in_every_sky_that_has_it() -> None:
         assert by_sky[sky]["class1_share"] == 0.3
 
 
-def test_where_the_powers_are_real_the_single_frame_methods_are_told_their_distribution():
-    configured = {**TINY, "estimator_options": {"nlp": {"power_offset_sigma_db": 3.0}}}
+def test_a_configured_aircraft_model_keeps_its_numbers_where_the_receiver_has_one():
+    configured = {
+        **TINY,
+        "receiver": {**TINY["receiver"], "aircraft_model": {"antenna_sigma_db": 1.5}},
+    }
     document = AdsbSkyParameters.model_validate(configured).model_dump(mode="json")
-    mean, sigma = AircraftTransmitterParameters().power_offset_moments()
-    for sky in ("power", "real"):
-        options = sky_document(document, sky)["estimator_options"]
-        assert options["nlse"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": sigma}
-        assert options["nlp"] == {"power_offset_mean_db": mean, "power_offset_sigma_db": 3.0}
-    for sky in ("ideal", "antennas", "chain", "collisions", "modelled"):
-        assert sky_document(document, sky)["estimator_options"] == configured["estimator_options"]
+    for sky in ("power", "real", "modelled"):
+        model = sky_document(document, sky)["receiver"]["aircraft_model"]
+        assert model["antenna_sigma_db"] == 1.5
+    assert sky_document(document, "chain")["receiver"]["aircraft_model"] is None
 
 
 def test_every_sky_draws_trial_j_from_one_seed() -> None:

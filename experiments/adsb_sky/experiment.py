@@ -12,18 +12,20 @@ run once per *sky* (``skies``), each a setting of the sweep:
 * ``chain``: the simulated 1090ES receiver chain alone (``[receiver.chain]``);
 * ``collisions``: message collisions alone (``[receiver.collisions]``);
 * ``real``: all of them together;
-* ``modelled``: the real sky, with the receiver's aircraft model
+* ``modelled``: the real sky, with the receiver's whole aircraft model
   (``[receiver.aircraft_model]``): every estimator is told each message's expected
   EIRP, the transponder classes' mean power through the better placed antenna in
-  level flight, with the model's uncertainty in each SNR's sigma.
+  level flight, and the single-frame methods the model's uncertainty.
 
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
 their documented defaults (:mod:`attopt.experiments.adsb_snr.sky`); the ``ideal`` sky
-leaves them all out.  Where the powers are real and not modelled by the receiver
-(``power``, ``real``), the single-frame methods are told their distribution
-(:func:`told_the_powers`), as a user who knows the transponder classes would configure
-them; nothing else about the sky is told to any estimator but in ``modelled``.
+leaves them all out.  Where the powers are real, the receiver knows the transponder
+classes (``[receiver.aircraft_model]`` with ``antennas = false`` in ``power`` and
+``real``): each message's ``10 lg P0`` carries the classes' mean power and the
+single-frame methods are told their spread, as a user who knows the classes would
+configure them; only in ``modelled`` does the receiver also model the aircraft
+antennas.  Nothing else about the sky is told to any estimator.
 
 The skies are compared on common random numbers: trial ``j`` of every sky draws from
 the same seed, ``SeedSequence(root, spawn_key=(0, j))``, so the
@@ -48,8 +50,6 @@ from pydantic import Field
 
 from attopt.experiments.adsb_sky.report import report
 from attopt.experiments.adsb_snr import experiment as adsb
-from attopt.experiments.adsb_snr.filters import PAPER_SOURCE
-from attopt.experiments.environment.aircraft_transmitters import AircraftTransmitterParameters
 from attopt.experiments.experiment import Experiment, Setting
 
 Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real", "modelled"]
@@ -102,28 +102,13 @@ def sky_document(parameters: Mapping[str, Any], sky: str) -> dict[str, Any]:
     }.get(sky)
     receiver["chain"] = chain if sky in ("chain", *whole) else None
     receiver["collisions"] = collisions if sky in ("collisions", *whole) else None
-    receiver["aircraft_model"] = (
-        (receiver.get("aircraft_model") or {}) if sky == "modelled" else None
-    )
-    if sky in ("power", "real"):
-        document["estimator_options"] = told_the_powers(document)
+    model = receiver.get("aircraft_model") or {}
+    receiver["aircraft_model"] = {
+        "power": {**model, "antennas": False},
+        "real": {**model, "antennas": False},
+        "modelled": model,
+    }.get(sky)
     return adsb.AdsbSnrParameters.model_validate(document).model_dump(mode="json")
-
-
-def told_the_powers(document: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
-    """``estimator_options`` with every single-frame SNR method (``methods``, and the NLSE
-    that Liu et al. 2023's MEKF starts from) told the transmitters' power distribution:
-    the mean and standard deviation of the power offsets of ``[traffic.transmitters]``
-    (``power_offset_moments``), unless the options set them already.  The antenna
-    patterns' share of the offsets is not told: it depends on the geometry and is far
-    from normal (``docs/adsb_sky.md``)."""
-    parameters = AircraftTransmitterParameters.model_validate(document["traffic"]["transmitters"])
-    mean, sigma = parameters.power_offset_moments()
-    options = copy.deepcopy(dict(document.get("estimator_options") or {}))
-    for name in dict.fromkeys([*document["methods"], PAPER_SOURCE]):
-        told = {"power_offset_mean_db": mean, "power_offset_sigma_db": sigma}
-        options[name] = {**told, **options.get(name, {})}
-    return options
 
 
 def grid(parameters: Mapping[str, Any]) -> list[Setting]:

@@ -134,6 +134,7 @@ from attopt.experiments.adsb_snr.scenario import build_adsb_geometry, observatio
 from attopt.experiments.adsb_snr.sky import (
     Reception,
     gaussian_measurements,
+    model_allowance_db,
     modelled_eirp,
     reception,
     transmitter_offsets,
@@ -397,24 +398,19 @@ def simulate_pass(
     fault_db: NDArray[np.float64] | None = None,
     decoded: Decoded | None = None,
     reception: Reception | None = None,
-    model_sigma_db: float = 0.0,
 ) -> NoisyPass:
     """Noisy SNRs, the threshold and one :class:`SnrEpoch` per epoch (module docstring,
     3-4); ``offset_db`` ``(M,)`` adds each row's transmitter power offset, ``fault_db``
     ``(M,)`` an error of the receiver's measurement (``receiver.outliers``), ``decoded``
     replaces the true lines of sight and powers of the epochs by what the receiver
     decodes (``traffic.spoofer``), ``reception`` replaces the Gaussian receiver by
-    message collisions and the receiver chain (:mod:`attopt.experiments.adsb_snr.sky`),
-    ``model_sigma_db`` widens every stated sigma in quadrature (the receiver's aircraft
-    model)."""
+    message collisions and the receiver chain (:mod:`attopt.experiments.adsb_snr.sky`)."""
     decoded = Decoded.of(scenario) if decoded is None else decoded
     true_snr = scenario.true_snr_db if offset_db is None else scenario.true_snr_db + offset_db
     if reception is None:
         reports = gaussian_measurements(true_snr, rng, sigma_db, threshold_db, fault_db)
     else:
         reports = reception.measure(true_snr, rng, sigma_db, threshold_db, fault_db)
-    if model_sigma_db:
-        reports = replace(reports, sigma_db=np.hypot(reports.sigma_db, model_sigma_db))
     measured, received = reports.measured_db, reports.received
     row_sigma = np.broadcast_to(reports.sigma_db, true_snr.shape)
     rows = np.flatnonzero(received)
@@ -603,10 +599,27 @@ def _method_rows(
 
 def method_estimators(parameters: AdsbSnrParameters) -> dict[str, SnapshotEstimator]:
     """Row label -> configured estimator of each of ``methods`` (the two-step method's
-    ``deterministic_min_per_antenna``, then ``estimator_options``)."""
-    defaults = {"deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}}
+    ``deterministic_min_per_antenna`` and every method's power prior from the receiver's
+    aircraft model, :func:`snapshot_defaults`; then ``estimator_options``)."""
     methods = resolve(parameters.methods, method_labels(), "methods")
-    return configured_all(methods, parameters.estimator_options, defaults)
+    return configured_all(methods, parameters.estimator_options, snapshot_defaults(parameters))
+
+
+def snapshot_defaults(parameters: AdsbSnrParameters) -> dict[str, dict[str, Any]]:
+    """The experiment's defaults of the single-frame methods, by registry name: the
+    two-step method's ``deterministic_min_per_antenna``; with ``[receiver.aircraft_model]``
+    every method's (and the NLSE's that Liu et al. 2023's MEKF reads) power prior
+    ``power_offset_sigma_db``, the model's allowance
+    (:func:`~attopt.experiments.adsb_snr.sky.model_allowance_db`; the expected offset
+    itself is in each message's ``10 lg P0``)."""
+    defaults: dict[str, dict[str, Any]] = {
+        "deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}
+    }
+    allowance = model_allowance_db(parameters)
+    if allowance:
+        for name in dict.fromkeys([*parameters.methods, PAPER_SOURCE]):
+            defaults[name] = {**defaults.get(name, {}), "power_offset_sigma_db": allowance}
+    return defaults
 
 
 def trial_pass(
@@ -630,9 +643,9 @@ def trial_pass(
     burst = receiver.outliers
     fault = None if burst is None else burst.offsets(scenario.t[scenario.epoch_index])
     decoded = spoofed_decoding(parameters, scenario, seed)
-    model = modelled_eirp(parameters, rows, decoded.aircraft_ecef_km)
-    if model is not None:
-        decoded = replace(decoded, p0_dbw=decoded.p0_dbw + model.offset_db)
+    expected = modelled_eirp(parameters, rows, decoded.aircraft_ecef_km)
+    if expected is not None:
+        decoded = replace(decoded, p0_dbw=decoded.p0_dbw + expected)
     noisy = simulate_pass(
         scenario,
         np.random.default_rng(seed),
@@ -642,7 +655,6 @@ def trial_pass(
         fault,
         decoded,
         reception(parameters, rows, scenario.true_snr_db + offsets, seed),
-        0.0 if model is None else model.sigma_db,
     )
     return scenario, noisy
 
@@ -662,7 +674,12 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         frames.append(frame)
     nlse = solutions.get(PAPER_SOURCE)
     if nlse is None and PAPER_FILTER in parameters.filters:
-        nlse = configured(PAPER_SOURCE, parameters.estimator_options).solve_sequence(snapshots)
+        source = configured(
+            PAPER_SOURCE,
+            parameters.estimator_options,
+            **snapshot_defaults(parameters).get(PAPER_SOURCE, {}),
+        )
+        nlse = source.solve_sequence(snapshots)
     frames += filter_rows(parameters, seed, noisy.epochs, nlse, common, scenario.truth)
     return pd.concat(frames, ignore_index=True)
 

@@ -276,10 +276,10 @@ class AircraftModel(Parameters):
     """``[receiver.aircraft_model]``: what the receiver assumes about the transmitters it
     cannot know one by one (:mod:`attopt.experiments.adsb_snr.sky`): each message's
     ``10 lg P0`` raised by the transponder classes' mean power offset and by the gain of
-    the better placed aircraft antenna in level flight toward the satellite, and each
-    SNR's sigma widened by the classes' power spread and ``antenna_sigma_db`` in
-    quadrature.  Its numbers are those of ``[traffic.transmitters]`` (the defaults
-    without that table)."""
+    the better placed aircraft antenna in level flight toward the satellite (for every
+    estimator), and the single-frame methods' power prior set to the classes' power
+    spread and ``antenna_sigma_db`` in quadrature.  Its numbers are those of
+    ``[traffic.transmitters]`` (the defaults without that table)."""
 
     power: bool = Field(True, description="Whether the classes' mean power and spread are used.")
     antennas: bool = Field(

@@ -31,8 +31,9 @@ scenario without them is the paper's, draw for draw.
 
 * ``[receiver.aircraft_model]`` (:class:`~attopt.experiments.adsb_snr.parameters.AircraftModel`):
   what the receiver assumes about the transmitters it cannot know one by one: each
-  message's ``10 lg P0`` is raised by the offset it expects and each SNR's sigma widened
-  by the model's uncertainty (:func:`modelled_eirp`), for every estimator.
+  message's ``10 lg P0`` is raised by the offset it expects, for every estimator
+  (:func:`modelled_eirp`), and the single-frame methods are told the model's
+  uncertainty as their power prior (:func:`model_allowance_db`).
 
 SNRs.  The link budget's SNR is the signal over the noise in ``receiver.bandwidth_hz``
 (Liu et al. 2023 eq. 2); the chain's table is indexed by the SNR per complex sample at
@@ -142,33 +143,22 @@ def transmitter_offsets(
     )
 
 
-@dataclass(frozen=True)
-class ModelledEirp:
-    """The receiver's aircraft model (:func:`modelled_eirp`): each row's expected EIRP
-    offset (dB) and the standard deviation it states for what the model leaves out."""
-
-    offset_db: NDArray[np.float64]
-    sigma_db: float
-
-
 def modelled_eirp(
     scenario: AdsbScenario, rows: Rows, decoded_ecef_km: NDArray[np.float64]
-) -> ModelledEirp | None:
-    """``[receiver.aircraft_model]`` for the rows (``None`` without it): the offset the
-    receiver expects, the transponder classes' mean power offset plus the level-flight
-    gain of the better placed antenna toward the satellite at the elevation of the
-    satellite above the decoded position's horizontal plane
-    (:func:`~attopt.experiments.environment.aircraft_transmitters.level_flight_gain_dbi`),
-    and ``sqrt(s_p^2 + s_a^2)`` with ``s_p`` the classes' power spread
-    (``power_offset_moments``) and ``s_a`` the model's ``antenna_sigma_db``.  The numbers
-    are those of ``[traffic.transmitters]``, or their defaults."""
+) -> NDArray[np.float64] | None:
+    """``[receiver.aircraft_model]``'s expected EIRP offset (dB) of each row, ``None``
+    without that table: the transponder classes' mean power offset
+    (``power_offset_moments``), plus the level-flight gain of the better placed antenna
+    toward the satellite at the elevation of the satellite above the decoded position's
+    horizontal plane
+    (:func:`~attopt.experiments.environment.aircraft_transmitters.level_flight_gain_dbi`).
+    The numbers are those of ``[traffic.transmitters]``, or their defaults."""
     model = scenario.receiver.aircraft_model
     if model is None:
         return None
     installation = scenario.traffic.transmitters or AircraftTransmitterParameters()
-    mean, spread = installation.power_offset_moments() if model.power else (0.0, 0.0)
+    mean = installation.power_offset_moments()[0] if model.power else 0.0
     offset = np.full(rows.epoch_index.size, mean)
-    sigma = spread
     if model.antennas:
         geometry = build_adsb_geometry(scenario)
         los = geometry.position_ecef_km[rows.epoch_index] - decoded_ecef_km
@@ -176,8 +166,22 @@ def modelled_eirp(
         up = local_vertical(decoded_ecef_km)
         elevation = np.arcsin(np.clip(np.sum(up * los, axis=-1), -1.0, 1.0))
         offset = offset + level_flight_gain_dbi(elevation, installation) - _NOMINAL_GAIN_DBI
-        sigma = math.hypot(spread, model.antenna_sigma_db)
-    return ModelledEirp(offset, sigma)
+    return offset
+
+
+def model_allowance_db(scenario: AdsbScenario) -> float:
+    """The standard deviation ``[receiver.aircraft_model]`` states for what it leaves
+    out: ``sqrt(s_p^2 + s_a^2)``, ``s_p`` the classes' power spread (0 without
+    ``power``) and ``s_a`` its ``antenna_sigma_db`` (0 without ``antennas``); 0 without
+    the table.  It is an independent error of each aircraft's SNR within one epoch,
+    but not from epoch to epoch (an aircraft keeps its power), so it is the
+    single-frame methods' power prior (``power_offset_sigma_db``), not the filters'."""
+    model = scenario.receiver.aircraft_model
+    if model is None:
+        return 0.0
+    installation = scenario.traffic.transmitters or AircraftTransmitterParameters()
+    spread = installation.power_offset_moments()[1] if model.power else 0.0
+    return math.hypot(spread, model.antenna_sigma_db if model.antennas else 0.0)
 
 
 def message_counts(
