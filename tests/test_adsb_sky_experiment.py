@@ -136,6 +136,7 @@ def test_the_report_tabulates_every_estimator_per_sky_and_decides_the_claims(swe
     estimators = [line for line in text.splitlines() if line.startswith("| real | ")]
     assert {line.split(" | ")[2] for line in estimators} >= {"nlp", "mekf_snr"}
     assert "| 6 dB usable threshold | ideal | assumed |" in text
+    assert "![skies.png](skies.png)" in text and (sweep.out_dir / "skies.png").stat().st_size > 0
 
 
 def test_the_chain_hears_an_aircraft_half_the_time_between_its_message_points() -> None:

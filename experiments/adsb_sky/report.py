@@ -9,7 +9,9 @@ Tables from the stored rows (``adsb-snr``'s columns and ``sky``):
   gyro-aided rows from :func:`~attopt.experiments.adsb_snr.report.settled_from` on;
 * the paper's four claims, each with the rule that decides it and its number per sky
   (:data:`CLAIM_RULES`);
-* the integrity section of every report.
+* the integrity section of every report;
+* a figure of the observations per epoch and the RMS of every estimator, per sky
+  (:func:`sky_figure`).
 
 Both bounds assume the powers the receiver is told (the nominal ones): under a sky
 with unknown transmitter powers they are optimistic, and an RMS far above them
@@ -21,6 +23,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import matplotlib.pyplot as plt
+import matplotlib.ticker as ticker
 import numpy as np
 import pandas as pd
 
@@ -28,6 +32,7 @@ from attopt.experiments.adsb_snr.report import NO_GYRO, settled_from
 from attopt.experiments.environment.adsb_collisions import SQUITTER_RATE_HZ
 from attopt.experiments.environment.adsb_receiver import ReceiverChain, error_table, table_at
 from attopt.experiments.experiment import ReportContext
+from attopt.experiments.reporting.figures import image_links, save_figure
 from attopt.experiments.reporting.integrity import integrity_section
 from attopt.experiments.reporting.statistics import (
     AXES,
@@ -245,6 +250,41 @@ def claims_table(ctx: ReportContext, table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(lines)
 
 
+def sky_figure(ctx: ReportContext, table: pd.DataFrame) -> str:
+    """Bars per sky: the received observations per epoch, and the RMS error of each
+    single-frame method and of each gyro-aided estimator with the last gyro of ``gyros``
+    (valid epochs; a missing bar: no valid epoch).  Written to ``skies.png``; returns its
+    name."""
+    skies = _sky_order(ctx)
+    single = table[table["gyro"] == NO_GYRO]
+    gyros = [g for g in dict.fromkeys(table["gyro"]) if g != NO_GYRO]
+    aided = table[table["gyro"] == gyros[-1]] if gyros else table.iloc[:0]
+    panels = [("received observations per epoch", None), ("single frame: RMS (deg)", single)]
+    if len(aided):
+        panels.append((f"gyro-aided ({gyros[-1]} gyro): RMS (deg)", aided))
+    figure, axes = plt.subplots(len(panels), 1, figsize=(10.0, 2.6 * len(panels)), squeeze=False)
+    position = np.arange(len(skies))
+    for ax, (title, rows) in zip(axes[:, 0], panels, strict=True):
+        if rows is None:
+            counts = table.drop_duplicates("sky").set_index("sky")["observations per epoch"]
+            ax.bar(position, counts.reindex(skies).to_numpy(), color="grey")
+        else:
+            methods = list(dict.fromkeys(rows["method"]))
+            width = 0.8 / max(len(methods), 1)
+            for i, method in enumerate(methods):
+                values = rows[rows["method"] == method].set_index("sky")["RMS (deg)"]
+                offset = (i - 0.5 * (len(methods) - 1)) * width
+                ax.bar(position + offset, values.reindex(skies).to_numpy(), width, label=method)
+            ax.set_yscale("log")
+            ax.yaxis.set_major_formatter(ticker.FormatStrFormatter("%g"))
+            ax.yaxis.set_minor_formatter(ticker.FormatStrFormatter("%g"))
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks(position, skies)
+        ax.grid(True, axis="y", alpha=0.3)
+    return save_figure(figure, ctx.out_dir, "skies.png")
+
+
 def report(ctx: ReportContext) -> str:
     """Markdown: the estimators per sky, the claims, integrity."""
     if ctx.rows.empty:
@@ -278,5 +318,6 @@ def report(ctx: ReportContext) -> str:
                 markdown_table(claims_table(ctx, table)),
             ),
             integrity_section(ctx.rows, KEYS, ctx.command),
+            section("Figures", image_links([sky_figure(ctx, table)])),
         ]
     )
