@@ -4,7 +4,8 @@ Liu et al. 2023 (sec. 5.1) simulate an ideal sky: every aircraft transmits the s
 known power through an isotropic antenna, each visible aircraft gives one SNR per
 epoch with Gaussian noise of ``receiver.snr_sigma_db``, received iff that SNR reaches
 ``receiver.threshold_db``, and messages never collide.  Three tables of the scenario
-replace the parts of that ideal, each alone or together (``docs/adsb_sky.md``); a
+replace the parts of that ideal, each alone or together, and a fourth gives the
+receiver a model of what it cannot know aircraft by aircraft (``docs/adsb_sky.md``); a
 scenario without them is the paper's, draw for draw.
 
 * ``[traffic.transmitters]``
@@ -28,7 +29,6 @@ scenario without them is the paper's, draw for draw.
   threshold: the epochs' ``threshold_db`` is then ``-inf``, and each row's
   ``sigma_db`` is the table's standard deviation over the square root of the number
   of messages averaged.
-
 * ``[receiver.aircraft_model]`` (:class:`~attopt.experiments.adsb_snr.parameters.AircraftModel`):
   what the receiver assumes about the transmitters it cannot know one by one: each
   message's ``10 lg P0`` is raised by the offset it expects, for every estimator
