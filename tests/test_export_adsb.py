@@ -90,7 +90,13 @@ def _same_track(a, b) -> bool:
     )
 
 
-@pytest.mark.parametrize("overrides", [None, THREE_PATTERNS], ids=["paper", "three_patterns"])
+RECEIVER_CHAIN = {"receiver": {"chain": {"table_messages": 200}}}
+"""The simulated receiver chain: one stated sigma per SNR and no reception threshold."""
+
+
+@pytest.mark.parametrize(
+    "overrides", [None, THREE_PATTERNS, RECEIVER_CHAIN], ids=["paper", "three_patterns", "chain"]
+)
 def test_exported_pass_estimates_bit_identically_after_save_and_load(tmp_path, overrides):
     setting, recorded = exported(overrides)
     loaded = load_pass(save_pass(recorded, tmp_path / "adsb"))

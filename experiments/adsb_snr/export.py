@@ -32,6 +32,8 @@ trial.  To export another gyro, list it first in ``gyros``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from attopt.experiments.adsb_snr.experiment import AdsbSnrParameters, trial_pass
@@ -98,7 +100,8 @@ def export(setting: Setting, seed: np.random.SeedSequence) -> RecordedPass:
         snr=SnrEntry(
             noise_dbw=scenario.link_budget.noise_power_dbw,
             threshold_db=noisy.threshold_db,
-            truncated=parameters.filter_snr_model == "truncated",
+            truncated=parameters.filter_snr_model == "truncated"
+            and math.isfinite(noisy.threshold_db),
             antennas=antennas,
         ),
         prior=prior_entry(inputs.prior, INERTIAL),
