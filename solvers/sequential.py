@@ -124,6 +124,11 @@ class SequentialFilter(ABC):
         """Process one epoch's measurement (``None``: none); its counts, or ``None`` when
         there is nothing to count."""
 
+    def reset(self, attitude: Rotation, covariance: Array) -> None:
+        """Restart the estimate at ``attitude`` with the error state's ``covariance`` (a
+        recovery's restart from a single frame); the non-attitude block is kept."""
+        self.attitude, self.covariance = attitude, covariance
+
     @property
     def vector(self) -> Array:
         """The state's non-attitude block (the ``bias`` or ``rate`` attribute)."""

@@ -389,6 +389,7 @@ def test_registry_estimators() -> None:
         "mekf",
         "usque",
         "rts",
+        "mekf_offsets",
         "fg_online",
         "fg_batch",
         "fg_batch_offsets",

@@ -30,6 +30,9 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
   ``offset_prior_sigma_db``), for data simulated with
   ``traffic.power_offset_sigma_db > 0``.  Not in the default list: its cost
   grows with the number of aircraft in view at once (``docs/smoother.md``).
+* ``mekf_offsets_snr``: the MEKF with each aircraft's power offset as an augmented
+  state (prior ``offset_prior_sigma_db``; docs/filters.md, Transmitter power
+  offsets); not in the default list either.
 
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
 smoother is asked for: the posterior Cramer-Rao bound of the pass
@@ -103,6 +106,8 @@ DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online"
 """The filter rows of a default run (``fg_batch_offsets`` is asked for with the
 power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
+OFFSET_ESTIMATORS = ("fg_batch_offsets", "mekf_offsets")
+"""The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``)."""
 
 
 def filter_label(name: str) -> str:
@@ -120,7 +125,8 @@ def filter_labels() -> dict[str, str]:
 def filter_estimators(parameters: AdsbSnrParameters) -> dict[str, Estimator]:
     """Row label -> configured estimator of each of ``filters`` (the offsets' prior of
     ``fg_batch_offsets`` from ``offset_prior_sigma_db``, then ``estimator_options``)."""
-    defaults = {"fg_batch_offsets": {"offset_sigma": parameters.offset_prior_sigma_db}}
+    offsets = {"offset_sigma": parameters.offset_prior_sigma_db}
+    defaults = dict.fromkeys(OFFSET_ESTIMATORS, offsets)
     filters = resolve(parameters.filters, filter_labels(), "filters")
     return configured_all(filters, parameters.estimator_options, defaults)
 

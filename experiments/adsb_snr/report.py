@@ -81,11 +81,18 @@ PAPER_FILTER = "mekf_paper"
 PAPER_INPUT = "nlse"
 SNR_FILTER = "mekf_snr"
 SMOOTHER = "rts_snr"
-CONSISTENCY_FILTERS = ("mekf_snr", "usque_snr")
+CONSISTENCY_FILTERS = ("mekf_snr", "usque_snr", "mekf_offsets_snr")
 """Filters whose run-averaged NEES is tested."""
 REFERENCE_METHODS = ("nlp_truncated", "nlse")
 """Single-frame rows shown beside the filters (independent errors from epoch to epoch)."""
-SMOOTHERS = ("fg_online", "fg_batch", "fg_batch_offsets", "rts_snr", "mekf_snr")
+SMOOTHERS = (
+    "fg_online",
+    "fg_batch",
+    "fg_batch_offsets",
+    "rts_snr",
+    "mekf_snr",
+    "mekf_offsets_snr",
+)
 """Rows of the smoother table."""
 
 

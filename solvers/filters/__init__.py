@@ -1,15 +1,18 @@
 """Recursive filter baselines: the MEKF, USQUE and the multiplicative RTS smoother.
 
 Registry estimators (:mod:`attopt.solvers.filters.estimators`): ``mekf``,
-``usque`` and ``rts``; their predict and update steps are in
+``usque`` and ``rts``, and ``mekf_offsets`` with transmitter power offsets
+(:mod:`attopt.solvers.filters.offsets`; USQUE's, ``UsqueOffsets``, is not
+registered); their predict and update steps are in
 :mod:`attopt.solvers.filters.mekf` and :mod:`attopt.solvers.filters.usque`,
 the loop that runs them in :mod:`attopt.solvers.sequential`.
 """
 
 from attopt.solvers.filters.common import FilterOptions
-from attopt.solvers.filters.estimators import Mekf, Rts, Usque
+from attopt.solvers.filters.estimators import Mekf, MekfOffsets, Rts, Usque, UsqueOffsets
 
-ESTIMATORS = (Mekf(), Usque(), Rts())
-"""The package's registry estimators with their default options."""
+ESTIMATORS = (Mekf(), Usque(), Rts(), MekfOffsets())
+"""The package's registry estimators with their default options (``UsqueOffsets`` is not
+one of them: docs/filters.md, Transmitter power offsets)."""
 
-__all__ = ["ESTIMATORS", "FilterOptions", "Mekf", "Rts", "Usque"]
+__all__ = ["ESTIMATORS", "FilterOptions", "Mekf", "MekfOffsets", "Rts", "Usque", "UsqueOffsets"]

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -80,6 +80,9 @@ from attopt.solvers.gyro_timeline import (
 )
 from attopt.solvers.robust import huber_weights
 from attopt.solvers.sequential import SequentialFilter, TrackMonitor
+
+if TYPE_CHECKING:
+    from attopt.solvers.filters.offsets import OffsetStates, RowOffsets
 
 Array = NDArray[np.float64]
 
@@ -405,16 +408,51 @@ def gyro_monitor(options: FilterOptions, prior: Prior) -> TrackMonitor:
 class GyroStateFilter(SequentialFilter):
     """The state every gyro-aided filter carries: attitude, bias and their ``6 x 6``
     covariance, starting at the first gyro sample with the prior (``[attitude, bias]``),
-    and the gyro steps it walks (``node``: the timeline index it has reached)."""
+    and the gyro steps it walks (``node``: the timeline index it has reached).
+
+    ``offsets``, when given, are the transmitters' power offsets carried as augmented
+    states (:mod:`attopt.solvers.filters.offsets`): an update works on the joint
+    covariance of :meth:`joint` and hands it back to :meth:`absorb`.
+    """
 
     def __init__(
-        self, gyro: PreparedGyro, model: GyroModel, prior: Prior, options: FilterOptions
+        self,
+        gyro: PreparedGyro,
+        model: GyroModel,
+        prior: Prior,
+        options: FilterOptions,
+        offsets: OffsetStates | None = None,
     ) -> None:
         self.gyro, self.model, self.options = gyro, model, options
         self.attitude = prior.attitude
         self.bias = np.asarray(prior.bias, dtype=float)
         self.covariance = np.asarray(prior.covariance, dtype=float)
+        self.offsets = offsets
         self.node = 0
+
+    def joint(self, measurement: AttitudeMeasurement) -> tuple[Array, RowOffsets | None]:
+        """The covariance an update with ``measurement`` works on and its rows' offsets:
+        ``P`` and ``None`` without offsets, else the joint covariance with the offsets of
+        the measurement's sources (admitted, or marginalised after their timeout, at the
+        filter's time)."""
+        if self.offsets is None:
+            return self.covariance, None
+        time = float(self.gyro.timeline.t[self.node])
+        return self.offsets.augment(self.covariance, measurement.sources, measurement.size, time)
+
+    def absorb(self, covariance: Array, increment: Array) -> None:
+        """Keep an update's covariance (joint with the offsets: split, and the offsets'
+        estimates moved by ``increment``)."""
+        if self.offsets is None:
+            self.covariance = covariance
+        else:
+            self.covariance = self.offsets.absorb(covariance, increment)
+
+    def reset(self, attitude: Rotation, covariance: Array) -> None:
+        """Restart at ``attitude`` with ``covariance`` (``6 x 6``), forgetting the offsets."""
+        super().reset(attitude, covariance)
+        if self.offsets is not None:
+            self.offsets.clear()
 
 
 def propagate_covariance(

@@ -47,6 +47,7 @@ from attopt.solvers.filters.common import (
     solve_noise,
     usable_rows,
 )
+from attopt.solvers.filters.offsets import RowOffsets
 
 
 def propagate(
@@ -76,7 +77,8 @@ def update(
     covariance: Array,
     measurement: AttitudeMeasurement,
     options: FilterOptions,
-) -> tuple[Rotation, Array, Array, dict[str, float]]:
+    offsets: RowOffsets | None = None,
+) -> tuple[Rotation, Array, Array, dict[str, float], Array]:
     """One iterated measurement update with gating, Joseph form and reset.
 
     Gating, and the Huber weights when ``options.huber_threshold`` is set
@@ -109,22 +111,35 @@ def update(
     The covariance of the error relative to ``A^-`` is finally carried to the
     body frame of the reset attitude, ``P <- T P T^T`` with ``T =
     blockdiag(J(x), I)``.
+
+    With ``offsets`` (:mod:`attopt.solvers.filters.offsets`) ``covariance`` is the
+    joint one of ``[delta, delta_beta, delta_o]``, each row is predicted with its
+    offset ``o + delta_o`` in its model (:meth:`~attopt.solvers.filters.offsets.RowOffsets.shifted`)
+    and ``H`` gains the rows' ``dh / d o`` in their offsets' columns; the last item
+    returned is the offsets' increment ``delta_o`` (empty without).
     """
-    eye = np.eye(STATE_SIZE)
+    n_state = covariance.shape[0]
+    eye = np.eye(n_state)
     blocks = measurement.blocks
-    r_all = measurement.noise_covariance_at(attitude)
+    state = np.zeros(n_state)
+    shifted = measurement if offsets is None else offsets.shifted(measurement, state[STATE_SIZE:])
+    r_all = shifted.noise_covariance_at(attitude)
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     counts["n_downweighted"] = 0.0
-    state = np.zeros(STATE_SIZE)
     current = attitude
     prior_information = np.linalg.inv(covariance)
     accepted_state, accepted_cost, trial_step, halvings = state, np.inf, state, 0
     for iteration in range(options.max_update_iterations):
-        predicted, jacobian = measurement.predict(current)
+        if offsets is not None and iteration > 0:
+            shifted = offsets.shifted(measurement, state[STATE_SIZE:])
+        predicted, jacobian = shifted.predict(current)
         with np.errstate(invalid="ignore"):
-            innovation = measurement.innovation(predicted[0])
-        h_all = np.zeros((measurement.size, STATE_SIZE))
+            innovation = shifted.innovation(predicted[0])
+        if offsets is None:
+            h_all = np.zeros((measurement.size, n_state))
+        else:
+            h_all = offsets.design(n_state, shifted, current)
         h_all[:, :3] = jacobian[0] if iteration == 0 else jacobian[0] @ error_jacobian(state[:3])
         counts["update_iterations"] = float(iteration + 1)
         if iteration == 0:
@@ -142,7 +157,7 @@ def update(
             counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
             rows = rows[accepted]
             if rows.size == 0:
-                return attitude, bias, covariance, counts
+                return attitude, bias, covariance, counts, state[STATE_SIZE:]
             r_all = huber_noise(
                 r_all,
                 rows,
@@ -181,19 +196,20 @@ def update(
         trial_step = gain @ relinearised - state
         state = state + trial_step
         counts["nis"], counts["nis_dof"] = nis, float(rows.size)
-        if not np.all(np.isfinite(state)):
-            return attitude, np.full(3, np.nan), covariance, counts  # flagged by the caller
+        if not np.all(np.isfinite(state)):  # flagged by the caller
+            return attitude, np.full(3, np.nan), covariance, counts, state[STATE_SIZE:]
         if linearised(trial_step, posterior, options.relinearise_fraction):
             break
         current = apply_error(state[:3], attitude)
     joseph = eye - gain @ h
     covariance = joseph @ covariance @ joseph.T + noise_sandwich(gain, r)
-    reset = np.eye(STATE_SIZE)
+    reset = np.eye(n_state)
     reset[:3, :3] = error_jacobian(state[:3])
     covariance, repaired = repair_covariance(reset @ covariance @ reset.T)
     counts["n_used"] = float(np.unique(blocks[rows]).size)
     counts["covariance_repairs"] = float(repaired)
-    return apply_error(state[:3], attitude), bias + state[3:], covariance, counts
+    attitude = apply_error(state[:3], attitude)
+    return attitude, bias + state[3:STATE_SIZE], covariance, counts, state[STATE_SIZE:]
 
 
 class MekfFilter(GyroStateFilter):
@@ -213,12 +229,23 @@ class MekfFilter(GyroStateFilter):
             self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
         self.node = stop
+        if self.offsets is not None:
+            self.offsets.propagate(self.transition)
         return {"gyro_gap_s": self.gyro.gap_at(stop)}
 
     def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
         if measurement is None:
             return None
-        self.attitude, self.bias, self.covariance, counts = update(
-            self.attitude, self.bias, self.covariance, measurement, self.options
+        covariance, rows = self.joint(measurement)
+        self.attitude, self.bias, covariance, counts, increment = update(
+            self.attitude, self.bias, covariance, measurement, self.options, rows
         )
+        self.absorb(covariance, increment)
         return counts
+
+
+class MekfOffsetFilter(MekfFilter):
+    """:class:`MekfFilter` with transmitter offsets (:mod:`attopt.solvers.filters.offsets`):
+    not smoothable, since the RTS pass does not carry the offsets."""
+
+    smoothable = False

@@ -262,5 +262,5 @@ class SingleFrameRecovery(Recovery):
         covariance = np.zeros_like(filter.covariance)
         covariance[:3, :3] = frame.covariance
         covariance[3:, 3:] = self.bias_covariance
-        filter.attitude, filter.covariance = frame.attitude, covariance
+        filter.reset(frame.attitude, covariance)
         return {"restarts": 1.0, "nis": np.nan, "nis_dof": 0.0}

@@ -153,6 +153,7 @@ from attopt.solvers.filters.common import (
     repair_covariance,
     usable_rows,
 )
+from attopt.solvers.filters.offsets import RowOffsets
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -182,12 +183,19 @@ def sigma_offsets(covariance: Array) -> tuple[Array, bool]:
     return np.concatenate([np.zeros((1, STATE_SIZE)), root.T, -root.T]), repaired
 
 
+def carry(state: Array, size: int = STATE_SIZE) -> Array:
+    """``T = blockdiag(J, I)`` (``size x size``): it carries an error about ``A`` to the
+    error about ``apply_error(state[:3], A)`` to first order, ``J`` of
+    :func:`~attopt.solvers.filters.common.error_jacobian` (the MEKF's reset)."""
+    reset = np.eye(size)
+    reset[:3, :3] = error_jacobian(state[:3])
+    return reset
+
+
 def carried(covariance: Array, state: Array) -> Array:
     """The covariance of the error about ``apply_error(state[:3], A)`` from that about
-    ``A``: ``T P T^T``, ``T = blockdiag(J, I)``, ``J`` of
-    :func:`~attopt.solvers.filters.common.error_jacobian` (the MEKF's reset)."""
-    reset = np.eye(STATE_SIZE)
-    reset[:3, :3] = error_jacobian(state[:3])
+    ``A``: ``T P T^T`` (:func:`carry`)."""
+    reset = carry(state, covariance.shape[0])
     return reset @ covariance @ reset.T
 
 
@@ -206,12 +214,15 @@ def propagate(
     gyro: PreparedGyro,
     steps: slice,
     model: GyroModel,
-) -> tuple[Rotation, Array, Array, bool]:
-    """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in; the
-    last item says whether the covariance was repaired to draw the sigma points."""
+) -> tuple[Rotation, Array, Array, Array, bool]:
+    """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in, and its
+    statistical transition ``T(x^-) Phi``, ``Phi = P_{x'x} P^-1`` the regression of the
+    propagated sigma points on the drawn ones (:func:`regression`; what carries the
+    offsets' cross-covariance, :mod:`attopt.solvers.filters.offsets`); the last item
+    says whether the covariance was repaired to draw the sigma points."""
     rates, dt = gyro.rates[steps], gyro.dt[steps]
     if rates.shape[0] == 0:
-        return attitude, bias, covariance, False
+        return attitude, bias, covariance, np.eye(STATE_SIZE), False
     offsets, repaired = sigma_offsets(covariance)
     sigma_bias = bias + offsets[:, 3:]
     propagated = propagate_quaternion(
@@ -226,7 +237,8 @@ def propagate(
     noise = interval_noise(rates - bias, gyro.hold_variance[steps], model, dt)
     covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + noise, mean)  # (U4)
     attitude = Rotation.from_quat(perturb_quaternion(mean[:3], propagated[0]))  # (U5)
-    return attitude, bias + mean[3:], covariance, repaired
+    transition = carry(mean) @ regression(spread, offsets)[0]
+    return attitude, bias + mean[3:], covariance, transition, repaired
 
 
 def regression(deviation: Array, offsets: Array) -> tuple[Array, Array]:
@@ -253,7 +265,8 @@ def update(
     covariance: Array,
     measurement: AttitudeMeasurement,
     options: FilterOptions,
-) -> tuple[Rotation, Array, Array, dict[str, float]]:
+    offsets: RowOffsets | None = None,
+) -> tuple[Rotation, Array, Array, dict[str, float], Array]:
     """Unscented measurement update (U6)-(U9) with gating.
 
     The first pass is the plain unscented update.  While the attitude step is
@@ -271,56 +284,69 @@ def update(
     - R``, ``P^- H^T = P_xnu``).  Gating, and the Huber weights when
     ``options.huber_threshold`` is set (:func:`~attopt.solvers.filters.common.huber_noise`),
     use the first pass.
+
+    With ``offsets`` (:mod:`attopt.solvers.filters.offsets`) ``covariance`` is the
+    joint one of ``[delta, delta_beta, delta_o]``.  The sigma points are drawn over
+    ``[delta, delta_beta]`` alone, each row predicted with its offset ``o + delta_o``
+    inside its model, and the offsets enter linearised: ``H`` gains the rows'
+    ``dh / d o`` in their offsets' columns (at the centre point; 1 for the Gaussian
+    SNR model, so that the unscented transform over the joint state, whose
+    Cholesky factor's offset columns move only the offsets, is this one exactly),
+    and the first pass's innovation covariance adds the offsets' terms
+    (:func:`with_offsets`).  The last item returned is the offsets' increment
+    ``delta_o`` (empty without).
     """
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     counts["n_downweighted"] = 0.0
-    offsets, repaired = sigma_offsets(covariance)
+    n_state = covariance.shape[0]
+    state = np.zeros(n_state)
+    sigma, repaired = sigma_offsets(covariance[:STATE_SIZE, :STATE_SIZE])
     counts["covariance_repairs"] = float(repaired)
-    predicted, _ = measurement.predict(apply_error(offsets[:, :3], attitude), jacobian=False)
+    shifted = measurement if offsets is None else offsets.shifted(measurement, state[STATE_SIZE:])
+    predicted, _ = shifted.predict(apply_error(sigma[:, :3], attitude), jacobian=False)
     with np.errstate(invalid="ignore"):  # rows left out may hold NaN
-        innovations = measurement.innovation(predicted)
+        innovations = shifted.innovation(predicted)
     keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovations)
     counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
     rows = np.flatnonzero(keep)
     if rows.size == 0:
-        return attitude, bias, covariance, counts
+        return attitude, bias, covariance, counts, state[STATE_SIZE:]
     blocks = measurement.blocks[rows]
     innovations = innovations[:, rows]
+    design = None if offsets is None else offsets.design(n_state, shifted, attitude)[rows]
     nu = WEIGHTS @ innovations  # (U6)
-    deviation = nu - innovations  # h_i - h_mean
-    r_all = measurement.noise_covariance_at(attitude)
+    factor, weight = with_offsets(nu - innovations, sigma, covariance, design)  # h_i - h_mean
+    r_all = shifted.noise_covariance_at(attitude)
     accepted = gate(  # (U7) per block
-        nu,
-        deviation,
-        np.diag(COVARIANCE_WEIGHTS),
-        noise_subset(r_all, rows),
-        blocks,
-        options.gate_probability,
+        nu, factor, weight, noise_subset(r_all, rows), blocks, options.gate_probability
     )
     counts["n_gated"] = float(np.unique(blocks[~accepted]).size)
     if not accepted.any():
-        return attitude, bias, covariance, counts
+        return attitude, bias, covariance, counts, state[STATE_SIZE:]
     rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
-    nu = nu[accepted]
+    nu, factor = nu[accepted], factor[:, accepted]
+    design = None if design is None else design[accepted]
     counts["n_used"] = float(np.unique(blocks).size)
-    r_all = huber_noise(
-        r_all, rows, nu, (nu - innovations), np.diag(COVARIANCE_WEIGHTS), blocks, options, counts
-    )
+    r_all = huber_noise(r_all, rows, nu, factor, weight, blocks, options, counts)
     r = noise_subset(r_all, rows)
-    state = np.zeros(STATE_SIZE)
     posterior = covariance
     information = np.linalg.inv(covariance)
+    offsets_sigma = sigma
     for iteration in range(options.max_update_iterations):
         if iteration > 0:
             if not finite(state, posterior):
                 break
-            offsets, repaired = sigma_offsets(posterior)
+            offsets_sigma, repaired = sigma_offsets(posterior[:STATE_SIZE, :STATE_SIZE])
             counts["covariance_repairs"] += float(repaired)
-            sigma_attitudes = apply_error(state[:3] + offsets[:, :3], attitude)
-            predicted, _ = measurement.predict(sigma_attitudes, jacobian=False)
+            sigma_attitudes = apply_error(state[:3] + offsets_sigma[:, :3], attitude)
+            if offsets is not None:
+                shifted = offsets.shifted(measurement, state[STATE_SIZE:])
+                slopes = offsets.design(n_state, shifted, sigma_attitudes[0])
+                design = slopes[rows]
+            predicted, _ = shifted.predict(sigma_attitudes, jacobian=False)
             with np.errstate(invalid="ignore"):
-                innovations = measurement.innovation(predicted)[:, rows]
+                innovations = shifted.innovation(predicted)[:, rows]
             # relinearised: drop blocks the model can no longer predict at some point
             lost = np.unique(blocks[~np.isfinite(innovations).all(axis=0)])
             if lost.size:
@@ -330,13 +356,16 @@ def update(
                     blocks[keep_rows],
                     innovations[:, keep_rows],
                 )
+                design = None if design is None else design[keep_rows]
                 counts["n_unpredictable"] += float(lost.size)
                 counts["n_used"] -= float(lost.size)
                 if rows.size == 0:
                     break
                 r = noise_subset(r_all, rows)
             nu = WEIGHTS @ innovations
-        h, omega = regression(nu - innovations, offsets)  # pass 0: (U7)-(U8)
+        h, omega = regression(nu - innovations, offsets_sigma)  # pass 0: (U7)-(U8)
+        if design is not None:
+            h = np.concatenate([h, design[:, STATE_SIZE:]], axis=1)
         noise = r + omega if r.ndim == 1 else r + np.diag(omega)
         relinearised = nu + h @ state  # the innovation relinearised at the iterate
         gain, nis, posterior = kalman_gain(covariance, h, noise, relinearised, information)
@@ -348,11 +377,39 @@ def update(
         regression_exact = omega.sum() <= options.relinearise_fraction * diagonal.sum()
         if linearised(step, posterior, options.relinearise_fraction) and regression_exact:
             break
+    increment = state[STATE_SIZE:]
     if not finite(state, posterior):  # reported as such: the epoch and later ones are flagged
-        return attitude, bias, np.full_like(covariance, np.nan), counts
+        return attitude, bias, np.full_like(covariance, np.nan), counts, increment
     posterior, repaired = repair_covariance(carried(posterior, state))
     counts["covariance_repairs"] += float(repaired)
-    return apply_error(state[:3], attitude), bias + state[3:], posterior, counts  # (U9)
+    attitude = apply_error(state[:3], attitude)  # (U9)
+    return attitude, bias + state[3:STATE_SIZE], posterior, counts, increment
+
+
+def with_offsets(
+    deviation: Array, sigma: Array, covariance: Array, design: Array | None
+) -> tuple[Array, Array]:
+    """The factor ``F`` and weight ``W`` of the first pass's innovation covariance ``S =
+    F^T W F + R`` (:func:`~attopt.solvers.filters.common.block_nis`, for the gate and
+    the Huber weights).
+
+    Without offsets (``design`` ``None``), the sigma deviations ``h_i - h_mean`` with the
+    covariance weights (U7).  With them, ``F = [deviation; E^T]`` (``E`` the rows'
+    offset columns of ``design``) and ``W = [[diag(w), Y], [Y^T, O]]``, ``O`` the
+    offsets' covariance and ``Y`` ``(13, k)`` zero for the centre point and ``+/-
+    L^-1 C / 2`` for the points ``+/- L_j``, so that ``deviation^T Y = H C`` (``H`` of
+    :func:`regression`, ``C`` the offsets' cross-covariance): ``S`` is then (U7)'s
+    plus ``H C E^T + E C^T H^T + E O E^T``, the unscented transform over the joint
+    state.
+    """
+    weight = np.diag(COVARIANCE_WEIGHTS)
+    if design is None:
+        return deviation, weight
+    n = STATE_SIZE
+    spread = 0.5 * np.linalg.solve(sigma[1 : n + 1].T, covariance[:n, n:])  # L^-1 C / 2
+    y = np.concatenate([np.zeros((1, spread.shape[1])), spread, -spread])
+    joint_weight = np.block([[weight, y], [y.T, covariance[n:, n:]]])
+    return np.concatenate([deviation, design[:, n:].T]), joint_weight
 
 
 class UsqueFilter(GyroStateFilter):
@@ -367,16 +424,20 @@ class UsqueFilter(GyroStateFilter):
 
     def predict(self, t: float) -> dict[str, float]:
         stop = self.gyro.node(t)
-        self.attitude, self.bias, self.covariance, repaired = propagate(
+        self.attitude, self.bias, self.covariance, transition, repaired = propagate(
             self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
         self.node = stop
+        if self.offsets is not None:
+            self.offsets.propagate(transition)
         return {"gyro_gap_s": self.gyro.gap_at(stop), "covariance_repairs": float(repaired)}
 
     def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
         if measurement is None or not finite(self.covariance):
             return None
-        self.attitude, self.bias, self.covariance, counts = update(
-            self.attitude, self.bias, self.covariance, measurement, self.options
+        covariance, rows = self.joint(measurement)
+        self.attitude, self.bias, covariance, counts, increment = update(
+            self.attitude, self.bias, covariance, measurement, self.options, rows
         )
+        self.absorb(covariance, increment)
         return counts

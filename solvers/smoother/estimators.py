@@ -46,6 +46,7 @@ from attopt.formulations.passes import Pass
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.estimator import PassEstimator
 from attopt.solvers.filters.common import FilterOptions, gyro_pass
+from attopt.solvers.filters.offsets import OFFSET_PRIOR_SIGMA_DB
 from attopt.solvers.filters.recovery import SingleFrameStart
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import TrackMonitor, run_filter
@@ -62,9 +63,6 @@ from attopt.solvers.smoother.online import OnlineFilter, OnlineOptions
 from attopt.solvers.smoother.optimiser import LevenbergMarquardtResult, levenberg_marquardt
 from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
 from attopt.solvers.smoother.problem import GraphOptions, SmootherProblem, build_problem
-
-OFFSET_PRIOR_SIGMA_DB = 2.0
-"""Default prior standard deviation (dB) of a transmitter's power offset."""
 
 
 @dataclass(frozen=True, repr=False)
