@@ -90,6 +90,8 @@ DIAGNOSTICS = (
     "n_downweighted",
 )
 """Per-epoch counts of the gyro-aided filters (:func:`filter_result`)."""
+OFFSET_DIAGNOSTICS = (*DIAGNOSTICS, "offset_nis", "offset_dof")
+"""Those of the filters with transmitter offsets: also the offsets' test against their prior."""
 NON_FINITE = "filter state became non-finite"
 
 
@@ -528,9 +530,8 @@ def run_filter(
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
-    return filter_result(
-        method, record, options, t, None if history is None else history.history(record), lost
-    )
+    backward = None if history is None else history.history(record)
+    return filter_result(method, record, options, t, backward, lost, settling=True)
 
 
 def _update(
@@ -572,6 +573,7 @@ def filter_result(
     history: FilterHistory | None = None,
     lost: NDArray[np.bool_] | None = None,
     tested: str = "innovations of the last {window} updates",
+    settling: bool = False,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -582,11 +584,18 @@ def filter_result(
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
     * a lost track (``lost``, from the :class:`TrackMonitor`);
     * a restarted filter still converging (:func:`converging_epochs` of the record's
-      ``restarts``, when it has them and ``options.consistency_window`` is not 0);
+      ``restarts``, when it has them and ``options.consistency_window`` is not 0), or,
+      with ``settling`` (the sequential loop's filters), one whose attitude sigma has
+      fallen below ``options.max_attitude_sigma`` fewer than
+      ``options.consistency_window`` updates before (its consistency test has not yet
+      seen a whole window of the determined attitude);
     * inconsistent innovations (:func:`inconsistent_epochs` of the record's ``nis`` and
       ``nis_dof``, when it has both, over ``options.consistency_window`` updates, the
       window starting again at each restart; ``tested`` names what was tested in the
-      reason, ``{window}`` standing for the window), whose
+      reason, ``{window}`` standing for the window), or transmitter offsets' estimates
+      that contradict their prior (``offset_nis`` against chi-square with ``offset_dof``
+      at ``options.consistency_false_alarm``; filters with offsets,
+      :meth:`~attopt.solvers.filters.offsets.OffsetStates.prior_test`), whose
       error is :class:`~attopt.formulations.errors.ModelMismatchError` (the others'
       :class:`~attopt.formulations.errors.ConvergenceError`).
 
@@ -623,6 +632,18 @@ def filter_result(
                 f"converging: restarted from a single-frame solution, fewer than "
                 f"{options.consistency_window} updates since"
             )
+        if settling:
+            with np.errstate(invalid="ignore"):
+                undetermined = sigma > options.max_attitude_sigma
+            determined = np.flatnonzero(undetermined[:-1] & ~undetermined[1:])  # the one before
+            settled = converging_epochs(
+                nis, dof, np.isin(np.arange(record.n), determined), options.consistency_window
+            )
+            reason[settled & (reason == "")] = (
+                f"converging: the attitude 1-sigma fell below "
+                f"{np.degrees(options.max_attitude_sigma):g} deg fewer than "
+                f"{options.consistency_window} updates before"
+            )
         inconsistent = inconsistent_epochs(
             nis, dof, options.consistency_window, options.consistency_false_alarm, restarts
         ) & (reason == "")
@@ -630,6 +651,18 @@ def filter_result(
             f"inconsistent: the {tested.format(window=options.consistency_window)} "
             f"fail the chi-square test at {options.consistency_false_alarm:g}"
         )
+    if {"offset_nis", "offset_dof"} <= set(record.diagnostics):
+        statistic = record.diagnostics["offset_nis"]
+        dof = record.diagnostics["offset_dof"]
+        tail = np.ones(record.n)
+        for k in np.flatnonzero(dof > 0):
+            tail[k] = chi_square_tail(statistic[k], dof[k])
+        offsets_off = (tail < options.consistency_false_alarm) & (reason == "")
+        reason[offsets_off] = (
+            "inconsistent: the transmitter offsets' estimates fail the chi-square test "
+            f"against their prior at {options.consistency_false_alarm:g}"
+        )
+        inconsistent |= offsets_off
     valid = reason == ""
     error = np.full(record.n, None, dtype=object)
     error[~valid] = ConvergenceError

@@ -178,3 +178,40 @@ def test_offset_bookkeeping_admits_marginalises_and_keeps_the_joint_covariance(
         assert np.linalg.eigvalsh(rebuilt)[0] > -1e-12
     states.clear()
     assert states.size == 0 and states.cross.shape == (6, 0)
+
+
+def test_offsets_propagate_their_cross_covariance_and_random_walk() -> None:
+    """``C <- Phi C`` and, with a random walk, ``O <- O + q dt I``; constants by default."""
+    constant, walking = OffsetStates(2.0, 30.0), OffsetStates(2.0, 30.0, rate_sigma=0.1)
+    transition = np.diag([2.0, 1, 1, 1, 1, 1])
+    for states in (constant, walking):
+        states.augment(np.eye(6), np.array([4, 9]), 2, t=0.0)
+        states.cross[0] = 1.0
+        states.propagate(transition, 5.0)
+        np.testing.assert_array_equal(states.cross[0], [2.0, 2.0])
+    np.testing.assert_array_equal(constant.own, 4.0 * np.eye(2))
+    np.testing.assert_allclose(walking.own, (4.0 + 0.01 * 5.0) * np.eye(2))
+    with pytest.raises(ValueError, match="random-walk"):
+        OffsetStates(2.0, 30.0, rate_sigma=-1.0)
+
+
+def test_the_offsets_prior_test_is_chi_square_and_skips_what_the_data_did_not_inform() -> None:
+    """Estimates drawn from ``N(0, D - O)`` give a statistic with mean ``k``; an offset the
+    data have not informed is left out; estimates far off their prior fail."""
+    rng = np.random.default_rng(0)
+    states = OffsetStates(2.0, 30.0)
+    states.augment(np.eye(6), np.arange(5), 5, t=0.0)
+    root = rng.standard_normal((5, 5)) * 0.3
+    states.own = 4.0 * np.eye(5) - root @ root.T  # the data removed root root^T
+    states.own[4, :] = states.own[:, 4] = 0.0
+    states.own[4, 4] = 4.0  # offset 4 not informed at all
+    statistics = []
+    for _ in range(2000):
+        states.value = root @ rng.standard_normal(5)
+        statistic, dof = states.prior_test()
+        statistics.append(statistic)
+    assert dof == 4
+    assert abs(np.mean(statistics) - 4.0) < 0.25
+    states.value = 3.0 * np.ones(5)
+    statistic, dof = states.prior_test()
+    assert chi2.sf(statistic, dof) < 1e-6

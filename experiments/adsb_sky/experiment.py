@@ -15,7 +15,11 @@ run once per *sky* (``skies``), each a setting of the sweep:
 * ``modelled``: the real sky, with the receiver's whole aircraft model
   (``[receiver.aircraft_model]``): every estimator is told each message's expected
   EIRP, the transponder classes' mean power through the better placed antenna in
-  level flight, and the single-frame methods the model's uncertainty.
+  level flight, the single-frame methods the model's uncertainty, and
+  ``mekf_offsets_snr`` the random walk of what that antenna model leaves out.
+
+Besides ``adsb-snr``'s default filters the skies run ``mekf_offsets_snr``, the MEKF
+with each aircraft's power offset as a state (docs/filters.md).
 
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
@@ -50,6 +54,7 @@ from pydantic import Field
 
 from attopt.experiments.adsb_sky.report import report
 from attopt.experiments.adsb_snr import experiment as adsb
+from attopt.experiments.adsb_snr.filters import DEFAULT_FILTERS
 from attopt.experiments.experiment import Experiment, Setting
 
 Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real", "modelled"]
@@ -66,7 +71,13 @@ SKIES: tuple[str, ...] = (
 
 
 class AdsbSkyParameters(adsb.AdsbSnrParameters):
-    """Parameters of ``adsb-sky``: ``adsb-snr``'s, and the skies to run (module docstring)."""
+    """Parameters of ``adsb-sky``: ``adsb-snr``'s (its filters with ``mekf_offsets_snr``
+    added), and the skies to run (module docstring)."""
+
+    filters: list[adsb.label_field(adsb.filter_labels, "filters")] = Field(
+        default_factory=lambda: [*DEFAULT_FILTERS, "mekf_offsets_snr"],
+        description="Filters and smoothers (row labels).",
+    )
 
     skies: list[Sky] = Field(
         default_factory=lambda: list(SKIES),

@@ -124,9 +124,14 @@ def filter_labels() -> dict[str, str]:
 
 def filter_estimators(parameters: AdsbSnrParameters) -> dict[str, Estimator]:
     """Row label -> configured estimator of each of ``filters`` (the offsets' prior of
-    ``fg_batch_offsets`` from ``offset_prior_sigma_db``, then ``estimator_options``)."""
+    ``fg_batch_offsets`` and ``mekf_offsets`` from ``offset_prior_sigma_db``, the
+    latter's random walk from ``[receiver.aircraft_model]``'s ``antenna_walk_db`` when
+    it models the antennas; then ``estimator_options``)."""
     offsets = {"offset_sigma": parameters.offset_prior_sigma_db}
-    defaults = dict.fromkeys(OFFSET_ESTIMATORS, offsets)
+    defaults: dict[str, dict[str, Any]] = dict.fromkeys(OFFSET_ESTIMATORS, offsets)
+    model = parameters.receiver.aircraft_model
+    if model is not None and model.antennas:
+        defaults["mekf_offsets"] = {**offsets, "offset_rate_sigma": model.antenna_walk_db}
     filters = resolve(parameters.filters, filter_labels(), "filters")
     return configured_all(filters, parameters.estimator_options, defaults)
 

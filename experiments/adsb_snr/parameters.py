@@ -277,9 +277,11 @@ class AircraftModel(Parameters):
     cannot know one by one (:mod:`attopt.experiments.adsb_snr.sky`): each message's
     ``10 lg P0`` raised by the transponder classes' mean power offset and by the gain of
     the better placed aircraft antenna in level flight toward the satellite (for every
-    estimator), and the single-frame methods' power prior set to the classes' power
-    spread and ``antenna_sigma_db`` in quadrature.  Its numbers are those of
-    ``[traffic.transmitters]`` (the defaults without that table)."""
+    estimator), the single-frame methods' power prior set to the classes' power
+    spread and ``antenna_sigma_db`` in quadrature, and, with ``antennas``, the
+    offsets' random walk of the filters that carry each aircraft's offset set to
+    ``antenna_walk_db``.  Its numbers are those of ``[traffic.transmitters]`` (the
+    defaults without that table)."""
 
     power: bool = Field(True, description="Whether the classes' mean power and spread are used.")
     antennas: bool = Field(
@@ -291,6 +293,15 @@ class AircraftModel(Parameters):
         description=(
             "Allowance for what the level-flight antenna model leaves out (bank, the other "
             "antenna): measured 0.77 dB over the received messages (docs/adsb_sky.md)."
+        ),
+    )
+    antenna_walk_db: float = Field(
+        0.08,
+        ge=0.0,
+        description=(
+            "Random-walk density (dB/sqrt(s)) of what the level-flight antenna model leaves "
+            "out, for the filters that carry each aircraft's offset (mekf_offsets): its "
+            "change over 10-30 s measured 0.06-0.19 dB^2 (docs/adsb_sky.md)."
         ),
     )
 

@@ -430,6 +430,14 @@ class GyroStateFilter(SequentialFilter):
         self.offsets = offsets
         self.node = 0
 
+    def advance(self, transition: Array, stop: int) -> None:
+        """Move to timeline boundary ``stop`` after a propagation with the error state's
+        ``transition``: the offsets' cross-covariance and random walk with it."""
+        if self.offsets is not None:
+            times = self.gyro.timeline.t
+            self.offsets.propagate(transition, float(times[stop] - times[self.node]))
+        self.node = stop
+
     def joint(self, measurement: AttitudeMeasurement) -> tuple[Array, RowOffsets | None]:
         """The covariance an update with ``measurement`` works on and its rows' offsets:
         ``P`` and ``None`` without offsets, else the joint covariance with the offsets of
@@ -440,13 +448,17 @@ class GyroStateFilter(SequentialFilter):
         time = float(self.gyro.timeline.t[self.node])
         return self.offsets.augment(self.covariance, measurement.sources, measurement.size, time)
 
-    def absorb(self, covariance: Array, increment: Array) -> None:
+    def absorb(self, covariance: Array, increment: Array) -> dict[str, float]:
         """Keep an update's covariance (joint with the offsets: split, and the offsets'
-        estimates moved by ``increment``)."""
+        estimates moved by ``increment``); the counts of the offsets' test against their
+        prior (``offset_nis``, ``offset_dof``: ``OffsetStates.prior_test``), none without
+        offsets."""
         if self.offsets is None:
             self.covariance = covariance
-        else:
-            self.covariance = self.offsets.absorb(covariance, increment)
+            return {}
+        self.covariance = self.offsets.absorb(covariance, increment)
+        statistic, dof = self.offsets.prior_test()
+        return {"offset_nis": statistic, "offset_dof": float(dof)}
 
     def reset(self, attitude: Rotation, covariance: Array) -> None:
         """Restart at ``attitude`` with ``covariance`` (``6 x 6``), forgetting the offsets."""

@@ -49,7 +49,7 @@ from attopt.solvers.filters.mekf import MekfFilter, MekfOffsetFilter
 from attopt.solvers.filters.offsets import OFFSET_PRIOR_SIGMA_DB, OFFSET_TIMEOUT_S, OffsetStates
 from attopt.solvers.filters.recovery import SingleFrameRecovery, unknown_prior
 from attopt.solvers.filters.rts import rts_smooth
-from attopt.solvers.filters.usque import UsqueFilter
+from attopt.solvers.filters.usque import UsqueFilter, UsqueOffsetFilter
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import run_filter
 
@@ -137,6 +137,8 @@ class OffsetFilter(GyroFilter):
     Attributes:
         offset_sigma: prior standard deviation of each offset (dB).
         offset_timeout_s: a transmitter not heard for longer is marginalised (s).
+        offset_rate_sigma: the offsets' random-walk density (dB / sqrt(s); 0: each
+            offset a constant).
     """
 
     filter: FilterOptions = field(
@@ -144,6 +146,7 @@ class OffsetFilter(GyroFilter):
     )
     offset_sigma: float = OFFSET_PRIOR_SIGMA_DB
     offset_timeout_s: float = OFFSET_TIMEOUT_S
+    offset_rate_sigma: float = 0.0
 
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (
         SnrMeasurement,
@@ -151,7 +154,7 @@ class OffsetFilter(GyroFilter):
     )
 
     def __post_init__(self) -> None:
-        OffsetStates(self.offset_sigma, self.offset_timeout_s)  # raises if out of range
+        self.empty_offsets()  # raises if out of range
 
     def offset_states(self, pass_: Pass) -> OffsetStates:
         """Empty offsets with the prior and timeout.
@@ -163,7 +166,11 @@ class OffsetFilter(GyroFilter):
             raise InvalidObservationError(
                 f"{self.name} estimates transmitter offsets: no measurement has sources"
             )
-        return OffsetStates(self.offset_sigma, self.offset_timeout_s)
+        return self.empty_offsets()
+
+    def empty_offsets(self) -> OffsetStates:
+        """Empty offsets with this filter's prior, timeout and random walk."""
+        return OffsetStates(self.offset_sigma, self.offset_timeout_s, self.offset_rate_sigma)
 
 
 @dataclass(frozen=True, repr=False)
@@ -205,7 +212,7 @@ class UsqueOffsets(OffsetFilter):
         "unscented quaternion estimator with gyro bias and each transmitter's power "
         "offset as an augmented state"
     )
-    steps: ClassVar[type[GyroStateFilter]] = UsqueFilter
+    steps: ClassVar[type[GyroStateFilter]] = UsqueOffsetFilter
 
 
 @dataclass(frozen=True, repr=False)

@@ -48,6 +48,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
 )
 from attopt.solvers.filters.offsets import RowOffsets
+from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 
 def propagate(
@@ -228,9 +229,7 @@ class MekfFilter(GyroStateFilter):
         self.attitude, self.covariance, self.transition = propagate(
             self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
-        self.node = stop
-        if self.offsets is not None:
-            self.offsets.propagate(self.transition)
+        self.advance(self.transition, stop)
         return {"gyro_gap_s": self.gyro.gap_at(stop)}
 
     def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
@@ -240,12 +239,13 @@ class MekfFilter(GyroStateFilter):
         self.attitude, self.bias, covariance, counts, increment = update(
             self.attitude, self.bias, covariance, measurement, self.options, rows
         )
-        self.absorb(covariance, increment)
-        return counts
+        return counts | self.absorb(covariance, increment)
 
 
 class MekfOffsetFilter(MekfFilter):
     """:class:`MekfFilter` with transmitter offsets (:mod:`attopt.solvers.filters.offsets`):
-    not smoothable, since the RTS pass does not carry the offsets."""
+    not smoothable, since the RTS pass does not carry the offsets; it counts their test
+    against the prior."""
 
     smoothable = False
+    diagnostics = OFFSET_DIAGNOSTICS

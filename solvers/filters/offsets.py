@@ -62,6 +62,9 @@ OFFSET_PRIOR_SIGMA_DB = 2.0
 and the batch smoother's, ``fg_batch_offsets``)."""
 OFFSET_TIMEOUT_S = 30.0
 """Default time (s) after which a transmitter not heard is marginalised."""
+UNINFORMED = 1e-6
+"""Share of its prior variance the data must have removed from an offset (or a direction
+of the offsets) for :meth:`OffsetStates.prior_test` to test it."""
 
 
 class RowOffsets(NamedTuple):
@@ -107,35 +110,76 @@ class OffsetStates:
     Attributes:
         sigma: prior standard deviation of a new offset (dB).
         timeout_s: a source not heard for longer is marginalised.
+        rate_sigma: the offsets' random-walk density (dB / sqrt(s); 0: constants).
         ids: ``(k,)`` sorted source identifiers.
         value: ``(k,)`` estimates (dB).
         cross: ``(6, k)`` cross-covariance with the error state.
         own: ``(k, k)`` covariance.
         last_heard: ``(k,)`` time of each source's last update.
+        prior_variance: ``(k,)`` each offset's variance before any data: ``sigma^2``
+            plus its random walk since admission.
     """
 
     sigma: float
     timeout_s: float
+    rate_sigma: float = 0.0
     ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     value: Array = field(default_factory=lambda: np.zeros(0))
     cross: Array = field(default_factory=lambda: np.zeros((STATE_SIZE, 0)))
     own: Array = field(default_factory=lambda: np.zeros((0, 0)))
     last_heard: Array = field(default_factory=lambda: np.zeros(0))
+    prior_variance: Array = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
         if not self.sigma > 0:
             raise ValueError("the offsets' prior sigma must be positive")
         if not self.timeout_s > 0:
             raise ValueError("the offsets' timeout must be positive")
+        if not self.rate_sigma >= 0:
+            raise ValueError("the offsets' random-walk density must be non-negative")
 
     @property
     def size(self) -> int:
         """Number of offsets carried."""
         return int(self.ids.size)
 
-    def propagate(self, transition: Array) -> None:
-        """``C <- Phi C`` over an interval with the error state's transition ``Phi``."""
+    def propagate(self, transition: Array, interval: float) -> None:
+        """``C <- Phi C`` over an interval of ``interval`` s with the error state's
+        transition ``Phi``; ``O <- O + rate_sigma^2 interval I`` (the offsets' random walk)."""
         self.cross = transition @ self.cross
+        if self.rate_sigma > 0.0 and self.size:
+            growth = self.rate_sigma**2 * interval
+            self.own = self.own + growth * np.eye(self.size)
+            self.prior_variance = self.prior_variance + growth
+
+    def prior_test(self) -> tuple[float, int]:
+        """The estimates against their prior: ``o^T (D - O)^-1 o`` and its degrees of
+        freedom, ``D`` the offsets' prior variances (:attr:`prior_variance`).
+
+        For a filter whose model holds, ``D - O`` is the covariance of the estimates
+        themselves (the prior's minus the error's), so the statistic is chi-square with
+        ``k`` degrees of freedom.  The measurement innovations cannot show a wrong
+        attitude whose misfit the offsets absorb; this test can, since the offsets must
+        then leave their prior (docs/filters.md).  It is evaluated relative to the prior,
+        ``I - D^-1/2 O D^-1/2``, whose entries lie in ``[0, 1]``: offsets, or directions,
+        the data have informed by less than :data:`UNINFORMED` of their prior variance
+        are left out with their degrees of freedom (their estimates are round-off).
+        """
+        scale = np.sqrt(self.prior_variance)
+        spread = np.eye(self.size) - self.own / np.outer(scale, scale)
+        informed = np.diag(spread) > UNINFORMED
+        spread = spread[np.ix_(informed, informed)]
+        normalised = self.value[informed] / scale[informed]
+        if normalised.size == 0:
+            return 0.0, 0
+        try:
+            whitened = np.linalg.solve(np.linalg.cholesky(spread), normalised)
+            return float(whitened @ whitened), int(normalised.size)
+        except np.linalg.LinAlgError:
+            values, vectors = np.linalg.eigh(0.5 * (spread + spread.T))
+            kept = values > UNINFORMED
+            projected = vectors[:, kept].T @ normalised
+            return float(np.sum(projected**2 / values[kept])), int(kept.sum())
 
     def clear(self) -> None:
         """Forget every offset (a restart of the filter)."""
@@ -181,6 +225,8 @@ class OffsetStates:
         self.cross = cross[:, order]
         self.own = own[np.ix_(order, order)]
         self.last_heard = np.concatenate([self.last_heard, np.zeros(n)])[order]
+        variance = np.concatenate([self.prior_variance, np.full(n, self.sigma**2)])
+        self.prior_variance = variance[order]
 
     def _keep(self, keep: NDArray[np.bool_]) -> None:
         """Marginalise the offsets not in ``keep`` (drop their rows and columns)."""
@@ -188,4 +234,4 @@ class OffsetStates:
             return
         self.ids, self.value = self.ids[keep], self.value[keep]
         self.cross, self.own = self.cross[:, keep], self.own[np.ix_(keep, keep)]
-        self.last_heard = self.last_heard[keep]
+        self.last_heard, self.prior_variance = self.last_heard[keep], self.prior_variance[keep]

@@ -154,6 +154,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
 )
 from attopt.solvers.filters.offsets import RowOffsets
+from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 ALPHA = 0.5
 """Spread of the scaled unscented transform (module docstring: not CM's ``lambda = 1``)."""
@@ -427,9 +428,7 @@ class UsqueFilter(GyroStateFilter):
         self.attitude, self.bias, self.covariance, transition, repaired = propagate(
             self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
         )
-        self.node = stop
-        if self.offsets is not None:
-            self.offsets.propagate(transition)
+        self.advance(transition, stop)
         return {"gyro_gap_s": self.gyro.gap_at(stop), "covariance_repairs": float(repaired)}
 
     def update(self, measurement: AttitudeMeasurement | None) -> dict[str, float] | None:
@@ -439,5 +438,11 @@ class UsqueFilter(GyroStateFilter):
         self.attitude, self.bias, covariance, counts, increment = update(
             self.attitude, self.bias, covariance, measurement, self.options, rows
         )
-        self.absorb(covariance, increment)
-        return counts
+        return counts | self.absorb(covariance, increment)
+
+
+class UsqueOffsetFilter(UsqueFilter):
+    """:class:`UsqueFilter` with transmitter offsets (:mod:`attopt.solvers.filters.offsets`),
+    counting their test against the prior."""
+
+    diagnostics = OFFSET_DIAGNOSTICS
