@@ -178,6 +178,11 @@ class AttitudeMeasurement(ABC):
         """``dh / d offset`` ``(m,)`` of each row at one attitude (CasADi AD)."""
         raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
 
+    def with_offset_spread(self, spread: float) -> AttitudeMeasurement:
+        """The measurement with its rows' offsets unknown, ``N(0, spread^2)`` each and
+        independent: their noise widened accordingly."""
+        raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
+
 
 def predict_each(
     measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
@@ -533,3 +538,7 @@ class ReferencedMeasurement(AttitudeMeasurement):
 
     def offset_slope(self, attitude: Rotation) -> Array:
         return self.inner.offset_slope(attitude * self.frame_inverse)
+
+    def with_offset_spread(self, spread: float) -> ReferencedMeasurement:
+        inner = self.inner.with_offset_spread(spread)
+        return ReferencedMeasurement(inner, self.frame_inverse.inv())

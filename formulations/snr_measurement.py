@@ -233,6 +233,13 @@ class SnrMeasurement(AttitudeMeasurement):
         epoch = replace(self.epoch, p0_dbw=self.epoch.p0_dbw + np.asarray(offsets, dtype=float))
         return SnrMeasurement(epoch, truncated=self.truncated)
 
+    def with_offset_spread(self, spread: float) -> SnrMeasurement:
+        """The SNRs with each transmitter's power offset unknown, ``N(0, spread^2)`` dB and
+        independent from row to row: each row's sigma widened to ``sqrt(sigma^2 +
+        spread^2)`` (the SNR solvers' power prior, docs/adsb_sky.md)."""
+        epoch = replace(self.epoch, sigma_db=np.hypot(self.epoch.sigma_db, spread))
+        return SnrMeasurement(epoch, truncated=self.truncated)
+
     def offset_slope(self, attitude: Rotation) -> Array:
         """``dh / d (10 lg P0)`` ``(m,)``: 1 for the Gaussian model, the AD slope of the
         truncated mean (:func:`truncated_mean_slope`) at ``f(A)`` for the truncated one."""

@@ -126,6 +126,12 @@ class SequentialFilter(ABC):
         """Process one epoch's measurement (``None``: none); its counts, or ``None`` when
         there is nothing to count."""
 
+    def single_frame_view(self, measurement: AttitudeMeasurement) -> AttitudeMeasurement:
+        """The measurement as a single-frame solution for a start or restart sees it (the
+        measurement itself; a filter that carries more of the model than the attitude
+        gives its prior here)."""
+        return measurement
+
     def reset(self, attitude: Rotation, covariance: Array) -> None:
         """Restart the estimate at ``attitude`` with the error state's ``covariance`` (a
         recovery's restart from a single frame); the non-attitude block is kept."""

@@ -262,6 +262,6 @@ CASES: dict[str, Case] = {
     "nlp_truncated": ADSB_UNTRUNCATED,
     **dict.fromkeys(("geo_cone", "geo_lsq"), GEO),
     **dict.fromkeys(("mekf", "usque", "rts", "fg_online", "fg_batch"), GYRO_VECTORS),
-    **dict.fromkeys(("fg_batch_offsets", "mekf_offsets"), GYRO_SNRS),
+    **dict.fromkeys(("fg_batch_offsets", "mekf_offsets", "usque_offsets"), GYRO_SNRS),
     **dict.fromkeys(("ekf_yang2014", "rts_yang2014", "bls_yang2014"), DYNAMICS_VECTORS),
 }

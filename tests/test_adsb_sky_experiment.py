@@ -150,3 +150,23 @@ def test_the_chain_hears_an_aircraft_half_the_time_between_its_message_points() 
 def test_adsb_sky_is_registered_with_a_quick_variant() -> None:
     assert get_experiment("adsb-sky") is EXPERIMENT
     assert EXPERIMENT.quick_parameters["duration_s"] < AdsbSkyParameters().duration_s
+
+
+def test_an_accuracy_claim_without_its_estimators_is_not_decided() -> None:
+    """A run without gyro-aided rows (``filters = []``) leaves the gyro claim undecided;
+    the single-frame claim is still decided from its rows."""
+    from attopt.experiments.adsb_sky.report import NO_GYRO, _accuracy_claim
+
+    table = pd.DataFrame(
+        {
+            "sky": ["ideal"],
+            "gyro": [NO_GYRO],
+            "method": ["nlp"],
+            "valid": [1.0],
+            "integrity share": [0.0],
+            **{f"RMS {axis} (deg)": [0.5] for axis in ("x", "y", "z")},
+        }
+    )
+    verdict, number = _accuracy_claim(table, True, 0.9, 0.28)("ideal")
+    assert verdict == "not decided" and "no gyro-aided estimator" in number
+    assert _accuracy_claim(table, False, 0.5, 2.13)("ideal")[0] == "holds"

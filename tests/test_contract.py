@@ -44,11 +44,12 @@ from tests.contract_cases import CASES, DYNAMICS_VECTORS, GYRO_VECTORS, Case
 NAMES = list(ESTIMATORS)
 
 
-NOISE_FREE_TOLERANCE = {"usque": 1e-6}
+NOISE_FREE_TOLERANCE = {"usque": 1e-6, "usque_offsets": 1e-4}
 """The unscented transform's mean of a nonlinear model is not the model at the mean: from
 the truth, noise-free, USQUE keeps an error of order the posterior variance times the
 model's curvature (measured 3e-8 rad on unit vectors, 6e-7 rad on the Earth-sensor
-angles below; a thousandth of its own sigma)."""
+angles below; a thousandth of its own sigma; 3.4e-5 rad on the SNR patterns of the
+offsets' case, whose sigmas are 0.8-1.1 deg)."""
 
 
 def _track(name: str, problem: Snapshot | Pass, truth: Rotation | None = None) -> Track:

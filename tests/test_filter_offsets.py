@@ -215,3 +215,20 @@ def test_the_offsets_prior_test_is_chi_square_and_skips_what_the_data_did_not_in
     states.value = 3.0 * np.ones(5)
     statistic, dof = states.prior_test()
     assert chi2.sf(statistic, dof) < 1e-6
+
+
+def test_a_start_or_restart_sees_the_offsets_at_their_prior() -> None:
+    """The single frame a filter with offsets starts or restarts from solves the epoch with
+    each SNR's sigma widened by the offsets' prior; the plain filter's sees it as it is."""
+    pass_, _, _ = _offset_pass(4, duration=3.0)
+    estimator = MekfOffsets(offset_sigma=3.0)
+    inputs = gyro_pass(pass_, estimator, estimator.filter)
+    measurement = inputs.measurements[0]
+    with_offsets = estimator.steps(
+        inputs.gyro, inputs.model, inputs.prior, estimator.filter, estimator.empty_offsets()
+    )
+    view = with_offsets.single_frame_view(measurement)
+    np.testing.assert_allclose(view.epoch.sigma_db, np.hypot(measurement.epoch.sigma_db, 3.0))
+    np.testing.assert_array_equal(view.z, measurement.z)
+    plain = Mekf.steps(inputs.gyro, inputs.model, inputs.prior, estimator.filter)
+    assert plain.single_frame_view(measurement) is measurement

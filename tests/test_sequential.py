@@ -390,6 +390,7 @@ def test_registry_estimators() -> None:
         "usque",
         "rts",
         "mekf_offsets",
+        "usque_offsets",
         "fg_online",
         "fg_batch",
         "fg_batch_offsets",

@@ -15,11 +15,12 @@ run once per *sky* (``skies``), each a setting of the sweep:
 * ``modelled``: the real sky, with the receiver's whole aircraft model
   (``[receiver.aircraft_model]``): every estimator is told each message's expected
   EIRP, the transponder classes' mean power through the better placed antenna in
-  level flight, the single-frame methods the model's uncertainty, and
-  ``mekf_offsets_snr`` the random walk of what that antenna model leaves out.
+  level flight, the single-frame methods the model's uncertainty, and the filters
+  with offsets the random walk of what that antenna model leaves out.
 
-Besides ``adsb-snr``'s default filters the skies run ``mekf_offsets_snr``, the MEKF
-with each aircraft's power offset as a state (docs/filters.md).
+Besides ``adsb-snr``'s default filters the skies run ``mekf_offsets_snr`` and
+``usque_offsets_snr``, the MEKF and USQUE with each aircraft's power offset as a
+state (docs/filters.md).
 
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
@@ -72,10 +73,10 @@ SKIES: tuple[str, ...] = (
 
 class AdsbSkyParameters(adsb.AdsbSnrParameters):
     """Parameters of ``adsb-sky``: ``adsb-snr``'s (its filters with ``mekf_offsets_snr``
-    added), and the skies to run (module docstring)."""
+    and ``usque_offsets_snr`` added), and the skies to run (module docstring)."""
 
     filters: list[adsb.label_field(adsb.filter_labels, "filters")] = Field(
-        default_factory=lambda: [*DEFAULT_FILTERS, "mekf_offsets_snr"],
+        default_factory=lambda: [*DEFAULT_FILTERS, "mekf_offsets_snr", "usque_offsets_snr"],
         description="Filters and smoothers (row labels).",
     )
 

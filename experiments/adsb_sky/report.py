@@ -163,6 +163,9 @@ def _accuracy_claim(
 
     def decide(sky: str) -> tuple[str, str]:
         mine = table[(table["sky"] == sky) & ((table["gyro"] != NO_GYRO) == gyro_aided)]
+        if mine.empty:
+            kind = "gyro-aided" if gyro_aided else "single-frame"
+            return "not decided", f"no {kind} estimator in the run"
         honest = (mine["valid"] >= least_valid) & (mine["integrity share"] <= INTEGRITY_TARGET)
         best = _best(mine, honest)
         if best is None:

@@ -30,9 +30,9 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
   ``offset_prior_sigma_db``), for data simulated with
   ``traffic.power_offset_sigma_db > 0``.  Not in the default list: its cost
   grows with the number of aircraft in view at once (``docs/smoother.md``).
-* ``mekf_offsets_snr``: the MEKF with each aircraft's power offset as an augmented
-  state (prior ``offset_prior_sigma_db``; docs/filters.md, Transmitter power
-  offsets); not in the default list either.
+* ``mekf_offsets_snr``, ``usque_offsets_snr``: the MEKF and USQUE with each
+  aircraft's power offset as an augmented state (prior ``offset_prior_sigma_db``;
+  docs/filters.md, Transmitter power offsets); not in the default list either.
 
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
 smoother is asked for: the posterior Cramer-Rao bound of the pass
@@ -106,7 +106,10 @@ DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online"
 """The filter rows of a default run (``fg_batch_offsets`` is asked for with the
 power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
-OFFSET_ESTIMATORS = ("fg_batch_offsets", "mekf_offsets")
+OFFSET_ESTIMATORS = ("fg_batch_offsets", "mekf_offsets", "usque_offsets")
+FILTERS_WITH_OFFSETS = ("mekf_offsets", "usque_offsets")
+"""The filters that carry each aircraft's offset as a state (random walk from the
+aircraft model's ``antenna_walk_db``)."""
 """The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``)."""
 
 
@@ -124,14 +127,16 @@ def filter_labels() -> dict[str, str]:
 
 def filter_estimators(parameters: AdsbSnrParameters) -> dict[str, Estimator]:
     """Row label -> configured estimator of each of ``filters`` (the offsets' prior of
-    ``fg_batch_offsets`` and ``mekf_offsets`` from ``offset_prior_sigma_db``, the
-    latter's random walk from ``[receiver.aircraft_model]``'s ``antenna_walk_db`` when
-    it models the antennas; then ``estimator_options``)."""
+    ``fg_batch_offsets``, ``mekf_offsets`` and ``usque_offsets`` from
+    ``offset_prior_sigma_db``, the filters' random walk from
+    ``[receiver.aircraft_model]``'s ``antenna_walk_db`` when it models the antennas;
+    then ``estimator_options``)."""
     offsets = {"offset_sigma": parameters.offset_prior_sigma_db}
     defaults: dict[str, dict[str, Any]] = dict.fromkeys(OFFSET_ESTIMATORS, offsets)
     model = parameters.receiver.aircraft_model
     if model is not None and model.antennas:
-        defaults["mekf_offsets"] = {**offsets, "offset_rate_sigma": model.antenna_walk_db}
+        walk = {**offsets, "offset_rate_sigma": model.antenna_walk_db}
+        defaults |= dict.fromkeys(FILTERS_WITH_OFFSETS, walk)
     filters = resolve(parameters.filters, filter_labels(), "filters")
     return configured_all(filters, parameters.estimator_options, defaults)
 

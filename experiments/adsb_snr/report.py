@@ -81,7 +81,7 @@ PAPER_FILTER = "mekf_paper"
 PAPER_INPUT = "nlse"
 SNR_FILTER = "mekf_snr"
 SMOOTHER = "rts_snr"
-CONSISTENCY_FILTERS = ("mekf_snr", "usque_snr", "mekf_offsets_snr")
+CONSISTENCY_FILTERS = ("mekf_snr", "usque_snr", "mekf_offsets_snr", "usque_offsets_snr")
 """Filters whose run-averaged NEES is tested."""
 REFERENCE_METHODS = ("nlp_truncated", "nlse")
 """Single-frame rows shown beside the filters (independent errors from epoch to epoch)."""
@@ -92,6 +92,7 @@ SMOOTHERS = (
     "rts_snr",
     "mekf_snr",
     "mekf_offsets_snr",
+    "usque_offsets_snr",
 )
 """Rows of the smoother table."""
 

@@ -460,6 +460,14 @@ class GyroStateFilter(SequentialFilter):
         statistic, dof = self.offsets.prior_test()
         return {"offset_nis": statistic, "offset_dof": float(dof)}
 
+    def single_frame_view(self, measurement: AttitudeMeasurement) -> AttitudeMeasurement:
+        """With offsets, the measurement with its sources' offsets at their prior (each
+        row's sigma widened by the prior's, as a start admits them): a single frame that
+        assumed known powers would fail its residual test, or pass it wrongly confident."""
+        if self.offsets is None or measurement.sources is None:
+            return measurement
+        return measurement.with_offset_spread(self.offsets.sigma)
+
     def reset(self, attitude: Rotation, covariance: Array) -> None:
         """Restart at ``attitude`` with ``covariance`` (``6 x 6``), forgetting the offsets."""
         super().reset(attitude, covariance)
@@ -599,7 +607,8 @@ def block_nis(
     for size, rows in block_layout(np.ascontiguousarray(blocks, dtype=np.intp).tobytes()):
         nu = innovation[rows]
         columns = factor[:, rows]  # (k, blocks, size)
-        s = np.einsum("kbi,kl,lbj->bij", columns, weight, columns)
+        weighted = (weight @ columns.reshape(columns.shape[0], -1)).reshape(columns.shape)
+        s = np.einsum("kbi,kbj->bij", columns, weighted)  # F^T W F, one matrix product
         if noise.ndim == 1:
             s += noise[rows][:, :, None] * np.eye(int(size))
         else:

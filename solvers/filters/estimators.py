@@ -1,6 +1,5 @@
 """The gyro-aided filters as registry estimators: ``mekf``, ``usque`` and ``rts``, and
-``mekf_offsets`` with transmitter power offsets (:class:`UsqueOffsets`, USQUE's, is not
-registered: docs/filters.md, Transmitter power offsets).
+``mekf_offsets`` and ``usque_offsets`` with transmitter power offsets.
 
 Each takes a :class:`~attopt.formulations.passes.Pass` with a gyro record
 and a prior (an attitude-only prior gets zero bias with the gyro model's
@@ -194,12 +193,6 @@ class MekfOffsets(OffsetFilter):
 @dataclass(frozen=True, repr=False)
 class UsqueOffsets(OffsetFilter):
     """USQUE with transmitter power offsets (:class:`OffsetFilter`).
-
-    Not in the registry: consistent on its model (``tests/test_filter_offsets.py``), but
-    measured overconfident where the aircraft antennas make the offsets vary along a
-    pass (``adsb-sky``'s modelled sky, MEMS gyro: roll RMS 0.73 deg, 78% of the
-    valid epochs beyond the chi-square(3) quantile, where ``mekf_offsets`` has
-    0.08 deg and none).
 
     Example::
 

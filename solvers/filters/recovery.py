@@ -172,7 +172,7 @@ class SingleFrameStart(Recovery):
         if self.checked or self.options.recovery != "restart":
             return None
         self.checked = True
-        frame = single_frame(measurement, self.options)
+        frame = single_frame(filter.single_frame_view(measurement), self.options)
         if isinstance(frame, SingleFrame) and not contradicts(
             filter, frame, self.options.consistency_false_alarm
         ):
@@ -225,7 +225,7 @@ class SingleFrameRecovery(Recovery):
         update with the single frame (:func:`fuse`)."""
         if self.started and self.checked:
             return None
-        frame = single_frame(measurement, self.options)
+        frame = single_frame(filter.single_frame_view(measurement), self.options)
         if not self.started:
             if not isinstance(frame, SingleFrame):
                 return {}
@@ -246,7 +246,7 @@ class SingleFrameRecovery(Recovery):
         :data:`~attopt.solvers.sequential.INFLATE`)."""
         if self.options.recovery != "restart":
             return INFLATE
-        frame = single_frame(measurement, self.options)
+        frame = single_frame(filter.single_frame_view(measurement), self.options)
         if not isinstance(frame, SingleFrame):
             return frame
         if verdict == INCONSISTENT and not contradicts(
