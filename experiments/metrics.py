@@ -141,10 +141,11 @@ def gyro_columns(track: Track, truth: GyroPass) -> dict[str, Array]:
     return columns
 
 
-def posterior_bound_columns(truth: GyroPass) -> dict[str, Array]:
+def posterior_bound_columns(truth: GyroPass, offset_sigma: float | None = None) -> dict[str, Array]:
     """``pbound_{x,y,z}_deg`` per epoch: the posterior Cramer-Rao bound of the pass at the
-    true attitudes and biases (:func:`attopt.solvers.bounds.posterior_bound`)."""
-    sigma = np.degrees(posterior_bound(truth.pass_, truth.attitude, truth.bias))
+    true attitudes and biases (:func:`attopt.solvers.bounds.posterior_bound`; with
+    ``offset_sigma``, each transmitter's power unknown with that prior)."""
+    sigma = np.degrees(posterior_bound(truth.pass_, truth.attitude, truth.bias, offset_sigma))
     return {f"pbound_{a}_deg": sigma[:, i] for i, a in enumerate(AXES)}
 
 

@@ -36,6 +36,8 @@ prior, evaluated at the truth):
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -46,7 +48,7 @@ from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_model import cramer_rao_bound
 from attopt.solvers.doa.eks import posterior_bound_ekf
 from attopt.solvers.filters.common import FilterOptions
-from attopt.solvers.smoother.estimators import BatchSmoother
+from attopt.solvers.smoother.estimators import BatchSmoother, OffsetBatchSmoother
 from attopt.solvers.smoother.initial import fixed_start
 from attopt.solvers.smoother.marginals import MarginalOptions
 from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
@@ -114,14 +116,23 @@ gate, no consistency test, variance factor nor gyro fault test (the bound does n
 on the noise drawn), per-key marginals."""
 
 
-def posterior_bound(pass_: Pass, truth_attitude: Rotation, truth_bias: ArrayLike) -> Array:
+def posterior_bound(
+    pass_: Pass,
+    truth_attitude: Rotation,
+    truth_bias: ArrayLike,
+    offset_sigma: float | None = None,
+) -> Array:
     """Per-epoch posterior Cramer-Rao bound ``(N, 3)`` of the attitude of a gyro-aided pass
     (rad, body axes; module docstring).
 
     The square roots of the diagonal of the attitude block of the batch smoother's
     marginal covariance with its factors at ``truth_attitude`` (``N`` attitudes at the
     epochs) and ``truth_bias`` (``(N, 3)`` rad/s): every measurement of the pass used
-    (no gate), offsets not modelled.  The prior node at the first gyro sample (when the
+    (no gate).  Without ``offset_sigma`` the transmitters' powers are known; with it,
+    each transmitter (the measurements' ``sources``) has an unknown constant power
+    offset with prior ``N(0, offset_sigma^2)``, linearised at 0
+    (``fg_batch_offsets``' problem): the bound of an estimator that must learn the
+    powers.  The prior node at the first gyro sample (when the
     first epoch is later) stays at the prior's estimate.  NaN at epochs the
     smoother's validity rules flag (an attitude sigma above
     ``FilterOptions.max_attitude_sigma``).
@@ -143,5 +154,13 @@ def posterior_bound(pass_: Pass, truth_attitude: Rotation, truth_bias: ArrayLike
         >>> sigma.shape, bool((sigma < 1e-3).all())
         ((5, 3), True)
     """
-    track = AT_THE_TRUTH.solve(pass_, fixed_start(truth_attitude, truth_bias))
+    smoother = (
+        AT_THE_TRUTH
+        if offset_sigma is None
+        else OffsetBatchSmoother(
+            **{f.name: getattr(AT_THE_TRUTH, f.name) for f in fields(AT_THE_TRUTH)},
+            offset_sigma=offset_sigma,
+        )
+    )
+    track = smoother.solve(pass_, fixed_start(truth_attitude, truth_bias))
     return np.sqrt(np.diagonal(track.state_covariance[:, :3, :3], axis1=1, axis2=2))

@@ -73,6 +73,7 @@ from attopt.solvers.snr.initialisation import (
     INITIALISATION_DIAGNOSTICS,
     LocalResult,
     initialise,
+    rival_minimum,
 )
 
 
@@ -192,6 +193,17 @@ class MapNlp(SnapshotEstimator):
         if prior is not None:
             information = information + prior[1]
         return EpochEstimate(attitude, cramer_rao_bound(information), init.result.loss, diagnostics)
+
+    def rival(
+        self, snapshot: Snapshot, attitude: Rotation, loss: float, covariance: np.ndarray
+    ) -> tuple[float, float] | None:
+        """A second minimum of ``snapshot``'s loss (no prior) that fits about as well as the
+        solution ``attitude`` (loss ``loss``, covariance ``covariance``): ``(angle in
+        degrees, 2 dL)`` or ``None`` (:func:`~attopt.solvers.snr.initialisation.rival_minimum`
+        from this solver's multi-start attitudes)."""
+        epoch = _Epoch(_parts(snapshot.measurements), None)
+        best = LocalResult(attitude, loss, True, "", 0, False)
+        return rival_minimum(epoch, self._local_solve, best, covariance, self.starts.attitudes)
 
     def _local_solve(self, epoch: _Epoch, start: Rotation) -> LocalResult:
         """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""

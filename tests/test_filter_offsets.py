@@ -14,6 +14,7 @@ from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.passes import GyroRecord, Pass
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
+from attopt.solvers.bounds import posterior_bound
 from attopt.solvers.filters import Mekf, MekfOffsets, Rts, Usque
 from attopt.solvers.filters.common import gyro_monitor, gyro_pass
 from attopt.solvers.filters.estimators import UsqueOffsets
@@ -232,3 +233,17 @@ def test_a_start_or_restart_sees_the_offsets_at_their_prior() -> None:
     np.testing.assert_array_equal(view.z, measurement.z)
     plain = Mekf.steps(inputs.gyro, inputs.model, inputs.prior, estimator.filter)
     assert plain.single_frame_view(measurement) is measurement
+
+
+def test_the_posterior_bound_with_unknown_powers_is_looser_and_tends_to_the_known_one() -> None:
+    """Unknown transmitter powers can only loosen the posterior bound; with a vanishing
+    prior on them it is the bound of known powers."""
+    pass_, truth, _ = _offset_pass(6, duration=20.0)
+    # the pass's gyro run is the first draw of its generator: drawn again for its bias
+    run = simulate_pass(np.random.default_rng(6), duration=20.0, simulated_gyro=GYRO)
+    bias = run.bias[run.index]
+    known = posterior_bound(pass_, truth, bias)
+    unknown = posterior_bound(pass_, truth, bias, offset_sigma=OFFSET_SIGMA_DB)
+    almost = posterior_bound(pass_, truth, bias, offset_sigma=1e-6)
+    assert np.all(unknown >= known * (1 - 1e-9)) and np.any(unknown > 1.05 * known)
+    np.testing.assert_allclose(almost, known, rtol=1e-6)

@@ -37,7 +37,10 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
 smoother is asked for: the posterior Cramer-Rao bound of the pass
 (:func:`attopt.experiments.metrics.posterior_bound_columns`, offsets not
-modelled), the same for every method of that gyro.
+modelled), the same for every method of that gyro; the rows of the filters with
+offsets carry the bound of the pass with every aircraft's power unknown (prior
+``offset_prior_sigma_db``, constant offsets: the smoother with offsets at the truth),
+whether or not a smoother is asked for.
 
 Every filter starts from the prior of
 :func:`attopt.experiments.simulation.simulate_filter_inputs` (attitude error drawn
@@ -291,9 +294,13 @@ def filter_rows(
         runs |= run_estimators(simulated.pass_, methods)
         wanted = {e.name for e in methods.values()}
         bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
+        if set(FILTERS_WITH_OFFSETS) & wanted:
+            sigma = parameters.offset_prior_sigma_db
+            with_offsets = posterior_bound_columns(simulated, sigma)
         for label in parameters.filters:
             frame = _rows(
                 label, gyro_label(gyro), runs[label], simulated, common, true_attitude_orbit
             )
-            frames.append(frame.assign(**bound))
+            offsets = label in methods and methods[label].name in FILTERS_WITH_OFFSETS
+            frames.append(frame.assign(**(with_offsets if offsets else bound)))
     return frames

@@ -93,12 +93,16 @@ class SingleFrame:
     covariance: Array
 
 
-def single_frame(measurement: AttitudeMeasurement, options: FilterOptions) -> SingleFrame | str:
+def single_frame(
+    measurement: AttitudeMeasurement, options: FilterOptions, ambiguity_check: bool = False
+) -> SingleFrame | str:
     """The ``map_nlp`` solution of one epoch's ``measurement`` without a prior, or why
     there is none (module docstring): :data:`~attopt.solvers.sequential.INFLATE` when
     the measurement cannot determine the attitude (no symbolic model, no converged
     solution, an axis above ``max_attitude_sigma``), :data:`~attopt.solvers.sequential.WAIT`
-    when its residuals fail the chi-square test (a later epoch may fit)."""
+    when its residuals fail the chi-square test (a later epoch may fit) or, with
+    ``ambiguity_check``, when a second minimum outside its covariance fits about as well
+    (``MapNlp.rival``; a later epoch may tell them apart)."""
     from attopt.solvers.map_nlp import MAP_NLP  # here: map_nlp imports the bounds, which import us
 
     try:
@@ -113,7 +117,29 @@ def single_frame(measurement: AttitudeMeasurement, options: FilterOptions) -> Si
     dof = measurement.size - 3
     if dof > 0 and chi_square_tail(2.0 * track.loss[0], dof) < options.consistency_false_alarm:
         return WAIT
-    return SingleFrame(track.attitude()[0], covariance)
+    attitude = track.attitude()[0]
+    if ambiguity_check and MAP_NLP.rival(
+        Snapshot.of(measurement), attitude, float(track.loss[0]), covariance
+    ):
+        return WAIT
+    return SingleFrame(attitude, covariance)
+
+
+def filter_frame(
+    filter: SequentialFilter, measurement: AttitudeMeasurement, options: FilterOptions
+) -> SingleFrame | str:
+    """The single frame ``filter`` starts or restarts from: :func:`single_frame` of the
+    measurement; where its residuals fail their test, that of the measurement as the
+    filter sees it (``filter.single_frame_view``: transmitter offsets at their prior),
+    if the filter sees it otherwise, checked for a second minimum.  The widened frame
+    only as the fallback: its loss is flatter, and on the first epoch of ``adsb-sky``'s
+    ideal sky it lay 52 deg off (sigmas 1.2-4.5 deg, no rival found from the
+    multi-start attitudes) where the plain frame was right."""
+    frame = single_frame(measurement, options)
+    if frame != WAIT:
+        return frame
+    view = filter.single_frame_view(measurement)
+    return frame if view is measurement else single_frame(view, options, ambiguity_check=True)
 
 
 def contradicts(filter: SequentialFilter, frame: SingleFrame, false_alarm: float) -> bool:
@@ -172,7 +198,7 @@ class SingleFrameStart(Recovery):
         if self.checked or self.options.recovery != "restart":
             return None
         self.checked = True
-        frame = single_frame(filter.single_frame_view(measurement), self.options)
+        frame = filter_frame(filter, measurement, self.options)
         if isinstance(frame, SingleFrame) and not contradicts(
             filter, frame, self.options.consistency_false_alarm
         ):
@@ -225,7 +251,7 @@ class SingleFrameRecovery(Recovery):
         update with the single frame (:func:`fuse`)."""
         if self.started and self.checked:
             return None
-        frame = single_frame(filter.single_frame_view(measurement), self.options)
+        frame = filter_frame(filter, measurement, self.options)
         if not self.started:
             if not isinstance(frame, SingleFrame):
                 return {}
@@ -246,7 +272,7 @@ class SingleFrameRecovery(Recovery):
         :data:`~attopt.solvers.sequential.INFLATE`)."""
         if self.options.recovery != "restart":
             return INFLATE
-        frame = single_frame(filter.single_frame_view(measurement), self.options)
+        frame = filter_frame(filter, measurement, self.options)
         if not isinstance(frame, SingleFrame):
             return frame
         if verdict == INCONSISTENT and not contradicts(

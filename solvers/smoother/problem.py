@@ -68,7 +68,12 @@ from attopt.solvers.smoother.gyro_factors import (
     gyro_graph,
     gyro_intervals,
 )
-from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from attopt.solvers.smoother.measurement_factors import (
+    COUNTS,
+    EpochFactor,
+    evaluate_factors,
+    prepare_factor,
+)
 
 UNDETERMINED_SIGMA = np.pi
 """Attitude standard deviation (rad) of a node the initial values leave undetermined
@@ -267,6 +272,12 @@ def build_problem(
             counts[name][k] = epoch_counts[name]
         if factor is not None:
             factors.append(factor)
+    if offset_ids.size:  # the start's Jacobians with the offsets' column (all offsets 0)
+        zeros = np.zeros(offset_ids.size)
+        for f, (nu, jacobian, lost) in zip(
+            factors, evaluate_factors(factors, start.attitudes, zeros), strict=True
+        ):
+            f.accept(nu, jacobian, lost)
 
     intervals = gyro_intervals(nodes, inputs.gyro, inputs.model, rules.max_gyro_gap_s)
     fixed = offset_priors(offset_ids.size, offset_sigma)
