@@ -230,6 +230,8 @@ class BatchSmoother(PassEstimator):
                 problem.exclude_intervals(faults, outcome.attitudes)
                 outcome = outcome.then(self._resolved(problem, outcome))
         with clock.stage("marginals"):
+            if problem.n_offsets and outcome.iterations == 0:
+                problem.linearise_offsets(outcome.attitudes, outcome.offsets)
             marginals = problem_marginals(problem, outcome.values, self.marginals)
         return batch_track(
             self.name,

@@ -156,6 +156,15 @@ class SmootherProblem:
     def huber_threshold(self) -> float | None:
         return self.options.huber_threshold
 
+    def linearise_offsets(self, attitudes: Rotation, offsets: Array) -> None:
+        """Linearise the epoch factors at ``attitudes`` and ``offsets`` with the offsets'
+        column.  The factors are prepared without it and gain it at the first accepted
+        optimiser step; a solve without steps (the posterior bound at the truth) needs
+        it set here, else its marginals are those of known powers."""
+        evaluated = evaluate_factors(self.factors, attitudes, offsets)
+        for f, (nu, jacobian, lost) in zip(self.factors, evaluated, strict=True):
+            f.accept(nu, jacobian, lost)
+
     def modelled(self, offsets: Array) -> Array | None:
         """``offsets`` when the problem models them, else ``None`` (for the factors)."""
         return offsets if self.n_offsets else None
@@ -272,12 +281,6 @@ def build_problem(
             counts[name][k] = epoch_counts[name]
         if factor is not None:
             factors.append(factor)
-    if offset_ids.size:  # the start's Jacobians with the offsets' column (all offsets 0)
-        zeros = np.zeros(offset_ids.size)
-        for f, (nu, jacobian, lost) in zip(
-            factors, evaluate_factors(factors, start.attitudes, zeros), strict=True
-        ):
-            f.accept(nu, jacobian, lost)
 
     intervals = gyro_intervals(nodes, inputs.gyro, inputs.model, rules.max_gyro_gap_s)
     fixed = offset_priors(offset_ids.size, offset_sigma)
