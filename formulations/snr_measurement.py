@@ -237,8 +237,7 @@ class SnrMeasurement(AttitudeMeasurement):
         """The SNRs with each transmitter's power offset unknown, ``N(0, spread^2)`` dB and
         independent from row to row: each row's sigma widened to ``sqrt(sigma^2 +
         spread^2)`` (the SNR solvers' power prior, docs/adsb_sky.md)."""
-        epoch = replace(self.epoch, sigma_db=np.hypot(self.epoch.sigma_db, spread))
-        return SnrMeasurement(epoch, truncated=self.truncated)
+        return SnrMeasurement(self.epoch.with_power_prior(0.0, spread), truncated=self.truncated)
 
     def offset_slope(self, attitude: Rotation) -> Array:
         """``dh / d (10 lg P0)`` ``(m,)``: 1 for the Gaussian model, the AD slope of the

@@ -220,6 +220,16 @@ class SnrEpoch:
         """Number of observations."""
         return int(self.snr_db.shape[0])
 
+    def with_power_prior(self, mean_db: float, sigma_db: float) -> SnrEpoch:
+        """The epoch with every transmitter's power known only in distribution, ``N(mean,
+        sigma^2)`` dB and independent from row to row: ``10 lg P0 + mean`` and each row's
+        sigma widened to ``sqrt(sigma_k^2 + sigma^2)``; the epoch itself for ``(0, 0)``."""
+        if mean_db == 0.0 and sigma_db == 0.0:
+            return self
+        return replace(
+            self, p0_dbw=self.p0_dbw + mean_db, sigma_db=np.hypot(self.sigma_db, sigma_db)
+        )
+
     def take(self, rows: NDArray[np.intp] | NDArray[np.bool_]) -> SnrEpoch:
         """The epoch of the observations ``rows`` alone (indices or mask), e.g. without
         those of one transmitter."""

@@ -202,8 +202,9 @@ class MapNlp(SnapshotEstimator):
         degrees, 2 dL)`` or ``None`` (:func:`~attopt.solvers.snr.initialisation.rival_minimum`
         from this solver's multi-start attitudes)."""
         epoch = _Epoch(_parts(snapshot.measurements), None)
-        best = LocalResult(attitude, loss, True, "", 0, False)
-        return rival_minimum(epoch, self._local_solve, best, covariance, self.starts.attitudes)
+        return rival_minimum(
+            epoch, self._local_solve, attitude, loss, covariance, self.starts.attitudes
+        )
 
     def _local_solve(self, epoch: _Epoch, start: Rotation) -> LocalResult:
         """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""

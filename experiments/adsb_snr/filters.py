@@ -110,10 +110,10 @@ DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online"
 power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
 OFFSET_ESTIMATORS = ("fg_batch_offsets", "mekf_offsets", "usque_offsets")
+"""The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``)."""
 FILTERS_WITH_OFFSETS = ("mekf_offsets", "usque_offsets")
 """The filters that carry each aircraft's offset as a state (random walk from the
-aircraft model's ``antenna_walk_db``)."""
-"""The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``)."""
+aircraft model's ``antenna_walk_db``; their rows' bound has the powers unknown)."""
 
 
 def filter_label(name: str) -> str:
@@ -294,9 +294,11 @@ def filter_rows(
         runs |= run_estimators(simulated.pass_, methods)
         wanted = {e.name for e in methods.values()}
         bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
-        if set(FILTERS_WITH_OFFSETS) & wanted:
-            sigma = parameters.offset_prior_sigma_db
-            with_offsets = posterior_bound_columns(simulated, sigma)
+        with_offsets = (
+            posterior_bound_columns(simulated, parameters.offset_prior_sigma_db)
+            if set(FILTERS_WITH_OFFSETS) & wanted
+            else {}
+        )
         for label in parameters.filters:
             frame = _rows(
                 label, gyro_label(gyro), runs[label], simulated, common, true_attitude_orbit

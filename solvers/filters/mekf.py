@@ -47,7 +47,7 @@ from attopt.solvers.filters.common import (
     solve_noise,
     usable_rows,
 )
-from attopt.solvers.filters.offsets import RowOffsets
+from attopt.solvers.filters.offsets import RowOffsets, shifted
 from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 
@@ -115,7 +115,7 @@ def update(
 
     With ``offsets`` (:mod:`attopt.solvers.filters.offsets`) ``covariance`` is the
     joint one of ``[delta, delta_beta, delta_o]``, each row is predicted with its
-    offset ``o + delta_o`` in its model (:meth:`~attopt.solvers.filters.offsets.RowOffsets.shifted`)
+    offset ``o + delta_o`` in its model (:func:`~attopt.solvers.filters.offsets.shifted`)
     and ``H`` gains the rows' ``dh / d o`` in their offsets' columns; the last item
     returned is the offsets' increment ``delta_o`` (empty without).
     """
@@ -123,8 +123,7 @@ def update(
     eye = np.eye(n_state)
     blocks = measurement.blocks
     state = np.zeros(n_state)
-    shifted = measurement if offsets is None else offsets.shifted(measurement, state[STATE_SIZE:])
-    r_all = shifted.noise_covariance_at(attitude)
+    r_all = shifted(measurement, offsets, state[STATE_SIZE:]).noise_covariance_at(attitude)
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     counts["n_downweighted"] = 0.0
@@ -132,16 +131,14 @@ def update(
     prior_information = np.linalg.inv(covariance)
     accepted_state, accepted_cost, trial_step, halvings = state, np.inf, state, 0
     for iteration in range(options.max_update_iterations):
-        if offsets is not None and iteration > 0:
-            shifted = offsets.shifted(measurement, state[STATE_SIZE:])
-        predicted, jacobian = shifted.predict(current)
+        predicting = shifted(measurement, offsets, state[STATE_SIZE:])
+        predicted, jacobian = predicting.predict(current)
         with np.errstate(invalid="ignore"):
-            innovation = shifted.innovation(predicted[0])
-        if offsets is None:
-            h_all = np.zeros((measurement.size, n_state))
-        else:
-            h_all = offsets.design(n_state, shifted, current)
+            innovation = predicting.innovation(predicted[0])
+        h_all = np.zeros((measurement.size, n_state))
         h_all[:, :3] = jacobian[0] if iteration == 0 else jacobian[0] @ error_jacobian(state[:3])
+        if offsets is not None:
+            h_all[:, STATE_SIZE:] = offsets.slopes(predicting, current)
         counts["update_iterations"] = float(iteration + 1)
         if iteration == 0:
             keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovation[None])

@@ -90,17 +90,23 @@ class RowOffsets(NamedTuple):
             return measurement
         return measurement.with_offsets(self.predicted(increment))
 
-    def design(self, n_state: int, shifted: AttitudeMeasurement, attitude: Rotation) -> Array:
-        """``dh / d o`` embedded in the joint state: ``(m, n_state)`` with each row's slope
-        in its offset's column (the ``shifted`` measurement's ``offset_slope`` at
-        ``attitude``: 1 for the Gaussian SNR model, the truncated mean's slope for the
-        truncated one), zero elsewhere."""
+    def slopes(self, shifted: AttitudeMeasurement, attitude: Rotation) -> Array:
+        """``dh / d o`` ``(m, k)``: each row's slope in its offset's column (the
+        ``shifted`` measurement's ``offset_slope`` at ``attitude``: 1 for the Gaussian SNR
+        model, the truncated mean's slope for the truncated one), zero elsewhere."""
         rows = np.flatnonzero(self.index >= 0)
-        design = np.zeros((self.index.size, n_state))
+        slopes = np.zeros((self.index.size, self.value.size))
         if rows.size:
-            slope = shifted.offset_slope(attitude)
-            design[rows, STATE_SIZE + self.index[rows]] = slope[rows]
-        return design
+            slopes[rows, self.index[rows]] = shifted.offset_slope(attitude)[rows]
+        return slopes
+
+
+def shifted(
+    measurement: AttitudeMeasurement, offsets: RowOffsets | None, increment: Array
+) -> AttitudeMeasurement:
+    """``measurement`` as an update predicts it: with its rows' offsets at ``increment``
+    (:meth:`RowOffsets.shifted`), or itself without offsets."""
+    return measurement if offsets is None else offsets.shifted(measurement, increment)
 
 
 @dataclass

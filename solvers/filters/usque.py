@@ -153,7 +153,7 @@ from attopt.solvers.filters.common import (
     repair_covariance,
     usable_rows,
 )
-from attopt.solvers.filters.offsets import RowOffsets
+from attopt.solvers.filters.offsets import RowOffsets, shifted
 from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 ALPHA = 0.5
@@ -304,10 +304,10 @@ def update(
     state = np.zeros(n_state)
     sigma, repaired = sigma_offsets(covariance[:STATE_SIZE, :STATE_SIZE])
     counts["covariance_repairs"] = float(repaired)
-    shifted = measurement if offsets is None else offsets.shifted(measurement, state[STATE_SIZE:])
-    predicted, _ = shifted.predict(apply_error(sigma[:, :3], attitude), jacobian=False)
+    predicting = shifted(measurement, offsets, state[STATE_SIZE:])
+    predicted, _ = predicting.predict(apply_error(sigma[:, :3], attitude), jacobian=False)
     with np.errstate(invalid="ignore"):  # rows left out may hold NaN
-        innovations = shifted.innovation(predicted)
+        innovations = predicting.innovation(predicted)
     keep, n_nan, n_unpredictable = usable_rows(measurement, predicted, innovations)
     counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
     rows = np.flatnonzero(keep)
@@ -315,10 +315,10 @@ def update(
         return attitude, bias, covariance, counts, state[STATE_SIZE:]
     blocks = measurement.blocks[rows]
     innovations = innovations[:, rows]
-    design = None if offsets is None else offsets.design(n_state, shifted, attitude)[rows]
+    slopes = None if offsets is None else offsets.slopes(predicting, attitude)[rows]
     nu = WEIGHTS @ innovations  # (U6)
-    factor, weight = with_offsets(nu - innovations, sigma, covariance, design)  # h_i - h_mean
-    r_all = shifted.noise_covariance_at(attitude)
+    factor, weight = with_offsets(nu - innovations, sigma, covariance, slopes)  # h_i - h_mean
+    r_all = predicting.noise_covariance_at(attitude)
     accepted = gate(  # (U7) per block
         nu, factor, weight, noise_subset(r_all, rows), blocks, options.gate_probability
     )
@@ -327,27 +327,25 @@ def update(
         return attitude, bias, covariance, counts, state[STATE_SIZE:]
     rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
     nu, factor = nu[accepted], factor[:, accepted]
-    design = None if design is None else design[accepted]
+    slopes = None if slopes is None else slopes[accepted]
     counts["n_used"] = float(np.unique(blocks).size)
     r_all = huber_noise(r_all, rows, nu, factor, weight, blocks, options, counts)
     r = noise_subset(r_all, rows)
     posterior = covariance
     information = np.linalg.inv(covariance)
-    offsets_sigma = sigma
     for iteration in range(options.max_update_iterations):
         if iteration > 0:
             if not finite(state, posterior):
                 break
-            offsets_sigma, repaired = sigma_offsets(posterior[:STATE_SIZE, :STATE_SIZE])
+            sigma, repaired = sigma_offsets(posterior[:STATE_SIZE, :STATE_SIZE])
             counts["covariance_repairs"] += float(repaired)
-            sigma_attitudes = apply_error(state[:3] + offsets_sigma[:, :3], attitude)
+            sigma_attitudes = apply_error(state[:3] + sigma[:, :3], attitude)
+            predicting = shifted(measurement, offsets, state[STATE_SIZE:])
             if offsets is not None:
-                shifted = offsets.shifted(measurement, state[STATE_SIZE:])
-                slopes = offsets.design(n_state, shifted, sigma_attitudes[0])
-                design = slopes[rows]
-            predicted, _ = shifted.predict(sigma_attitudes, jacobian=False)
+                slopes = offsets.slopes(predicting, sigma_attitudes[0])[rows]
+            predicted, _ = predicting.predict(sigma_attitudes, jacobian=False)
             with np.errstate(invalid="ignore"):
-                innovations = shifted.innovation(predicted)[:, rows]
+                innovations = predicting.innovation(predicted)[:, rows]
             # relinearised: drop blocks the model can no longer predict at some point
             lost = np.unique(blocks[~np.isfinite(innovations).all(axis=0)])
             if lost.size:
@@ -357,16 +355,16 @@ def update(
                     blocks[keep_rows],
                     innovations[:, keep_rows],
                 )
-                design = None if design is None else design[keep_rows]
+                slopes = None if slopes is None else slopes[keep_rows]
                 counts["n_unpredictable"] += float(lost.size)
                 counts["n_used"] -= float(lost.size)
                 if rows.size == 0:
                     break
                 r = noise_subset(r_all, rows)
             nu = WEIGHTS @ innovations
-        h, omega = regression(nu - innovations, offsets_sigma)  # pass 0: (U7)-(U8)
-        if design is not None:
-            h = np.concatenate([h, design[:, STATE_SIZE:]], axis=1)
+        h, omega = regression(nu - innovations, sigma)  # pass 0: (U7)-(U8)
+        if slopes is not None:
+            h = np.concatenate([h, slopes], axis=1)
         noise = r + omega if r.ndim == 1 else r + np.diag(omega)
         relinearised = nu + h @ state  # the innovation relinearised at the iterate
         gain, nis, posterior = kalman_gain(covariance, h, noise, relinearised, information)
@@ -388,15 +386,15 @@ def update(
 
 
 def with_offsets(
-    deviation: Array, sigma: Array, covariance: Array, design: Array | None
+    deviation: Array, sigma: Array, covariance: Array, slopes: Array | None
 ) -> tuple[Array, Array]:
     """The factor ``F`` and weight ``W`` of the first pass's innovation covariance ``S =
     F^T W F + R`` (:func:`~attopt.solvers.filters.common.block_nis`, for the gate and
     the Huber weights).
 
-    Without offsets (``design`` ``None``), the sigma deviations ``h_i - h_mean`` with the
+    Without offsets (``slopes`` ``None``), the sigma deviations ``h_i - h_mean`` with the
     covariance weights (U7).  With them, ``F = [deviation; E^T]`` (``E`` the rows'
-    offset columns of ``design``) and ``W = [[diag(w), Y], [Y^T, O]]``, ``O`` the
+    ``dh / d o``, ``slopes``) and ``W = [[diag(w), Y], [Y^T, O]]``, ``O`` the
     offsets' covariance and ``Y`` ``(13, k)`` zero for the centre point and ``+/-
     L^-1 C / 2`` for the points ``+/- L_j``, so that ``deviation^T Y = H C`` (``H`` of
     :func:`regression`, ``C`` the offsets' cross-covariance): ``S`` is then (U7)'s
@@ -404,13 +402,13 @@ def with_offsets(
     state.
     """
     weight = np.diag(COVARIANCE_WEIGHTS)
-    if design is None:
+    if slopes is None:
         return deviation, weight
     n = STATE_SIZE
     spread = 0.5 * np.linalg.solve(sigma[1 : n + 1].T, covariance[:n, n:])  # L^-1 C / 2
     y = np.concatenate([np.zeros((1, spread.shape[1])), spread, -spread])
     joint_weight = np.block([[weight, y], [y.T, covariance[n:, n:]]])
-    return np.concatenate([deviation, design[:, n:].T]), joint_weight
+    return np.concatenate([deviation, slopes.T]), joint_weight
 
 
 class UsqueFilter(GyroStateFilter):

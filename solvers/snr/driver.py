@@ -147,7 +147,8 @@ class SnrSolver(SnapshotEstimator):
             )
 
     def with_power_prior(self, problem: SnrEpoch) -> SnrEpoch:
-        """``problem`` with the transmitters' power prior (class docstring): ``10 lg P0 +
+        """``problem`` with the transmitters' power prior (class docstring,
+        :meth:`~attopt.formulations.snr_problem.SnrEpoch.with_power_prior`): ``10 lg P0 +
         mean`` and ``sigma_k = sqrt(sigma_k^2 + s^2)``; unchanged without a prior.
 
         Example::
@@ -163,13 +164,7 @@ class SnrSolver(SnapshotEstimator):
             >>> solver.with_power_prior(epoch).sigma_db.tolist()  # sqrt(1 + 0.75^2)
             [1.25, 1.25]
         """
-        if self.power_offset_mean_db == 0.0 and self.power_offset_sigma_db == 0.0:
-            return problem
-        return replace(
-            problem,
-            p0_dbw=problem.p0_dbw + self.power_offset_mean_db,
-            sigma_db=np.hypot(problem.sigma_db, self.power_offset_sigma_db),
-        )
+        return problem.with_power_prior(self.power_offset_mean_db, self.power_offset_sigma_db)
 
     def issue(self, problem: SnrEpoch) -> EpochIssue | None:
         """Why ``problem`` cannot be solved by this method, or ``None`` (the one-step rule)."""

@@ -172,17 +172,19 @@ AMBIGUITY_PROBABILITY = 1e-4
 def rival_minimum(
     problem: Problem,
     local_solve: LocalSolve[Problem],
-    best: LocalResult,
+    attitude: Rotation,
+    loss: float,
     covariance: np.ndarray,
     starts: Rotation = START_ATTITUDES,
 ) -> tuple[float, float] | None:
-    """A second local minimum the data cannot tell from ``best``, or ``None``.
+    """A second local minimum the data cannot tell from the estimate ``attitude`` (its
+    local solve's ``loss``, its ``covariance``), or ``None``.
 
     Local solves from every one of ``starts``; a converged one is a rival when its
     loss is within the chi-square(3) ``1 - AMBIGUITY_PROBABILITY`` quantile ``q`` of
-    ``best``'s (``2 (L_r - L_b) <= q``: the likelihood ratio cannot reject it; lower
-    losses count too) and it lies outside ``best``'s covariance (``d^T P^-1 d > q``,
-    ``d`` the rotation vector from ``best`` to it).  Returns the rival of lowest loss as
+    the estimate's (``2 (L_r - L_b) <= q``: the likelihood ratio cannot reject it; lower
+    losses count too) and it lies outside the estimate's covariance (``d^T P^-1 d >
+    q``, ``d`` the rotation vector from the estimate to it).  Returns the rival of lowest loss as
     ``(angle in degrees, 2 (L_r - L_b))``.  The covariance describes one basin only:
     with weak data (few SNRs, wide sigmas) the SNR loss can have a second minimum tens
     of degrees away that fits as well (measured in ``adsb-sky``'s modelled sky: 54 deg
@@ -194,8 +196,8 @@ def rival_minimum(
         result = local_solve(problem, starts[i])
         if not (result.converged and np.isfinite(result.loss)):
             continue
-        gap = 2.0 * (result.loss - best.loss)
-        d = (result.attitude * best.attitude.inv()).as_rotvec()
+        gap = 2.0 * (result.loss - loss)
+        d = (result.attitude * attitude.inv()).as_rotvec()
         with np.errstate(invalid="ignore", over="ignore"):
             distance = float(d @ np.linalg.lstsq(covariance, d, rcond=None)[0])
         if gap <= quantile and not distance <= quantile:

@@ -90,8 +90,13 @@ class OneStepSolver(SnrSolver):
             and not diagnostics.get("n_excluded")
         ):
             return estimate
-        best = LocalResult(estimate.attitude, diagnostics["start_loss"], True, "", 0)
-        rival = rival_minimum(problem, self.local_solve, best, estimate.covariance)
+        rival = rival_minimum(
+            problem,
+            self.local_solve,
+            estimate.attitude,
+            diagnostics["start_loss"],
+            estimate.covariance,
+        )
         if rival is None:
             return estimate
         angle, gap = rival
