@@ -75,11 +75,16 @@ class ObservationBatch:
             raise self.error[epoch](self.reason[epoch])
 
 
-def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present: ArrayLike | None):
+def as_batch(
+    body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present: ArrayLike | None
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """``(N, n, 3)`` body and reference vectors, ``(N, n)`` weights and present mask; raises
+    :class:`~attopt.formulations.errors.InvalidObservationError` on malformed shapes."""
     b = np.asarray(body, dtype=float)
     r = np.asarray(reference, dtype=float)
     a = np.asarray(weights, dtype=float)
-    if b.ndim not in (2, 3) or b.shape[-1] != 3:
+    single = b.ndim == 2
+    if not (single or b.ndim == 3) or b.shape[-1] != 3:
         raise InvalidObservationError(
             f"body vectors must have shape (n, 3) or (N, n, 3), got {b.shape}"
         )
@@ -87,16 +92,18 @@ def _as_batch(body: ArrayLike, reference: ArrayLike, weights: ArrayLike, present
         raise InvalidObservationError(
             f"reference vectors have shape {r.shape}, body vectors {b.shape}: they must match"
         )
-    if b.ndim == 2:
+    if single:
         b, r = b[None], r[None]
         a = a[None] if a.ndim == 1 else a
     if a.shape != b.shape[:2]:
         raise InvalidObservationError(
             f"weights must have one entry per observation, shape {b.shape[:2]}, got {a.shape}"
         )
-    p = np.ones(a.shape, dtype=bool) if present is None else np.asarray(present, dtype=bool)
-    if p.ndim == 1 and np.asarray(body).ndim == 2:
-        p = p[None]
+    if present is None:
+        p = np.ones(a.shape, dtype=bool)
+    else:
+        p = np.asarray(present, dtype=bool)
+        p = p[None] if single and p.ndim == 1 else p
     if p.shape != a.shape:
         raise InvalidObservationError(f"present mask must have shape {a.shape}, got {p.shape}")
     return b, r, a, p
@@ -110,6 +117,32 @@ def _max_pairwise_cross(u: NDArray, present: NDArray) -> NDArray:
     return np.sqrt(np.clip(cross_sq.max(axis=1, initial=0.0), 0.0, None))
 
 
+CHECKS: tuple[tuple[str, type[AttoptError] | None], ...] = (
+    ("", None),
+    ("NaN, inf or overflowing component in an observation vector", InvalidObservationError),
+    ("zero-length observation vector", InvalidObservationError),
+    ("weights must be finite and positive", InvalidObservationError),
+    ("fewer than two vector observations", UnobservableError),
+    ("body vectors are (anti)parallel: |b_i x b_j| < {tolerance:g}", UnobservableError),
+    ("reference vectors are (anti)parallel: |r_i x r_j| < {tolerance:g}", UnobservableError),
+)
+"""The per-epoch checks in the order they are applied: ``(reason, exception)``; an epoch's
+code is the index of the first it fails (0: none).  Shared by :func:`prepare_observations`
+and the compiled solvers (:mod:`attopt.solvers.wahba.compiled`)."""
+NONFINITE, ZERO_LENGTH, BAD_WEIGHT, TOO_FEW, BODY_PARALLEL, REFERENCE_PARALLEL = range(1, 7)
+
+
+def check_outcomes(
+    code: NDArray[np.intp], parallel_tolerance: float
+) -> tuple[NDArray[np.object_], NDArray[np.object_]]:
+    """Per epoch, the reason and exception class of its check ``code`` (:data:`CHECKS`)."""
+    texts = np.empty(len(CHECKS), dtype=object)
+    texts[:] = [text.format(tolerance=parallel_tolerance) for text, _ in CHECKS]
+    errors = np.empty(len(CHECKS), dtype=object)
+    errors[:] = [exc for _, exc in CHECKS]
+    return texts[code], errors[code]
+
+
 def prepare_observations(
     body: ArrayLike,
     reference: ArrayLike,
@@ -119,15 +152,13 @@ def prepare_observations(
     parallel_tolerance: float = PARALLEL_TOLERANCE,
 ) -> ObservationBatch:
     """Validate and normalise vector observations (one epoch ``(n, 3)`` or ``(N, n, 3)``)."""
-    b, r, a, p = _as_batch(body, reference, weights, present)
+    b, r, a, p = as_batch(body, reference, weights, present)
     n_epochs, n_obs = a.shape
-    # Per epoch, the index of the first failed check in ``checks`` (0: none).
+    # Per epoch, the index of the first failed check in ``CHECKS`` (0: none).
     code = np.zeros(n_epochs, dtype=np.intp)
-    checks: list[tuple[str, type[AttoptError] | None]] = [("", None)]
 
-    def flag(mask: NDArray, text: str, exc: type[AttoptError]) -> None:
-        checks.append((text, exc))
-        code[mask & (code == 0)] = len(checks) - 1
+    def flag(mask: NDArray, check: int) -> None:
+        code[mask & (code == 0)] = check
 
     with np.errstate(invalid="ignore", over="ignore"):
         nb = np.sqrt(np.einsum("eni,eni->en", b, b))
@@ -135,17 +166,13 @@ def prepare_observations(
     # A norm is finite exactly when the components are, short of overflow
     # (components beyond ~1e154), which is reported with NaN and inf.
     finite = np.isfinite(nb) & np.isfinite(nr)
-    flag(
-        ((~finite) & p).any(1),
-        "NaN, inf or overflowing component in an observation vector",
-        InvalidObservationError,
-    )
+    flag(((~finite) & p).any(1), NONFINITE)
     short = (nb < MIN_NORM) | (nr < MIN_NORM)
-    flag((short & finite & p).any(1), "zero-length observation vector", InvalidObservationError)
+    flag((short & finite & p).any(1), ZERO_LENGTH)
     with np.errstate(invalid="ignore"):
         bad_weight = ~(a > 0) | ~np.isfinite(a)
-    flag((bad_weight & p).any(1), "weights must be finite and positive", InvalidObservationError)
-    flag(p.sum(1) < 2, "fewer than two vector observations", UnobservableError)
+    flag((bad_weight & p).any(1), BAD_WEIGHT)
+    flag(p.sum(1) < 2, TOO_FEW)
 
     ok = code == 0
     safe = p & ok[:, None]
@@ -155,21 +182,9 @@ def prepare_observations(
     if not safe.all():
         bu = np.where(safe[..., None], bu, 0.0)
         ru = np.where(safe[..., None], ru, 0.0)
-    flag(
-        ok & (_max_pairwise_cross(bu, safe) < parallel_tolerance),
-        f"body vectors are (anti)parallel: |b_i x b_j| < {parallel_tolerance:g}",
-        UnobservableError,
-    )
-    flag(
-        ok & (_max_pairwise_cross(ru, safe) < parallel_tolerance),
-        f"reference vectors are (anti)parallel: |r_i x r_j| < {parallel_tolerance:g}",
-        UnobservableError,
-    )
-    texts = np.empty(len(checks), dtype=object)
-    texts[:] = [text for text, _ in checks]
-    errors = np.empty(len(checks), dtype=object)
-    errors[:] = [exc for _, exc in checks]
-    reason, error = texts[code], errors[code]
+    flag(ok & (_max_pairwise_cross(bu, safe) < parallel_tolerance), BODY_PARALLEL)
+    flag(ok & (_max_pairwise_cross(ru, safe) < parallel_tolerance), REFERENCE_PARALLEL)
+    reason, error = check_outcomes(code, parallel_tolerance)
 
     valid = code == 0
     use = p & valid[:, None]

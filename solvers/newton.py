@@ -15,13 +15,18 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+RTOL = 1e-14
+"""Steps below ``RTOL * lambda_0`` end the iteration."""
+MAX_ITERATIONS = 50
+"""A row still stepping after this many iterations has not converged."""
+
 
 def largest_root_newton(
     coefficients: NDArray[np.float64],
     start: NDArray[np.float64],
     *,
-    rtol: float = 1e-14,
-    max_iterations: int = 50,
+    rtol: float = RTOL,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_]]:
     """Newton iterations on ``sum_k c_k x^(4-k)`` per row of ``coefficients`` ``(N, 5)``.
 

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -112,7 +113,8 @@ class Solution(_Uncertainty):
 
     Attributes:
         method: registry name of the estimator.
-        attitude: ``A`` with ``b = A r``; ``None`` when not valid.
+        quaternion: ``(4,)`` scalar-last quaternion of ``A`` (``b = A r``; scipy's
+            canonical sign), NaN when not valid; :attr:`attitude` is its ``Rotation``.
         covariance: ``(3, 3)`` attitude-error covariance, rad^2, body frame
             (infinite variances on axes the data cannot see; NaN when not valid).
         loss: the problem's loss at the estimate (e.g. Wahba's loss), NaN if none.
@@ -139,7 +141,7 @@ class Solution(_Uncertainty):
     """
 
     method: str
-    attitude: Rotation | None
+    quaternion: Array
     covariance: Array
     loss: float = np.nan
     diagnostics: Mapping[str, float] = field(default_factory=dict)
@@ -148,12 +150,11 @@ class Solution(_Uncertainty):
     error: type[AttoptError] | None = None
     t: float = np.nan
 
-    @property
-    def quaternion(self) -> Array:
-        """``(4,)`` scalar-last quaternion of ``A`` (NaN when not valid)."""
-        if self.attitude is None:
-            return np.full(4, np.nan)
-        return self.attitude.as_quat(canonical=True)
+    @cached_property
+    def attitude(self) -> Rotation | None:
+        """The attitude ``A`` of :attr:`quaternion`, ``None`` when not valid (built when first
+        asked for: a scipy ``Rotation`` costs more than a fast solver's whole call)."""
+        return Rotation.from_quat(self.quaternion) if self.valid else None
 
     def raise_if_invalid(self) -> Solution:
         """Return ``self`` if valid, else raise the recorded exception with the reason."""
@@ -249,7 +250,11 @@ class Track(_Uncertainty):
         valid = bool(self.valid[i])
         return Solution(
             method=self.method,
-            attitude=Rotation.from_quat(self.quaternion[i]) if valid else None,
+            quaternion=(
+                Rotation.from_quat(self.quaternion[i]).as_quat(canonical=True)
+                if valid
+                else np.full(4, np.nan)
+            ),
             covariance=self.covariance[i],
             loss=float(self.loss[i]),
             diagnostics={k: float(v[i]) for k, v in self.diagnostics.items()},

@@ -10,7 +10,8 @@ from attopt.formulations.errors import InvalidObservationError, UnobservableErro
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
 from attopt.solvers.wahba import ESTIMATORS
 
-SOLVERS = list(ESTIMATORS)
+SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None)]
+"""Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])
 REF = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -58,14 +59,14 @@ BAD_SINGLE = {
 
 
 @pytest.mark.parametrize("case", BAD_SINGLE)
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 def test_bad_single_epoch_raises_specific_error(solver, case):
     body, ref, w, error, text = BAD_SINGLE[case]
     with pytest.raises(error, match=text.replace("(", r"\(").replace(")", r"\)")):
         solver.solve_vectors(body, ref, w)
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 @pytest.mark.parametrize(
     ("body", "ref", "w", "text"),
     [
@@ -79,7 +80,7 @@ def test_malformed_shapes_raise(solver, body, ref, w, text):
         solver.solve_vectors(body, ref, w)
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 def test_batch_flags_bad_epochs_and_solves_the_rest(solver):
     body = np.stack([BODY, _with(BODY, (1, 2), np.nan), BODY, BODY])
     ref = np.stack([REF] * 4)
@@ -96,7 +97,7 @@ def test_batch_flags_bad_epochs_and_solves_the_rest(solver):
         batch.epoch(3).raise_if_invalid()
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 def test_absent_observation_is_ignored_not_used(solver):
     """A masked-out observation may hold garbage (NaN) without affecting the result."""
     body = _with(BODY, 2, np.nan)

@@ -47,7 +47,14 @@ def _monte_carlo(solver, reference, sigmas, trials, seed):
 
 
 @pytest.mark.parametrize("geometry", GEOMETRIES)
-@pytest.mark.parametrize("solver", [s for s in ESTIMATORS if s.vectorised], ids=lambda s: s.name)
+@pytest.mark.parametrize(
+    "solver",
+    [
+        *(s for s in ESTIMATORS if s.vectorised),
+        *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None),
+    ],
+    ids=lambda s: s.label,
+)
 def test_covariance_matches_monte_carlo(solver, geometry):
     reference, sigmas = GEOMETRIES[geometry]
     scatter, predicted = _monte_carlo(solver, reference, sigmas, trials=4000, seed=11)

@@ -21,7 +21,8 @@ from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, SDP
 from attopt.solvers.wahba.sdp import SdpOptions, relaxation
 from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
-SOLVERS = list(ESTIMATORS)
+SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None)]
+"""Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 OPTIMAL = [s for s in SOLVERS if s.optimal]
 EXACT_OPTIMAL = [s for s in OPTIMAL if s.name != "sdp"]
@@ -43,7 +44,7 @@ SIGMA_DECADES = {"quest": 1.0, "sdp": 1.0}
 DEFAULT_SIGMA_DECADES = 2.0
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 @FAST
 @given(data=st.data())
 def test_noise_free_recovery(solver, data):
@@ -56,7 +57,7 @@ def test_noise_free_recovery(solver, data):
     assert np.all(np.linalg.eigvalsh(solution.covariance) > 0)
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 @FAST
 @given(problem=wahba_problems(max_vectors=8, sigma_decades=1.0))
 def test_batch_equals_single_epochs(solver, problem):
@@ -145,7 +146,7 @@ def test_sdp_reports_certificate():
     assert solution.diagnostics["sdp_value"] == pytest.approx(3.0, rel=1e-7)
 
 
-@pytest.mark.parametrize("solver", EXACT_OPTIMAL, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", EXACT_OPTIMAL, ids=lambda s: s.label)
 def test_batched_solvers_are_vectorised(solver):
     """Registry honesty: a vectorised solver handles 20,000 epochs in one call."""
     assert solver.vectorised
@@ -221,7 +222,7 @@ def test_estimators_are_configured_copies_and_pickle():
         Q_METHOD.solve_vectors(body, body, np.ones(2))
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 @settings(max_examples=10, deadline=None)
 @given(problem=wahba_problems(max_vectors=6, sigma_decades=1.0))
 def test_snapshot_solve_equals_the_array_interface(solver, problem):
@@ -240,7 +241,7 @@ def test_snapshot_solve_equals_the_array_interface(solver, problem):
     assert angle(solver.solve(isotropic).attitude, from_arrays.attitude) < 1e-10
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 def test_solve_sequence_pads_epochs_and_flags_missing_ones(solver):
     rng = np.random.default_rng(9)
     truth = Rotation.random(4, random_state=10)
@@ -266,7 +267,7 @@ def test_solve_sequence_pads_epochs_and_flags_missing_ones(solver):
         np.testing.assert_allclose(track.covariance[k], single.covariance, rtol=1e-10)
 
 
-@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.name)
+@pytest.mark.parametrize("solver", SOLVERS, ids=lambda s: s.label)
 def test_other_measurement_types_are_not_accepted(solver):
     euler = EulerAngleMeasurement(np.zeros(3), np.eye(3))
     vectors = VectorMeasurement(np.eye(3)[:2], np.eye(3)[:2], 1e-3)

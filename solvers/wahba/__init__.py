@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -41,12 +41,19 @@ from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.vector_observations import (
     PARALLEL_TOLERANCE,
     ObservationBatch,
+    as_batch,
     prepare_observations,
 )
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.results import Solution, Track
-from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
-from attopt.solvers.wahba.driver import Estimate, Method, solve_prepared
+from attopt.solvers.wahba import compiled, foam, qmethod, quest, sdp, svd, triad
+from attopt.solvers.wahba.driver import (
+    Estimate,
+    Method,
+    solve_compiled,
+    solve_one_compiled,
+    solve_prepared,
+)
 from attopt.solvers.wahba.sdp import SdpOptions
 
 Array = NDArray[np.float64]
@@ -63,6 +70,10 @@ class WahbaSolver(SnapshotEstimator):
         vectorised: whether a batch is solved without a Python loop per epoch.
         parallel_tolerance: ``|b_i x b_j|`` below which every pair of
             directions counts as (anti)parallel (an unobservable epoch).
+        kernel: the method's code in :mod:`attopt.solvers.wahba.compiled`, which then
+            solves every call unless ``ATTOPT_KERNELS=interpreted`` (``None``: the numpy
+            method :meth:`estimate` always).
+        failure: the reason of an epoch whose iteration did not converge.
     """
 
     name: str
@@ -70,7 +81,27 @@ class WahbaSolver(SnapshotEstimator):
     optimal: bool
     vectorised: bool
     parallel_tolerance: float = PARALLEL_TOLERANCE
+    kernel: int | None = None
+    failure: str = ""
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (VectorMeasurement,)
+
+    @property
+    def label(self) -> str:
+        """``name``, or ``"name (numpy)"`` for the numpy reference of a compiled method."""
+        if self.kernel is None and self.name in compiled.NAMES:
+            return f"{self.name} (numpy)"
+        return self.name
+
+    def numpy_reference(self) -> WahbaSolver:
+        """This solver on its numpy method alone (the compiled path's reference).
+
+        Example::
+
+            >>> from attopt.solvers.wahba import QUEST
+            >>> QUEST.numpy_reference().label
+            'quest (numpy)'
+        """
+        return replace(self, kernel=None)
 
     @abstractmethod
     def estimate(self, obs: ObservationBatch) -> Estimate:
@@ -91,6 +122,11 @@ class WahbaSolver(SnapshotEstimator):
         for those, and scales by ``1 / c`` when every weight is scaled by ``c``
         (the attitude does not change).
         """
+        if self.kernel is not None and compiled.enabled():
+            batch = as_batch(body, reference, weights, present)
+            return solve_compiled(
+                self.name, self.kernel, self.failure, batch, self.parallel_tolerance
+            )
         obs = prepare_observations(
             body, reference, weights, present, parallel_tolerance=self.parallel_tolerance
         )
@@ -99,6 +135,15 @@ class WahbaSolver(SnapshotEstimator):
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
         specific error on bad input."""
+        if self.kernel is not None and compiled.enabled():
+            epoch = as_batch(body, reference, weights, None)
+            if epoch[0].shape[0] != 1:
+                raise ValueError(
+                    "solve_vectors() takes one epoch of (n, 3) vectors; use solve_batch()"
+                )
+            return solve_one_compiled(
+                self.name, self.kernel, self.failure, epoch, self.parallel_tolerance
+            )
         obs = prepare_observations(
             body, reference, weights, parallel_tolerance=self.parallel_tolerance
         )
@@ -171,6 +216,7 @@ class SdpSolver(WahbaSolver):
 TRIAD = ClosedFormSolver(
     name="triad",
     method=triad.estimate,
+    kernel=compiled.TRIAD,
     optimal=False,
     vectorised=True,
     description="TRIAD/algebraic, Cilden Guler et al. 2017 eqs. 5-11",
@@ -178,6 +224,7 @@ TRIAD = ClosedFormSolver(
 SVD = ClosedFormSolver(
     name="svd",
     method=svd.estimate,
+    kernel=compiled.SVD,
     optimal=True,
     vectorised=True,
     description="SVD, Cilden Guler et al. 2017 eqs. 17-19",
@@ -185,6 +232,7 @@ SVD = ClosedFormSolver(
 Q_METHOD = ClosedFormSolver(
     name="q_method",
     method=qmethod.estimate,
+    kernel=compiled.Q_METHOD,
     optimal=True,
     vectorised=True,
     description="Davenport q-method, Cilden Guler et al. 2017 eqs. 20-26",
@@ -192,6 +240,8 @@ Q_METHOD = ClosedFormSolver(
 QUEST = ClosedFormSolver(
     name="quest",
     method=quest.estimate,
+    kernel=compiled.QUEST,
+    failure=quest.FAILURE,
     optimal=True,
     vectorised=True,
     description="QUEST, Cilden Guler et al. 2017 eqs. 27-32",
@@ -199,6 +249,8 @@ QUEST = ClosedFormSolver(
 FOAM = ClosedFormSolver(
     name="foam",
     method=foam.estimate,
+    kernel=compiled.FOAM,
+    failure=foam.FAILURE,
     optimal=True,
     vectorised=True,
     description="FOAM, Cilden Guler et al. 2017 eqs. 33-37",

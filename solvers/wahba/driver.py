@@ -5,6 +5,9 @@ A solver supplies only its method: a function from validated observations
 :class:`Estimate` for every epoch (:meth:`attopt.solvers.wahba.WahbaSolver.estimate`).
 This module turns that into a :class:`attopt.solvers.results.Track` with
 Wahba's loss (Cilden Guler et al. 2017 eq. 14), the validity mask and reasons.
+The compiled methods (:mod:`attopt.solvers.wahba.compiled`) validate, solve and score
+in one call; :func:`solve_compiled` and :func:`solve_one_compiled` give their results
+the same form.
 """
 
 from __future__ import annotations
@@ -17,9 +20,10 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import ConvergenceError
-from attopt.formulations.vector_observations import ObservationBatch
+from attopt.formulations.vector_observations import CHECKS, ObservationBatch, check_outcomes
 from attopt.formulations.wahba import wahba_loss
-from attopt.solvers.results import Track
+from attopt.solvers.results import Solution, Track
+from attopt.solvers.wahba import compiled
 
 
 @dataclass(frozen=True)
@@ -76,3 +80,53 @@ def solve_prepared(name: str, method: Method, obs: ObservationBatch) -> Track:
         k: np.where(valid, np.asarray(v, dtype=float), np.nan) for k, v in est.diagnostics.items()
     }
     return Track(name, quaternion, covariance, loss, valid, reason, error, diagnostics)
+
+
+def solve_compiled(
+    name: str,
+    kernel: int,
+    failure: str,
+    batch: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]],
+    tolerance: float,
+) -> Track:
+    """The batch result of the compiled method ``kernel`` (:mod:`attopt.solvers.wahba.compiled`)
+    on ``batch``, the arrays of :func:`~attopt.formulations.vector_observations.as_batch`:
+    the same columns, reasons and masking as :func:`solve_prepared`."""
+    solved = compiled.Solved.of(compiled.solve_epochs(kernel, *batch, tolerance))
+    reason, error = check_outcomes(solved.code, tolerance)
+    failed = ~solved.converged
+    if failed.any():
+        reason[failed] = failure
+        error[failed] = ConvergenceError
+    valid = (solved.code == 0) & solved.converged
+    names = compiled.DIAGNOSTICS[kernel] if valid.any() else ()
+    diagnostics = {k: solved.diagnostics[:, i] for i, k in enumerate(names)}
+    return Track(
+        name, solved.quaternion, solved.covariance, solved.loss, valid, reason, error, diagnostics
+    )
+
+
+def solve_one_compiled(
+    name: str,
+    kernel: int,
+    failure: str,
+    epoch: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]],
+    tolerance: float,
+) -> Solution:
+    """One epoch (``epoch`` as in :func:`solve_compiled`, ``N = 1``) as a valid
+    :class:`Solution`; raises the specific error of an invalid one."""
+    row = compiled.solve_epochs(kernel, *epoch, tolerance)[0]
+    code = int(row[compiled.CODE])
+    if code:
+        text, exc = CHECKS[code]
+        raise exc(f"{name}: {text.format(tolerance=tolerance)}")
+    if not row[compiled.CONVERGED]:
+        raise ConvergenceError(f"{name}: {failure}")
+    values = row[compiled.DIAGNOSTIC :].tolist()
+    return Solution(
+        name,
+        row[compiled.QUATERNION : compiled.COVARIANCE],
+        row[compiled.COVARIANCE : compiled.LOSS].reshape(3, 3),
+        float(row[compiled.LOSS]),
+        dict(zip(compiled.DIAGNOSTICS[kernel], values, strict=False)),
+    )

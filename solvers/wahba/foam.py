@@ -11,6 +11,9 @@ from attopt.formulations.wahba_covariance import foam_covariance
 from attopt.solvers.newton import largest_root_newton
 from attopt.solvers.wahba.driver import Estimate
 
+FAILURE = "FOAM Newton-Raphson on lambda_max did not converge"
+"""The reason of an epoch whose Newton iteration did not converge."""
+
 
 def estimate(obs: ObservationBatch) -> Estimate:
     """``A = [(kappa + |B|^2) B + lambda adj(B^T) - B B^T B] / (kappa lambda - det B)`` (eq. 35)."""
@@ -26,11 +29,10 @@ def estimate(obs: ObservationBatch) -> Estimate:
         + lam[:, None, None] * adjugate(np.swapaxes(b, 1, 2))
         - bbtb
     ) / zeta[:, None, None]
-    failure = "FOAM Newton-Raphson on lambda_max did not converge"
     return Estimate(
         Rotation.from_matrix(a),
         foam_covariance(b, lam),
         {"iterations": iterations, "lambda_max": lam},
         failed=~converged,
-        failure=failure,
+        failure=FAILURE,
     )

@@ -31,19 +31,22 @@ from attopt.formulations.wahba_covariance import quest_covariance
 from attopt.solvers.newton import largest_root_newton
 from attopt.solvers.wahba.driver import Estimate
 
-# Reference-frame turns of the sequential rotations: identity, 180 deg about x, y, z.
-_TURN_SIGNS = np.array([(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)], float)
-_TURNS = np.array([np.diag(d) for d in _TURN_SIGNS])
+FAILURE = "QUEST Newton-Raphson on lambda_max did not converge"
+"""The reason of an epoch whose Newton iteration did not converge."""
+TURN_SIGNS = np.array([(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)], float)
+"""Reference-frame turns of the sequential rotations (identity, 180 deg about x, y, z):
+the diagonal of each turn's matrix."""
+_TURNS = np.array([np.diag(d) for d in TURN_SIGNS])
 _KEEP = [np.array([j for j in range(4) if j != i]) for i in range(4)]
 _CONJUGATE = np.array([-1.0, -1.0, -1.0, 1.0])
-# Composing with a turn, ``q -> (Rotation(q) * turn).as_quat()``, is linear in
-# the scipy quaternion ``q``; these are its matrices, taken from scipy itself.
-_TURN_COMPOSE = np.stack(
+TURN_COMPOSE = np.stack(
     [
         (Rotation.from_quat(np.eye(4)) * Rotation.from_matrix(turn)).as_quat(canonical=False).T
         for turn in _TURNS
     ]
 )
+"""Composing with a turn, ``q -> (Rotation(q) * turn).as_quat()``, is linear in the scipy
+quaternion ``q``: its ``(4, 4)`` matrices, taken from scipy itself."""
 
 
 def _quest_scalars(b_matrix: np.ndarray, lambda_max: np.ndarray):
@@ -89,8 +92,8 @@ def estimate(obs: ObservationBatch) -> Estimate:
     # (identity when it is q4's: then gamma of eq. 29 is that minor).
     minors = _principal_minors(lambda_max[:, None, None] * np.eye(4) - k)
     turn = (np.argmax(np.abs(minors), axis=1) + 1) % 4
-    turned_b = b * _TURN_SIGNS[turn][:, None, :]
-    compose = _TURN_COMPOSE[turn]
+    turned_b = b * TURN_SIGNS[turn][:, None, :]
+    compose = TURN_COMPOSE[turn]
     q = _quest_quaternion(turned_b, lambda_max)
     # Newton on the quartic leaves lambda with an error of about
     # eps lambda_0^2 / gap (gap: the eigen-gap of K); the Rayleigh quotient
@@ -100,11 +103,10 @@ def estimate(obs: ObservationBatch) -> Estimate:
     lambda_max = np.sum((k @ q[:, :, None])[:, :, 0] * q, axis=1)
     turned = _conjugate(_quest_quaternion(turned_b, lambda_max))
     attitude = Rotation.from_quat((compose @ turned[:, :, None])[:, :, 0])
-    failure = "QUEST Newton-Raphson on lambda_max did not converge"
     return Estimate(
         attitude,
         quest_covariance(obs.body, obs.weights),
         {"iterations": iterations, "lambda_max": lambda_max, "sequential_rotation": turn},
         failed=~converged,
-        failure=failure,
+        failure=FAILURE,
     )
