@@ -147,7 +147,10 @@ class AttitudeMeasurement(ABC):
         cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
     ) -> list[Array]:
         """``[m.noise_covariance_at(attitudes[i]) for ...]`` for measurements of this class
-        with one :meth:`batch_key` (types whose ``R`` depends on the attitude override it)."""
+        with one :meth:`batch_key` (types whose ``R`` depends on the attitude override it;
+        for the others no attitude is looked at)."""
+        if cls.noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
+            return [m.noise_covariance for m in measurements]
         return [m.noise_covariance_at(attitudes[i]) for i, m in enumerate(measurements)]
 
     def innovation(self, predicted: Array) -> Array:
@@ -514,8 +517,11 @@ class ReferencedMeasurement(AttitudeMeasurement):
     def noise_covariance_batch(
         cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
     ) -> list[Array]:
+        inner_type = type(measurements[0].inner)
+        if inner_type.noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
+            return [m.noise_covariance for m in measurements]  # no attitude to compose
         inner, composed = cls._inner_batch(measurements, attitudes)
-        return type(inner[0]).noise_covariance_batch(inner, composed)
+        return inner_type.noise_covariance_batch(inner, composed)
 
     @staticmethod
     def _inner_batch(

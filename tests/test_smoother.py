@@ -680,3 +680,16 @@ def test_first_epoch_after_the_gyro_start_gets_a_prior_node():
     assert np.abs(difference).max() < 1e-9
     assert np.allclose(later.state_covariance, reference.state_covariance[1:], rtol=1e-6)
     assert full.valid.all()
+
+
+def test_the_native_gtsam_reference_solves_the_same_pass():
+    """The benchmark's reference graph (``experiments/benchmarks/native_graph.py``): GTSAM's
+    own factors and optimiser on the smoother's nodes reach the smoother's solution (the
+    residuals differ only by the geodesic angle against its sine)."""
+    from attopt.experiments.benchmarks.native_graph import STAGES, format_table, run
+
+    ours, native, difference_deg = run(runs=1, duration_s=300.0)
+    assert difference_deg < 1e-3
+    assert set(ours[0].seconds) == set(native[0].seconds) == set(STAGES)
+    assert len(native[0].attitudes) >= len(ours[0].attitudes) == 300
+    assert "| total |" in format_table(ours, native, difference_deg)
