@@ -28,6 +28,9 @@ CONDITION_POWER = {"quest": 2}
 its Rayleigh refinement, so either path of it can be that far from the optimum (2e-5 and
 1e-3 rad on an epoch with ``lambda_0 / gap = 2.4e7``, where the SVD agrees with the numpy
 q-method to 1e-9 rad)."""
+pytestmark = pytest.mark.skipif(
+    not compiled.enabled(), reason="ATTOPT_KERNELS=interpreted: the compiled path is off"
+)
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
