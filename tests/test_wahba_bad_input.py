@@ -10,7 +10,7 @@ from attopt.formulations.errors import InvalidObservationError, UnobservableErro
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
 from attopt.solvers.wahba import ESTIMATORS
 
-SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None)]
+SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.has_kernel)]
 """Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])

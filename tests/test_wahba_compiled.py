@@ -19,7 +19,7 @@ from attopt.formulations.errors import ConvergenceError
 from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, compiled
 from attopt.solvers.wahba.driver import solve_compiled
 
-COMPILED = [s for s in ESTIMATORS if s.kernel is not None]
+COMPILED = [s for s in ESTIMATORS if s.has_kernel]
 EPS = np.finfo(float).eps
 ANGLE_FACTOR = 200.0
 """Largest measured: 83 (FOAM) over 100,000 random two-vector epochs."""
@@ -178,3 +178,12 @@ def test_the_quaternion_is_canonical_at_180_degrees():
             q = solver.solve_vectors(truth.apply(reference), reference, np.ones(3)).quaternion
             assert q[3] >= 0.0
             assert Rotation.from_quat(q).approx_equal(truth, atol=1e-12)
+
+
+def test_the_numpy_path_is_an_option():
+    """``compiled = false`` (a configuration's options table) selects the numpy reference."""
+    from attopt.solvers.registry import estimator, with_options
+
+    numpy_quest = with_options(estimator("quest"), {"compiled": False})
+    assert numpy_quest.label == "quest (numpy)" and numpy_quest.kernel is None
+    assert estimator("quest").kernel == compiled.QUEST and estimator("sdp").kernel is None

@@ -51,7 +51,7 @@ def _monte_carlo(solver, reference, sigmas, trials, seed):
     "solver",
     [
         *(s for s in ESTIMATORS if s.vectorised),
-        *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None),
+        *(s.numpy_reference() for s in ESTIMATORS if s.has_kernel),
     ],
     ids=lambda s: s.label,
 )

@@ -21,7 +21,7 @@ from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, SDP
 from attopt.solvers.wahba.sdp import SdpOptions, relaxation
 from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
-SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.kernel is not None)]
+SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.has_kernel)]
 """Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 OPTIMAL = [s for s in SOLVERS if s.optimal]

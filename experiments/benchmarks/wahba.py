@@ -75,7 +75,7 @@ def benchmarked() -> list[tuple[str, WahbaSolver]]:
     """Every registered Wahba solver, the numpy reference of each compiled one
     (:meth:`~attopt.solvers.wahba.WahbaSolver.numpy_reference`), and :data:`REFERENCES`."""
     registered = [e for e in ESTIMATORS.values() if isinstance(e, WahbaSolver)]
-    numpy = [s.numpy_reference() for s in registered if s.kernel is not None]
+    numpy = [s.numpy_reference() for s in registered if s.has_kernel]
     return [(s.label, s) for s in [*registered, *numpy]] + list(REFERENCES.items())
 
 

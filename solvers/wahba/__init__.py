@@ -46,7 +46,8 @@ from attopt.formulations.vector_observations import (
 )
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.results import Solution, Track
-from attopt.solvers.wahba import compiled, foam, qmethod, quest, sdp, svd, triad
+from attopt.solvers.wahba import compiled as compiled_path
+from attopt.solvers.wahba import foam, qmethod, quest, sdp, svd, triad
 from attopt.solvers.wahba.driver import (
     Estimate,
     Method,
@@ -57,6 +58,9 @@ from attopt.solvers.wahba.driver import (
 from attopt.solvers.wahba.sdp import SdpOptions
 
 Array = NDArray[np.float64]
+
+_FAILURES = {"quest": quest.FAILURE, "foam": foam.FAILURE}
+"""The methods that iterate: their reason for an unconverged epoch."""
 
 
 @dataclass(frozen=True, repr=False, kw_only=True)
@@ -70,10 +74,11 @@ class WahbaSolver(SnapshotEstimator):
         vectorised: whether a batch is solved without a Python loop per epoch.
         parallel_tolerance: ``|b_i x b_j|`` below which every pair of
             directions counts as (anti)parallel (an unobservable epoch).
-        kernel: the method's code in :mod:`attopt.solvers.wahba.compiled`, which then
-            solves every call unless ``ATTOPT_KERNELS=interpreted`` (``None``: the numpy
-            method :meth:`estimate` always).
-        failure: the reason of an epoch whose iteration did not converge.
+        compiled: solve with the method's compiled loop
+            (:mod:`attopt.solvers.wahba.compiled`), where it has one and
+            ``ATTOPT_KERNELS=interpreted`` does not turn them off; ``False``: the numpy
+            method :meth:`estimate` (the reference), e.g. ``compiled = false`` in a
+            configuration's ``[estimator_options.quest]``.
     """
 
     name: str
@@ -81,16 +86,29 @@ class WahbaSolver(SnapshotEstimator):
     optimal: bool
     vectorised: bool
     parallel_tolerance: float = PARALLEL_TOLERANCE
-    kernel: int | None = None
-    failure: str = ""
+    compiled: bool = True
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (VectorMeasurement,)
+
+    @property
+    def kernel(self) -> int | None:
+        """The method's code in :mod:`attopt.solvers.wahba.compiled` when :attr:`compiled`
+        (``None``: it has none, or it is off)."""
+        return compiled_path.NAMES.index(self.name) if self.has_kernel and self.compiled else None
+
+    @property
+    def failure(self) -> str:
+        """The reason of an epoch whose compiled iteration did not converge."""
+        return _FAILURES.get(self.name, f"{self.name} did not converge")
+
+    @property
+    def has_kernel(self) -> bool:
+        """Whether the method has a compiled loop."""
+        return self.name in compiled_path.NAMES
 
     @property
     def label(self) -> str:
         """``name``, or ``"name (numpy)"`` for the numpy reference of a compiled method."""
-        if self.kernel is None and self.name in compiled.NAMES:
-            return f"{self.name} (numpy)"
-        return self.name
+        return f"{self.name} (numpy)" if self.has_kernel and not self.compiled else self.name
 
     def numpy_reference(self) -> WahbaSolver:
         """This solver on its numpy method alone (the compiled path's reference).
@@ -101,7 +119,7 @@ class WahbaSolver(SnapshotEstimator):
             >>> QUEST.numpy_reference().label
             'quest (numpy)'
         """
-        return replace(self, kernel=None)
+        return replace(self, compiled=False)
 
     @abstractmethod
     def estimate(self, obs: ObservationBatch) -> Estimate:
@@ -122,7 +140,7 @@ class WahbaSolver(SnapshotEstimator):
         for those, and scales by ``1 / c`` when every weight is scaled by ``c``
         (the attitude does not change).
         """
-        if self.kernel is not None and compiled.enabled():
+        if self.kernel is not None and compiled_path.enabled():
             batch = as_batch(body, reference, weights, present)
             return solve_compiled(
                 self.name, self.kernel, self.failure, batch, self.parallel_tolerance
@@ -135,7 +153,7 @@ class WahbaSolver(SnapshotEstimator):
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
         specific error on bad input."""
-        if self.kernel is not None and compiled.enabled():
+        if self.kernel is not None and compiled_path.enabled():
             epoch = as_batch(body, reference, weights, None)
             if epoch[0].shape[0] != 1:
                 raise ValueError(
@@ -216,7 +234,6 @@ class SdpSolver(WahbaSolver):
 TRIAD = ClosedFormSolver(
     name="triad",
     method=triad.estimate,
-    kernel=compiled.TRIAD,
     optimal=False,
     vectorised=True,
     description="TRIAD/algebraic, Cilden Guler et al. 2017 eqs. 5-11",
@@ -224,7 +241,6 @@ TRIAD = ClosedFormSolver(
 SVD = ClosedFormSolver(
     name="svd",
     method=svd.estimate,
-    kernel=compiled.SVD,
     optimal=True,
     vectorised=True,
     description="SVD, Cilden Guler et al. 2017 eqs. 17-19",
@@ -232,7 +248,6 @@ SVD = ClosedFormSolver(
 Q_METHOD = ClosedFormSolver(
     name="q_method",
     method=qmethod.estimate,
-    kernel=compiled.Q_METHOD,
     optimal=True,
     vectorised=True,
     description="Davenport q-method, Cilden Guler et al. 2017 eqs. 20-26",
@@ -240,8 +255,6 @@ Q_METHOD = ClosedFormSolver(
 QUEST = ClosedFormSolver(
     name="quest",
     method=quest.estimate,
-    kernel=compiled.QUEST,
-    failure=quest.FAILURE,
     optimal=True,
     vectorised=True,
     description="QUEST, Cilden Guler et al. 2017 eqs. 27-32",
@@ -249,8 +262,6 @@ QUEST = ClosedFormSolver(
 FOAM = ClosedFormSolver(
     name="foam",
     method=foam.estimate,
-    kernel=compiled.FOAM,
-    failure=foam.FAILURE,
     optimal=True,
     vectorised=True,
     description="FOAM, Cilden Guler et al. 2017 eqs. 33-37",
