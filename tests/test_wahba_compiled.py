@@ -187,3 +187,17 @@ def test_the_numpy_path_is_an_option():
     numpy_quest = with_options(estimator("quest"), {"compiled": False})
     assert numpy_quest.label == "quest (numpy)" and numpy_quest.kernel is None
     assert estimator("quest").kernel == compiled.QUEST and estimator("sdp").kernel is None
+
+
+def test_a_compiling_first_call_prints_its_cost(capsys):
+    """A loop compiled on first use says so on standard error, one loaded from the cache
+    does not (numba's statistics: cache misses and hits)."""
+    from collections import Counter
+    from types import SimpleNamespace
+
+    compiled_now = SimpleNamespace(cache_misses=Counter({"sig": 1}), cache_path="/cache")
+    loaded = SimpleNamespace(cache_misses=Counter(), cache_path="/cache")
+    assert compiled.report_compilation("quest", 7.5, compiled_now)
+    assert "compiled the quest Wahba loop in 7.50 s" in capsys.readouterr().err
+    assert not compiled.report_compilation("quest", 0.01, loaded)
+    assert capsys.readouterr().err == ""

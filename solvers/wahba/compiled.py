@@ -29,7 +29,8 @@ The helpers are inlined into each method's loop (numba counts the references of 
 array passed to a function that is not, which cost more than a QUEST solve), one loop
 per method.  numba caches the machine code on disk beside this module (``__pycache__``,
 or ``$NUMBA_CACHE_DIR``): the first call of a method on a machine compiles its loop
-(5-10 s), later processes load it (0.01-0.2 s).
+(5-10 s, printed on standard error by :func:`report_compilation`), later processes load it
+(0.01-0.2 s).
 
 Example::
 
@@ -45,6 +46,8 @@ from __future__ import annotations
 
 import math
 import os
+import sys
+import time
 from functools import cache
 from typing import NamedTuple
 
@@ -142,8 +145,10 @@ def solve_epochs(
     :func:`~attopt.formulations.vector_observations.as_batch` returns them) by ``method``:
     the ``(N, COLUMNS)`` buffer of :data:`COLUMNS` (:meth:`Solved.of` splits it)."""
     out = np.empty((weights.shape[0], COLUMNS))
+    loop = _SOLVE[method]
+    start = time.perf_counter()
     # C-contiguous inputs: numba compiles (and caches) one loop per array layout.
-    _SOLVE[method](
+    loop(
         np.ascontiguousarray(body),
         np.ascontiguousarray(reference),
         np.ascontiguousarray(weights),
@@ -151,7 +156,28 @@ def solve_epochs(
         tolerance,
         out,
     )
+    if method not in _READY:
+        _READY.add(method)
+        report_compilation(NAMES[method], time.perf_counter() - start, loop.stats)
     return out
+
+
+_READY: set[int] = set()
+"""The methods whose loop this process has called (compiled or loaded)."""
+
+
+def report_compilation(name: str, seconds: float, stats: object) -> bool:
+    """Print the cost of a first call that compiled the loop (numba's ``stats`` count a
+    cache miss), as the measurement kernels do; nothing when it was loaded from the
+    cache.  Returns whether it printed."""
+    if not sum(stats.cache_misses.values()):
+        return False
+    print(
+        f"attopt: compiled the {name} Wahba loop in {seconds:.2f} s "
+        f"(once per machine, in {stats.cache_path})",
+        file=sys.stderr,
+    )
+    return True
 
 
 @_jit
