@@ -149,7 +149,7 @@ class AttitudeMeasurement(ABC):
         """``[m.noise_covariance_at(attitudes[i]) for ...]`` for measurements of this class
         with one :meth:`batch_key` (types whose ``R`` depends on the attitude override it;
         for the others no attitude is looked at)."""
-        if cls.noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
+        if not _noise_depends_on_attitude(cls):
             return [m.noise_covariance for m in measurements]
         return [m.noise_covariance_at(attitudes[i]) for i, m in enumerate(measurements)]
 
@@ -518,7 +518,7 @@ class ReferencedMeasurement(AttitudeMeasurement):
         cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
     ) -> list[Array]:
         inner_type = type(measurements[0].inner)
-        if inner_type.noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
+        if not _noise_depends_on_attitude(inner_type):
             return [m.noise_covariance for m in measurements]  # no attitude to compose
         inner, composed = cls._inner_batch(measurements, attitudes)
         return inner_type.noise_covariance_batch(inner, composed)
@@ -535,8 +535,8 @@ class ReferencedMeasurement(AttitudeMeasurement):
         return self.inner.innovation(predicted)
 
     def noise_covariance_at(self, attitude: Rotation) -> Array:
-        if type(self.inner).noise_covariance_at is AttitudeMeasurement.noise_covariance_at:
-            return self.noise_covariance  # the inner R does not depend on the attitude
+        if not _noise_depends_on_attitude(type(self.inner)):
+            return self.noise_covariance
         return self.inner.noise_covariance_at(attitude * self.frame_inverse)
 
     def with_offsets(self, offsets: Array) -> ReferencedMeasurement:
@@ -548,3 +548,9 @@ class ReferencedMeasurement(AttitudeMeasurement):
     def with_offset_spread(self, spread: float) -> ReferencedMeasurement:
         inner = self.inner.with_offset_spread(spread)
         return ReferencedMeasurement(inner, self.frame_inverse.inv())
+
+
+def _noise_depends_on_attitude(cls: type[AttitudeMeasurement]) -> bool:
+    """Whether the class overrides :meth:`AttitudeMeasurement.noise_covariance_at` (else its
+    ``R`` is :attr:`~AttitudeMeasurement.noise_covariance` at every attitude)."""
+    return cls.noise_covariance_at is not AttitudeMeasurement.noise_covariance_at

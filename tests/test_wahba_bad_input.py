@@ -8,9 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.errors import InvalidObservationError, UnobservableError
 from attopt.formulations.vector_observations import PARALLEL_TOLERANCE
-from attopt.solvers.wahba import ESTIMATORS
+from attopt.solvers.wahba import ESTIMATORS, NUMPY_REFERENCES
 
-SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.has_kernel)]
+SOLVERS = [*ESTIMATORS, *NUMPY_REFERENCES]
 """Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 TRUTH = Rotation.from_rotvec([0.1, 0.2, -0.3])

@@ -17,11 +17,11 @@ from attopt.formulations.errors import UnobservableError, UnsupportedMeasurement
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.wahba import attitude_profile_matrix, davenport_matrix
 from attopt.formulations.wahba_sdp import WahbaSDP
-from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, SDP
+from attopt.solvers.wahba import ESTIMATORS, NUMPY_REFERENCES, Q_METHOD, SDP
 from attopt.solvers.wahba.sdp import SdpOptions, relaxation
 from tests.strategies import noisy_body, noisy_problem, wahba_problems
 
-SOLVERS = [*ESTIMATORS, *(s.numpy_reference() for s in ESTIMATORS if s.has_kernel)]
+SOLVERS = [*ESTIMATORS, *NUMPY_REFERENCES]
 """Every solver, and the numpy reference of each compiled one (``solvers/wahba/compiled.py``)."""
 BY_NAME = {s.name: s for s in ESTIMATORS}
 OPTIMAL = [s for s in SOLVERS if s.optimal]

@@ -155,18 +155,14 @@ class WahbaSolver(SnapshotEstimator):
         specific error on bad input."""
         if self.kernel is not None and compiled_path.enabled():
             epoch = as_batch(body, reference, weights, None)
-            if epoch[0].shape[0] != 1:
-                raise ValueError(
-                    "solve_vectors() takes one epoch of (n, 3) vectors; use solve_batch()"
-                )
+            _check_one_epoch(epoch[0].shape[0])
             return solve_one_compiled(
                 self.name, self.kernel, self.failure, epoch, self.parallel_tolerance
             )
         obs = prepare_observations(
             body, reference, weights, parallel_tolerance=self.parallel_tolerance
         )
-        if obs.n_epochs != 1:
-            raise ValueError("solve_vectors() takes one epoch of (n, 3) vectors; use solve_batch()")
+        _check_one_epoch(obs.n_epochs)
         return solve_prepared(self.name, self.estimate, obs).epoch(0).raise_if_invalid()
 
     def solve_sequence(
@@ -203,6 +199,11 @@ class WahbaSolver(SnapshotEstimator):
             np.concatenate([m.reference for m in parts]),
             np.concatenate([m.sigma for m in parts]),
         )
+
+
+def _check_one_epoch(n_epochs: int) -> None:
+    if n_epochs != 1:
+        raise ValueError("solve_vectors() takes one epoch of (n, 3) vectors; use solve_batch()")
 
 
 @dataclass(frozen=True, repr=False, kw_only=True)
@@ -270,3 +271,8 @@ SDP = SdpSolver()
 
 ESTIMATORS: tuple[WahbaSolver, ...] = (TRIAD, SVD, Q_METHOD, QUEST, FOAM, SDP)
 """The six solvers, in the order of Cilden Guler et al. 2017's sections."""
+NUMPY_REFERENCES: tuple[WahbaSolver, ...] = tuple(
+    s.numpy_reference() for s in ESTIMATORS if s.has_kernel
+)
+"""The numpy method of each compiled solver (``compiled = false``): the compiled path's
+reference, which tests and benchmarks run beside it."""

@@ -725,20 +725,19 @@ def _quest(bu, ru, aw, b, k, v, q, p, d):
     lam, iterations, converged = _largest_root(
         -(a_ + b_), -c_, a_ * b_ + c_ * sigma - d_, np.sum(aw)
     )
-    # The largest principal minor of lambda I - K picks the turn (quest.py).
+    # The largest principal minor of lambda I - K (in v) picks the turn (quest.py).
     _davenport(b, k)
     for i in range(4):
         for j in range(4):
-            k[i, j] = -k[i, j]
-        k[i, i] += lam
+            v[i, j] = -k[i, j]
+        v[i, i] += lam
     turn = 0
     largest = -1.0
     for i in range(4):
-        minor = abs(_principal_minor(k, i))
+        minor = abs(_principal_minor(v, i))
         if minor > largest:
             largest = minor
             turn = (i + 1) % 4
-    _davenport(b, k)
     first = _conjugate(_after_turn(_conjugate(_quest_quaternion(b, turn - 1, lam)), turn))
     lam = 0.0
     for i in range(4):
