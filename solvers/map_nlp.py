@@ -75,6 +75,7 @@ from attopt.solvers.snr.initialisation import (
     initialise,
     rival_minimum,
 )
+from attopt.solvers.start_hypotheses import rotation_group
 
 
 @dataclass(frozen=True)
@@ -88,12 +89,7 @@ class StartOptions:
 
     @property
     def attitudes(self) -> Rotation:
-        return _group(self.group)
-
-
-@lru_cache(maxsize=3)
-def _group(name: str) -> Rotation:
-    return Rotation.create_group(name)
+        return rotation_group(self.group)
 
 
 @lru_cache(maxsize=64)

@@ -29,7 +29,7 @@ Example::
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -38,7 +38,7 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.errors import AttoptError
+from attopt.formulations.errors import AttoptError, ConvergenceError
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -262,6 +262,45 @@ class Track(_Uncertainty):
             reason=str(self.reason[i]),
             error=self.error[i],
             t=np.nan if self.t is None else float(self.t[i]),
+        )
+
+    def flagged(
+        self, mask: NDArray[np.bool_], reason: str, error: type[AttoptError] = ConvergenceError
+    ) -> Track:
+        """This track with the valid epochs of ``mask`` flagged with ``reason`` and
+        ``error``: their estimates, covariances, loss, bias or rate NaN (epochs already
+        invalid keep their reason).
+
+        Example::
+
+            >>> import numpy as np
+            >>> from attopt import Snapshot, estimator
+            >>> vectors = np.eye(3)[:2]
+            >>> track = estimator("quest").solve_sequence(
+            ...     [Snapshot.from_vectors(vectors, vectors, 1e-3)] * 2
+            ... )
+            >>> track.flagged(np.array([False, True]), "converging").reason.tolist()
+            ['', 'converging']
+        """
+        hit = np.asarray(mask, dtype=bool) & self.valid
+
+        def blank(values: Array | None) -> Array | None:
+            if values is None:
+                return None
+            values = np.asarray(values, dtype=float)
+            return np.where(hit.reshape(-1, *([1] * (values.ndim - 1))), np.nan, values)
+
+        return replace(
+            self,
+            quaternion=blank(self.quaternion),
+            covariance=blank(self.covariance),
+            loss=blank(self.loss),
+            valid=self.valid & ~hit,
+            reason=np.where(hit, reason, self.reason).astype(object),
+            error=np.where(hit, error, self.error),
+            bias=blank(self.bias),
+            rate=blank(self.rate),
+            state_covariance=blank(self.state_covariance),
         )
 
     @classmethod

@@ -384,6 +384,11 @@ def converging_epochs(
     return flagged
 
 
+UPDATE_STATISTICS = ("nis", "log_likelihood")
+"""Diagnostics of an update, NaN at an epoch without one: its normalised innovation squared
+and its innovations' log-likelihood."""
+
+
 @dataclass
 class EpochRecord:
     """Per-epoch outputs collected while filtering (what :func:`filter_result` assembles).
@@ -391,7 +396,8 @@ class EpochRecord:
     Attributes:
         n: epochs.
         state: the error state's blocks (:attr:`SequentialFilter.state`).
-        names: the diagnostics recorded; ``nis`` starts NaN, the others zero.
+        names: the diagnostics recorded; the update statistics (:data:`UPDATE_STATISTICS`)
+            start NaN, the others zero.
         quaternion: ``(n, 4)`` estimates (NaN until stored).
         vector: ``(n, 3)`` the non-attitude block's estimates (bias or rate).
         covariance: ``(n, 6, 6)`` error-state covariances.
@@ -414,8 +420,9 @@ class EpochRecord:
         self.vector = np.full((self.n, 3), np.nan)
         self.covariance = np.full((self.n, size, size), np.nan)
         self.diagnostics = {name: np.zeros(self.n) for name in self.names}
-        if "nis" in self.diagnostics:
-            self.diagnostics["nis"][:] = np.nan
+        for name in UPDATE_STATISTICS:
+            if name in self.diagnostics:
+                self.diagnostics[name][:] = np.nan
         self.reason = np.full(self.n, "", dtype=object)
 
     def store(

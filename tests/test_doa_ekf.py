@@ -89,7 +89,7 @@ def test_converges_from_the_paper_initial_condition_noise_free() -> None:
     )
     dynamics = RigidBody(YANG2014_INERTIA, geometry.eci_to_orbit, WHEEL_MOMENTUM)
     pass_ = Pass(geometry.t, epoch_snapshots(measurements, geometry.t), None, prior, dynamics)
-    result = DoaEkf(compiled=False).solve(pass_)
+    result = DoaEkf(compiled=False, start_hypotheses="none").solve(pass_)
     error = np.degrees(np.linalg.norm(attitude_error(result.attitude(), geometry.truth), axis=1))
     rate_error = np.degrees(np.linalg.norm(result.rate - geometry.rate, axis=1))
     assert np.degrees(np.linalg.norm(attitude_error(prior.attitude, geometry.truth[0]))) > 50.0
@@ -188,14 +188,16 @@ def drawn_prior(rng: np.random.Generator, run: VectorPass, covariance: np.ndarra
 
 
 def run_fast(run: VectorPass, prior: Prior, process_noise: float) -> Track:
-    """The EKF's compiled pass (unit vectors, no gate)."""
-    return DoaEkf(process_noise=process_noise).solve(run.pass_(prior))
+    """The EKF's compiled pass (unit vectors, no gate), from the prior's start alone."""
+    return DoaEkf(process_noise=process_noise, start_hypotheses="none").solve(run.pass_(prior))
 
 
 def run_loop(run: VectorPass, prior: Prior, process_noise: float, **faults) -> Track:
     """The EKF through the sequential loop (Python), with ``faults`` as fault handling."""
     options = FilterOptions(**{"gate_probability": 1.0, "max_attitude_sigma": np.inf, **faults})
-    estimator = DoaEkf(process_noise=process_noise, filter=options, compiled=False)
+    estimator = DoaEkf(
+        process_noise=process_noise, filter=options, compiled=False, start_hypotheses="none"
+    )
     return estimator.solve(run.pass_(prior))
 
 
@@ -272,6 +274,10 @@ def test_compiled_pass_and_loop_agree_to_rounding() -> None:
     np.testing.assert_array_equal(fast.reason, loop.reason)
     for name in ("rows", "n_used", "n_gated", "recoveries"):
         np.testing.assert_array_equal(fast.diagnostics[name], loop.diagnostics[name])
+    np.testing.assert_allclose(
+        fast.diagnostics["log_likelihood"], loop.diagnostics["log_likelihood"], rtol=1e-10
+    )
+    assert np.isnan(fast.diagnostics["log_likelihood"][fast.diagnostics["rows"] == 0]).all()
     assert np.abs(attitude_error(fast.attitude(), loop.attitude())).max() < 1e-12
     np.testing.assert_allclose(fast.rate, loop.rate, rtol=0, atol=1e-12 * np.abs(loop.rate).max())
     assert relative_covariance_difference(fast.state_covariance, loop.state_covariance) < 1e-12

@@ -36,6 +36,7 @@ from attopt.experiments.doa_ground.report import (
     shared_trials,
 )
 from attopt.experiments.experiment import ReportContext
+from attopt.solvers.start_hypotheses import AMBIGUOUS
 from tests.report_tables import row, table
 
 SETTLE_S = 100.0
@@ -190,6 +191,32 @@ def test_attitude_rmses_pool_the_settled_valid_rows_of_all_trials() -> None:
     assert wahba["valid"] == pytest.approx(0.5)
     fg = table.loc[(0.0, 100, "fg_batch")]
     assert (fg["total_rmse_deg"], fg["trials"]) == (pytest.approx(0.18), 2)
+
+
+def test_rows_the_start_check_flags_count_in_the_rmse_not_the_valid_share() -> None:
+    """The paper's EKF's estimates stay in its RMSE where the start check has not confirmed
+    them (the rows show the unchecked run's errors, valid False); the valid share and the
+    NEES statistics count only the confirmed rows; other flags remove rows from both."""
+    rows = _rows()
+    ekf = (rows["method"] == "ekf_yang2014_q1e-09") & (rows["phase"] == "settled")
+    methods = ["ekf_yang2014_q1e-09"]
+    before = attitude_table(rows, methods).loc[(0.0, 100, "ekf_yang2014_q1e-09")]
+    flagged = ekf & (rows["trial_index"] == 0)
+    rows.loc[flagged, "valid"] = False
+    rows.loc[flagged, "reason"] = AMBIGUOUS
+    after = attitude_table(rows, methods).loc[(0.0, 100, "ekf_yang2014_q1e-09")]
+    assert after["total_rmse_deg"] == before["total_rmse_deg"]
+    assert after["valid"] == pytest.approx(2 / 3)
+    nees = consistency_table(rows, methods).loc[(0.0, 100, "ekf_yang2014_q1e-09", "settled")]
+    rows.loc[flagged, "reason"] = "inconsistent"
+    other = attitude_table(rows, methods).loc[(0.0, 100, "ekf_yang2014_q1e-09")]
+    assert other["total_rmse_deg"] != before["total_rmse_deg"] and other["trials"] == 2
+    assert (
+        nees["mean"]
+        == consistency_table(rows, methods).loc[
+            (0.0, 100, "ekf_yang2014_q1e-09", "settled"), "mean"
+        ]
+    )
 
 
 def test_doa_rmse_weights_each_trial_by_its_accepted_estimates() -> None:

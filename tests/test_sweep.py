@@ -157,6 +157,17 @@ def test_failing_trials_are_recorded_and_the_sweep_goes_on(tmp_path):
     assert again.n_computed == 0 and again.n_failed == 10
 
 
+def test_a_sweep_whose_every_trial_fails_still_writes_its_report(tmp_path):
+    """No rows: the experiment's own report (which reads rows) is left out; the generic one
+    lists the failures."""
+    result = run_sweep(
+        TOY_WITH_REPORT, out=tmp_path, trials=2, progress=False, overrides={"fail_every": 1}
+    )
+    assert result.rows.empty and result.n_failed == len(result.failures) > 0
+    report = (tmp_path / "report.md").read_text()
+    assert f"{result.n_failed} trials raised" in report and "Toy section" not in report
+
+
 def test_other_parameters_or_seed_are_refused_unless_fresh(tmp_path):
     sweep(tmp_path, trials=2)
     with pytest.raises(ManifestMismatchError, match=r"seed 0 -> 1.*--fresh"):

@@ -266,7 +266,7 @@ def _write_outputs(
         integrity = integrity_section(rows, by, description.command)
     report = render_report(description, summary, reasons, failures, integrity)
     (out / "report.md").write_text(report)
-    if experiment.report is not None:
+    if experiment.report is not None and len(rows):  # (no rows: every trial failed)
         context = ReportContext(
             parameters=description.parameters,
             rows=rows,

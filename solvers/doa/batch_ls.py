@@ -144,7 +144,7 @@ def pass_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Funct
     normal = ca.SX.sym("normal", 6, 6)
     gradient = ca.SX.sym("gradient", 6)
     cost = ca.SX.sym("cost")
-    information, residual, rows, epoch_cost = vector_information_function(slots)(
+    information, residual, rows, epoch_cost, _ = vector_information_function(slots)(
         x.attitude, x.body, x.reference, x.weight
     )
     attitude_rows = sensitivity[3:, :]

@@ -101,9 +101,14 @@ from attopt.formulations.attitude_model import attitude_model_function, incremen
 from attopt.formulations.errors import ConvergenceError, InvalidObservationError
 from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.rigid_body import angular_acceleration
-from attopt.solvers.doa.vector_slots import vector_arrays, vector_slots
 from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
-from attopt.solvers.filters.common import FilterOptions, gate, noise_subset, solve_noise
+from attopt.solvers.filters.common import (
+    FilterOptions,
+    gate,
+    log_det_noise,
+    noise_subset,
+    solve_noise,
+)
 from attopt.solvers.results import Track
 from attopt.solvers.sequential import (
     NON_FINITE,
@@ -288,7 +293,8 @@ def vector_information_function(slots: int) -> ca.Function:
     the innovation its geodesic one; a vector with weight zero or an exactly
     antipodal innovation adds nothing.  ``rows`` counts three per vector used,
     as the measurement's rows; ``cost = sum w |nu|^2`` is the weighted squared
-    innovation (twice the negative log-likelihood up to a constant).
+    innovation (twice the negative log-likelihood up to a constant) and
+    ``log_det_noise = sum -3 log w`` the ``log det R`` of the rows used.
     """
     attitude = ca.SX.sym("attitude", 3, 3)
     body = ca.SX.sym("body", slots, 3)
@@ -298,7 +304,7 @@ def vector_information_function(slots: int) -> ca.Function:
         attitude, reference
     )
     information, residual, rows = ca.SX.zeros(3, 3), ca.SX.zeros(3), ca.SX.zeros(1)
-    cost = ca.SX.zeros(1)
+    cost, log_det_noise = ca.SX.zeros(1), ca.SX.zeros(1)
     for i in range(slots):
         h, j = predicted[3 * i : 3 * i + 3], jacobian[3 * i : 3 * i + 3, :]
         innovation, defined = geodesic_innovation(body[i, :].T, h)
@@ -307,10 +313,11 @@ def vector_information_function(slots: int) -> ca.Function:
         residual += used * (j.T @ innovation)
         rows += 3.0 * (used > 0)
         cost += used * ca.dot(innovation, innovation)
+        log_det_noise -= ca.if_else(used > 0, 3.0 * ca.log(weight[i]), 0.0)
     return ca.Function(
         "doa_vector_information",
         [attitude, body, reference, weight],
-        [information, residual, rows, cost],
+        [information, residual, rows, cost, log_det_noise],
     )
 
 
@@ -349,16 +356,20 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     """One whole filter epoch on unit vectors: update, then predict (Yang et al. 2014 eqs. 27-33).
 
     ``(omega^-, A^-, P^-, body, reference, weight, h, orbit_turn, q) ->
-    (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle, nis)``,
-    composed of :func:`vector_information_function`, :func:`update_function`
-    and :func:`propagate_function`; ``step_angle = |omega+| dt``, ``nis`` the update's
-    normalised innovation squared (:func:`normalised_innovation`).
+    (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle, nis,
+    log_likelihood)``, composed of :func:`vector_information_function`,
+    :func:`update_function` and :func:`propagate_function`; ``step_angle = |omega+| dt``,
+    ``nis`` the update's normalised innovation squared (:func:`normalised_innovation`)
+    and ``log_likelihood`` its innovations' (:func:`innovation_log_likelihood`).
     """
     x = epoch_symbols(slots)
-    information, residual, rows, cost = vector_information_function(slots)(
+    information, residual, rows, cost, log_det_noise = vector_information_function(slots)(
         x.attitude, x.body, x.reference, x.weight
     )
     nis = normalised_innovation(cost, information, residual, x.covariance[3:, 3:])
+    log_likelihood = innovation_log_likelihood(
+        nis, information, x.covariance[3:, 3:], log_det_noise, rows
+    )
     filtered = update_function()(x.rate, x.attitude, x.covariance, information, residual)
     predicted = propagate_function(dt, inertia)(
         *filtered, x.momentum, x.orbit_turn, x.process_noise
@@ -375,6 +386,7 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
                 rows,
                 ca.norm_2(filtered[0]) * dt,
                 nis,
+                log_likelihood,
             )
         ],
         {"cse": True},
@@ -385,8 +397,9 @@ EKF_FAULTS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.inf)
 """The EKF's default fault handling: no innovation gate (as in Yang et al. 2014, so the
 lost-track monitor never fires) and no validity limit on the attitude sigma (the
 paper's prior is 60 deg)."""
-DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries", "nis", "nis_dof")
-"""Per-epoch counts: measurement rows and blocks used, blocks gated, re-acquisitions."""
+DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries", "nis", "nis_dof", "log_likelihood")
+"""Per-epoch counts: measurement rows and blocks used, blocks gated, re-acquisitions, the
+update's normalised innovation squared, its rows and its innovations' log-likelihood."""
 PRIOR_ORDER = np.array([3, 4, 5, 0, 1, 2])
 """The filter's ``[delta_omega, delta]`` from a prior's ``[attitude, rate]``."""
 UNIFORM_TOLERANCE = 1e-6
@@ -507,6 +520,14 @@ def _measurement_information(
         innovation[rows] @ weighted[:, 3], information, residual, attitude_covariance
     )
     counts["nis_dof"] = float(rows.size)
+    if rows.size:
+        counts["log_likelihood"] = innovation_log_likelihood(
+            counts["nis"],
+            information,
+            attitude_covariance,
+            log_det_noise(noise_subset(noise, rows)),
+            rows.size,
+        )
     return information, residual, counts
 
 
@@ -525,6 +546,21 @@ def normalised_innovation(cost: Any, information: Any, residual: Any, covariance
     return cost - residual.T @ ca.solve(
         ca.DM.eye(3) + covariance @ information, covariance @ residual
     )
+
+
+def innovation_log_likelihood(
+    nis: Any, information: Any, covariance: Any, log_det_noise: Any, rows: Any
+) -> Any:
+    """The log-density of an update's innovations, ``-(nu^T S^-1 nu + log det S + m log
+    2 pi) / 2`` with ``S = J P_aa J^T + R`` (``m`` rows), the term one epoch adds to the
+    log-likelihood of the measurements in the prediction-error decomposition (Schweppe
+    1965); ``log det S = log det R + log det(I + P_aa M)`` (the matrix determinant lemma,
+    ``M = J^T R^-1 J``); numpy or CasADi."""
+    if isinstance(information, np.ndarray):
+        log_det = np.linalg.slogdet(np.eye(3) + covariance @ information)[1]
+        return float(-0.5 * (nis + log_det + log_det_noise + rows * np.log(2.0 * np.pi)))
+    log_det = ca.log(ca.det(ca.DM.eye(3) + covariance @ information))
+    return -0.5 * (nis + log_det + log_det_noise + rows * np.log(2.0 * np.pi))
 
 
 class DoaEkfFilter(SequentialFilter):
@@ -618,7 +654,8 @@ class DoaEkfFilter(SequentialFilter):
 
 
 def run_vectors(
-    pass_: Pass,
+    t: Array,
+    vectors: tuple[Array, Array, Array],
     dynamics: EkfDynamics,
     prior: tuple[Rotation, Array, Array],
     process_noise: float,
@@ -629,15 +666,17 @@ def run_vectors(
 
     The same filter as :class:`DoaEkfFilter` without a gate (results equal to
     rounding), at about 15 us per epoch (measured with up to two vectors per
-    epoch); the same track, with its history.
+    epoch); the same track, with its history.  ``t`` are the pass's epochs and
+    ``vectors`` its unit vectors in slots, ``vector_arrays(*vector_slots(snapshots))``
+    (:mod:`attopt.solvers.doa.vector_slots`: they raise
+    :class:`~attopt.formulations.errors.InvalidObservationError` for measurements other
+    than unit vectors with sigmas, or bad sigmas).
 
     Raises:
-        InvalidObservationError: measurements other than unit vectors with
-            sigmas, or bad sigmas (:mod:`attopt.solvers.doa.vector_slots`).
         ConvergenceError: an estimated rate turns more than :data:`MAX_STEP_ANGLE`
             per step (reported for the first such epoch, after the pass).
     """
-    body, reference, weight = vector_arrays(*vector_slots(pass_.snapshots))
+    body, reference, weight = vectors
     n, slots = weight.shape
     turns = np.concatenate([dynamics.turns, np.eye(3)[None]])
     epoch = epoch_function(dynamics.dt, dynamics.inertia, slots)
@@ -661,6 +700,7 @@ def run_vectors(
     record.diagnostics["rows"], record.diagnostics["n_used"] = rows, rows / 3.0
     record.diagnostics["nis"] = np.where(rows > 0, outputs[9][:, 0, 0], np.nan)
     record.diagnostics["nis_dof"] = rows
+    record.diagnostics["log_likelihood"] = np.where(rows > 0, outputs[10][:, 0, 0], np.nan)
     history = FilterHistory(
         predicted_attitude=np.concatenate([initial[1][None], outputs[1][:-1]]),
         predicted_vector=np.concatenate([np.reshape(rate, (1, 3)), outputs[0][:-1, :, 0]]),
@@ -670,4 +710,4 @@ def run_vectors(
         filtered_vector=record.vector,
         filtered_covariance=record.covariance,
     )
-    return filter_result(method, record, options, pass_.t, history, np.zeros(n, dtype=bool))
+    return filter_result(method, record, options, t, history, np.zeros(n, dtype=bool))

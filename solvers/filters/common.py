@@ -526,6 +526,13 @@ def noise_subset(noise: Array, rows: NDArray[np.intp]) -> Array:
     return noise[rows] if noise.ndim == 1 else noise[np.ix_(rows, rows)]
 
 
+def log_det_noise(noise: Array) -> float:
+    """``log det R`` for ``(m,)`` variances or an ``(m, m)`` matrix."""
+    if noise.ndim == 1:
+        return float(np.sum(np.log(noise)))
+    return float(np.linalg.slogdet(noise)[1])
+
+
 def solve_noise(noise: Array, x: Array) -> Array:
     """``R^-1 x`` for ``(m,)`` variances (elementwise) or an ``(m, m)`` matrix."""
     if noise.ndim == 1:

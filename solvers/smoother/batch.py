@@ -58,7 +58,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from attopt.formulations.errors import ConvergenceError, ModelMismatchError
+from attopt.formulations.errors import ModelMismatchError
 from attopt.solvers.chi_square import chi_square_tail
 from attopt.solvers.filters.common import FilterOptions, GyroPass, repair_covariance
 from attopt.solvers.results import Track
@@ -316,7 +316,7 @@ def batch_track(
             f"after {outcome.iterations} iterations"
         )
         if flag_unconverged:
-            result = _flagged(result, message)
+            result = result.flagged(np.ones(len(result), dtype=bool), message)
     report = SmootherReport(
         converged=outcome.converged,
         message=message,
@@ -354,17 +354,4 @@ def batch_track(
         bias=np.where(valid[:, None], result.bias, np.nan),
         state_covariance=np.where(valid[:, None, None], result.state_covariance, np.nan),
         report=report,
-    )
-
-
-def _flagged(result: Track, message: str) -> Track:
-    """Every epoch invalid, those that were valid with ``message`` and ``ConvergenceError``."""
-    return replace(
-        result,
-        quaternion=np.full_like(result.quaternion, np.nan),
-        covariance=np.full_like(result.covariance, np.nan),
-        loss=np.full_like(result.loss, np.nan),
-        valid=np.zeros_like(result.valid),
-        reason=np.where(result.valid, message, result.reason),
-        error=np.where(result.valid, ConvergenceError, result.error),
     )
