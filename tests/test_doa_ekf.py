@@ -28,6 +28,9 @@ from attopt.solvers.doa.vector_slots import vector_arrays
 from attopt.solvers.filters.common import FilterOptions, apply_error
 from attopt.solvers.results import Track
 
+UNCHECKED = {"start_hypotheses": "none", "robust_check": False}
+"""The EKF alone, without the check against its other runs
+(:mod:`attopt.solvers.start_hypotheses`)."""
 PASS_S = 1200.0
 STEP_S = 1.0
 """Coarser than the paper's 250 ms to keep the test cheap; the model is the same."""
@@ -89,7 +92,7 @@ def test_converges_from_the_paper_initial_condition_noise_free() -> None:
     )
     dynamics = RigidBody(YANG2014_INERTIA, geometry.eci_to_orbit, WHEEL_MOMENTUM)
     pass_ = Pass(geometry.t, epoch_snapshots(measurements, geometry.t), None, prior, dynamics)
-    result = DoaEkf(compiled=False, start_hypotheses="none").solve(pass_)
+    result = DoaEkf(compiled=False, **UNCHECKED).solve(pass_)
     error = np.degrees(np.linalg.norm(attitude_error(result.attitude(), geometry.truth), axis=1))
     rate_error = np.degrees(np.linalg.norm(result.rate - geometry.rate, axis=1))
     assert np.degrees(np.linalg.norm(attitude_error(prior.attitude, geometry.truth[0]))) > 50.0
@@ -189,15 +192,17 @@ def drawn_prior(rng: np.random.Generator, run: VectorPass, covariance: np.ndarra
 
 def run_fast(run: VectorPass, prior: Prior, process_noise: float) -> Track:
     """The EKF's compiled pass (unit vectors, no gate), from the prior's start alone."""
-    return DoaEkf(process_noise=process_noise, start_hypotheses="none").solve(run.pass_(prior))
+    return DoaEkf(process_noise=process_noise, **UNCHECKED).solve(run.pass_(prior))
+
+
+FAST = {"gate_probability": 1.0, "max_attitude_sigma": np.inf}
+"""The EKF's default fault handling (no gate: the compiled path)."""
 
 
 def run_loop(run: VectorPass, prior: Prior, process_noise: float, **faults) -> Track:
     """The EKF through the sequential loop (Python), with ``faults`` as fault handling."""
-    options = FilterOptions(**{"gate_probability": 1.0, "max_attitude_sigma": np.inf, **faults})
-    estimator = DoaEkf(
-        process_noise=process_noise, filter=options, compiled=False, start_hypotheses="none"
-    )
+    options = FilterOptions(**{**FAST, **faults})
+    estimator = DoaEkf(process_noise=process_noise, filter=options, compiled=False, **UNCHECKED)
     return estimator.solve(run.pass_(prior))
 
 
@@ -288,6 +293,38 @@ def test_compiled_pass_and_loop_agree_to_rounding() -> None:
         < 1e-12
     )
     np.testing.assert_allclose(fast.history.transition, loop.history.transition, atol=1e-12)
+
+
+def test_huber_update_down_weights_an_outlier_alike_on_both_paths() -> None:
+    """``huber_threshold``: a vector turned 20 deg (an outlier, 70 sigma) is down-weighted on
+    both paths (``n_downweighted``), the two agree as without it (attitudes within 1e-9 rad,
+    log-likelihoods to 1e-8), and the outlier moves the estimate far less than the
+    Gaussian update lets it (its error after the outlier epoch at most a fifth)."""
+    rng = np.random.default_rng(21)
+    run = simulate_vectors(rng, 120, process_noise=1e-9, presence=1.0)
+    run.body[60, 0] = Rotation.from_rotvec([0.0, 0.0, np.radians(20.0)]).apply(run.body[60, 0])
+    prior = drawn_prior(rng, run, np.diag([1e-8] * 3 + [1e-5] * 3))
+    huber = {"huber_threshold": 3.0}
+    fast = DoaEkf(process_noise=1e-9, filter=FilterOptions(**{**FAST, **huber}), **UNCHECKED).solve(
+        run.pass_(prior)
+    )
+    loop = run_loop(run, prior, 1e-9, **huber)
+    plain = run_fast(run, prior, 1e-9)
+    for track in (fast, loop):
+        assert track.diagnostics["n_downweighted"][60] == 1
+        assert track.diagnostics["n_downweighted"].sum() <= 3
+    assert plain.diagnostics["n_downweighted"].sum() == 0
+    assert (
+        np.abs(attitude_error(history_rotations(fast)[0], history_rotations(loop)[0])).max() < 1e-9
+    )
+    np.testing.assert_allclose(
+        fast.diagnostics["log_likelihood"], loop.diagnostics["log_likelihood"], rtol=1e-8
+    )
+    robust, gaussian = (
+        np.linalg.norm(attitude_error(history_rotations(t)[0][60], run.truth[60]))
+        for t in (fast, plain)
+    )
+    assert robust < 0.2 * gaussian
 
 
 def test_lost_track_is_flagged_with_the_gate_on() -> None:

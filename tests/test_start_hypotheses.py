@@ -11,6 +11,7 @@ from scipy.stats import chi2, ncx2
 
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_from_euler321
+from attopt.formulations.errors import ModelMismatchError
 from attopt.formulations.passes import Pass, RigidBody, epoch_snapshots
 from attopt.formulations.rigid_body import YANG2014_INERTIA
 from attopt.solvers.doa import DoaBatchLs, DoaEkf, DoaRts
@@ -18,6 +19,7 @@ from attopt.solvers.results import Track, attitude_errors, normalised_errors
 from attopt.solvers.start_hypotheses import (
     AMBIGUOUS,
     GROUPS,
+    PULLED,
     StartCheck,
     checked,
     flagged_by_start_check,
@@ -26,7 +28,15 @@ from attopt.solvers.start_hypotheses import (
     start_verdict,
     unchecked,
 )
-from tests.test_doa_ekf import PRIOR, SCENARIO, WHEEL_MOMENTUM, build_geometry, rate_prior
+from tests.test_doa_ekf import (
+    PRIOR,
+    SCENARIO,
+    WHEEL_MOMENTUM,
+    build_geometry,
+    drawn_prior,
+    rate_prior,
+    simulate_vectors,
+)
 
 INTEGRITY_QUANTILE = chi2.isf(1e-4, 3)
 
@@ -130,6 +140,7 @@ def test_checked_flags_and_then_waits_a_window_before_an_epoch_counts():
     assert all(reason.startswith("converging: fewer than 3 updates") for reason in settling)
     assert np.isnan(track.quaternion[:5]).all() and np.isnan(track.rate[:5]).all()
     assert flagged_by_start_check(track.reason).tolist() == [True] * 5 + [False] * 3
+    assert flagged_by_start_check([PULLED]).all()
     assert not flagged_by_start_check(["converging: restarted", "inconsistent"]).any()
     assert track.report is check and checked(StartCheck((reported,), 1e-6, 3)) is reported
     assert unchecked(track) is reported and unchecked(reported) is reported
@@ -171,7 +182,7 @@ def test_the_paper_ekf_and_rts_are_flagged_until_the_starts_agree(paper_pass):
     epochs are the convergence (the last 70 % of the pass valid), and the unflagged run,
     kept in ``report``, is the EKF alone's."""
     pass_, truth = paper_pass
-    alone = DoaEkf(start_hypotheses="none").solve(pass_)
+    alone = DoaEkf(start_hypotheses="none", robust_check=False).solve(pass_)
     assert alone.valid.all() and np.nanmax(_nees(alone, truth)) > 1e3
     ekf = DoaEkf().solve(pass_)
     rts = DoaRts().solve(pass_, ekf)
@@ -187,3 +198,27 @@ def test_the_paper_ekf_and_rts_are_flagged_until_the_starts_agree(paper_pass):
     # the batch least squares starts from the smoothed (unflagged) first epoch, as before
     batch = DoaBatchLs().solve(pass_, rts)
     assert batch.valid[-1]
+
+
+def test_the_robust_run_flags_what_an_absorbed_outlier_leaves():
+    """Three vectors turned 20 deg (outliers) in a 400-epoch pass from a prior near the
+    truth: the Gaussian EKF absorbs each, and after the innovation test's 10 updates it
+    reports epochs whose NEES exceeds the integrity quantile; compared with its run with
+    Huber-weighted updates, those epochs are flagged (``inconsistent``,
+    ``ModelMismatchError``) and no valid epoch is beyond it."""
+    rng = np.random.default_rng(5)
+    run = simulate_vectors(rng, 400, process_noise=1e-9, presence=1.0)
+    turn = Rotation.from_rotvec([0.0, 0.0, np.radians(20.0)])
+    for k in (100, 200, 300):
+        run.body[k, 0] = turn.apply(run.body[k, 0])
+    prior = drawn_prior(rng, run, np.diag([1e-8] * 3 + [1e-5] * 3))
+    alone = DoaEkf(process_noise=1e-9, start_hypotheses="none", robust_check=False)
+    plain = alone.solve(run.pass_(prior))
+    assert np.nanmax(_nees(plain, run.truth)[plain.valid]) > INTEGRITY_QUANTILE
+    checked_track = DoaEkf(process_noise=1e-9, start_hypotheses="none").solve(run.pass_(prior))
+    nees = _nees(checked_track, run.truth)
+    assert np.all(nees[checked_track.valid] < INTEGRITY_QUANTILE)
+    pulled = checked_track.reason == PULLED
+    assert pulled[110:120].all() and (checked_track.error[pulled] == ModelMismatchError).all()
+    assert checked_track.valid[:100].all() and checked_track.valid[-50:].all()
+    assert checked_track.report.robust.diagnostics["n_downweighted"][[100, 200, 300]].all()

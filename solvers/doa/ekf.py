@@ -105,6 +105,7 @@ from attopt.solvers.filters.casadi_pass import accumulate, lower_symmetric
 from attopt.solvers.filters.common import (
     FilterOptions,
     gate,
+    huber_noise,
     log_det_noise,
     noise_subset,
     solve_noise,
@@ -321,6 +322,38 @@ def vector_information_function(slots: int) -> ca.Function:
     )
 
 
+@lru_cache(maxsize=8)
+def huber_function(slots: int) -> ca.Function:
+    """``(A, body, reference, weight, P_aa, k) -> (weight, n_downweighted)``: each vector's
+    weight (inverse variance) times its Huber weight ``min(1, k / sqrt(nu^T S^-1 nu))``,
+    ``S = J P_aa J^T + R`` at the prior (:func:`~attopt.solvers.filters.common.robust_noise`,
+    the rule of the MEKF's and USQUE's updates); ``k = inf``: the weights unchanged."""
+    attitude = ca.SX.sym("attitude", 3, 3)
+    body = ca.SX.sym("body", slots, 3)
+    reference = ca.SX.sym("reference", slots, 3)
+    weight = ca.SX.sym("weight", slots)
+    covariance = ca.SX.sym("covariance", 3, 3)
+    threshold = ca.SX.sym("huber")
+    predicted, jacobian = attitude_model_function(body_vectors_model, ((slots, 3),))(
+        attitude, reference
+    )
+    weighted, downweighted = [], ca.SX.zeros(1)
+    for i in range(slots):
+        h, j = predicted[3 * i : 3 * i + 3], jacobian[3 * i : 3 * i + 3, :]
+        innovation, _ = geodesic_innovation(body[i, :].T, h)
+        variance = ca.if_else(weight[i] > 0, 1.0 / weight[i], 1.0)
+        s = j @ covariance @ j.T + variance * ca.DM.eye(3)
+        norm = ca.sqrt(ca.dot(innovation, ca.solve(s, innovation)))
+        beyond = ca.logic_and(weight[i] > 0, norm > threshold)
+        weighted.append(ca.if_else(beyond, weight[i] * threshold / norm, weight[i]))
+        downweighted += beyond
+    return ca.Function(
+        "doa_vector_huber",
+        [attitude, body, reference, weight, covariance, threshold],
+        [ca.vertcat(*weighted), downweighted],
+    )
+
+
 class EpochSymbols(NamedTuple):
     """CasADi symbols of one epoch, in the order :func:`epoch_function` takes them."""
 
@@ -355,16 +388,21 @@ def epoch_symbols(slots: int) -> EpochSymbols:
 def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Function:
     """One whole filter epoch on unit vectors: update, then predict (Yang et al. 2014 eqs. 27-33).
 
-    ``(omega^-, A^-, P^-, body, reference, weight, h, orbit_turn, q) ->
+    ``(omega^-, A^-, P^-, body, reference, weight, h, orbit_turn, q, k) ->
     (omega^-_next, A^-_next, P^-_next, omega+, A+, P+, Phi, rows, step_angle, nis,
-    log_likelihood)``, composed of :func:`vector_information_function`,
+    log_likelihood, n_downweighted)``, composed of :func:`huber_function` (``k``:
+    the Huber threshold, ``inf`` for none), :func:`vector_information_function`,
     :func:`update_function` and :func:`propagate_function`; ``step_angle = |omega+| dt``,
     ``nis`` the update's normalised innovation squared (:func:`normalised_innovation`)
     and ``log_likelihood`` its innovations' (:func:`innovation_log_likelihood`).
     """
     x = epoch_symbols(slots)
+    threshold = ca.SX.sym("huber")
+    weight, downweighted = huber_function(slots)(
+        x.attitude, x.body, x.reference, x.weight, x.covariance[3:, 3:], threshold
+    )
     information, residual, rows, cost, log_det_noise = vector_information_function(slots)(
-        x.attitude, x.body, x.reference, x.weight
+        x.attitude, x.body, x.reference, weight
     )
     nis = normalised_innovation(cost, information, residual, x.covariance[3:, 3:])
     log_likelihood = innovation_log_likelihood(
@@ -376,7 +414,7 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
     )
     return ca.Function(
         "doa_ekf_epoch",
-        list(x),
+        [*x, threshold],
         [
             ca.densify(x)
             for x in (
@@ -387,19 +425,33 @@ def epoch_function(dt: float, inertia: tuple[float, ...], slots: int) -> ca.Func
                 ca.norm_2(filtered[0]) * dt,
                 nis,
                 log_likelihood,
+                downweighted,
             )
         ],
         {"cse": True},
     )
 
 
+ROBUST_CHECK = 3.0
+"""Huber threshold of the check's robust run (a unit-vector block's whitened norm is about
+``sqrt(2)`` for Gaussian noise, :mod:`attopt.solvers.robust`)."""
 EKF_FAULTS = FilterOptions(gate_probability=1.0, max_attitude_sigma=np.inf)
 """The EKF's default fault handling: no innovation gate (as in Yang et al. 2014, so the
 lost-track monitor never fires) and no validity limit on the attitude sigma (the
 paper's prior is 60 deg)."""
-DIAGNOSTICS = ("rows", "n_used", "n_gated", "recoveries", "nis", "nis_dof", "log_likelihood")
-"""Per-epoch counts: measurement rows and blocks used, blocks gated, re-acquisitions, the
-update's normalised innovation squared, its rows and its innovations' log-likelihood."""
+DIAGNOSTICS = (
+    "rows",
+    "n_used",
+    "n_gated",
+    "n_downweighted",
+    "recoveries",
+    "nis",
+    "nis_dof",
+    "log_likelihood",
+)
+"""Per-epoch counts: measurement rows and blocks used, blocks gated and down-weighted
+(``FilterOptions.huber_threshold``), re-acquisitions, the update's normalised innovation
+squared, its rows and its innovations' log-likelihood."""
 PRIOR_ORDER = np.array([3, 4, 5, 0, 1, 2])
 """The filter's ``[delta_omega, delta]`` from a prior's ``[attitude, rate]``."""
 UNIFORM_TOLERANCE = 1e-6
@@ -488,10 +540,12 @@ def _measurement_information(
     measurement: AttitudeMeasurement,
     attitude: Array,
     attitude_covariance: Array,
-    probability: float,
+    options: FilterOptions,
 ) -> tuple[Array, Array, dict[str, float]]:
     """``M = J^T R^-1 J``, ``z = J^T R^-1 nu`` of the rows with a finite innovation and
-    Jacobian whose block passes the gate (``S = J P_aa J^T + R``), and the counts."""
+    Jacobian whose block passes the gate at ``options.gate_probability`` (``S = J P_aa J^T
+    + R``), ``R`` Huber-weighted at ``options.huber_threshold``
+    (:func:`~attopt.solvers.filters.common.huber_noise`), and the counts."""
     predicted, jacobian = measurement.predict(Rotation.from_matrix(attitude))
     predicted, jacobian = predicted[0], jacobian[0]
     innovation = measurement.innovation(predicted)
@@ -504,17 +558,28 @@ def _measurement_information(
         attitude_covariance,
         noise_subset(noise, rows),
         blocks[rows],
-        probability,
+        options.gate_probability,
     )
     gated = np.unique(blocks[rows[~accepted]]).size
     rows = rows[accepted]
+    counts = {"n_downweighted": 0.0}
+    noise = huber_noise(
+        noise,
+        rows,
+        innovation[rows],
+        jacobian[rows].T,
+        attitude_covariance,
+        blocks[rows],
+        options,
+        counts,
+    )
     weighted = solve_noise(
         noise_subset(noise, rows), np.column_stack([jacobian[rows], innovation[rows]])
     )
     information = jacobian[rows].T @ weighted[:, :3]
     information = 0.5 * (information + information.T)
     residual = jacobian[rows].T @ weighted[:, 3]
-    counts = {"rows": float(rows.size), "n_used": float(np.unique(blocks[rows]).size)}
+    counts |= {"rows": float(rows.size), "n_used": float(np.unique(blocks[rows]).size)}
     counts["n_gated"] = float(gated)
     counts["nis"] = normalised_innovation(
         innovation[rows] @ weighted[:, 3], information, residual, attitude_covariance
@@ -642,7 +707,7 @@ class DoaEkfFilter(SequentialFilter):
         if not measurement.z.size:
             return {"rows": 0.0, "n_used": 0.0, "n_gated": 0.0}
         information, residual, counts = _measurement_information(
-            measurement, self._attitude, self.covariance[3:, 3:], self.options.gate_probability
+            measurement, self._attitude, self.covariance[3:, 3:], self.options
         )
         self._rate, self._attitude, self.covariance = (
             x.full()
@@ -682,9 +747,9 @@ def run_vectors(
     epoch = epoch_function(dynamics.dt, dynamics.inertia, slots)
     attitude, rate, covariance = prior
     initial = [rate, attitude.as_matrix(), covariance]
-    outputs = accumulate(
-        epoch, 3, initial, [body, reference, weight, dynamics.momentum, turns, process_noise], n
-    )
+    huber = np.inf if options.huber_threshold is None else options.huber_threshold
+    inputs = [body, reference, weight, dynamics.momentum, turns, process_noise, huber]
+    outputs = accumulate(epoch, 3, initial, inputs, n)
     check_steps(outputs[3][:-1, :, 0], dynamics.dt)
     record = EpochRecord(n, DoaEkfFilter.state, DIAGNOSTICS)
     filtered_attitude = outputs[4]
@@ -701,6 +766,7 @@ def run_vectors(
     record.diagnostics["nis"] = np.where(rows > 0, outputs[9][:, 0, 0], np.nan)
     record.diagnostics["nis_dof"] = rows
     record.diagnostics["log_likelihood"] = np.where(rows > 0, outputs[10][:, 0, 0], np.nan)
+    record.diagnostics["n_downweighted"] = outputs[11][:, 0, 0]
     history = FilterHistory(
         predicted_attitude=np.concatenate([initial[1][None], outputs[1][:-1]]),
         predicted_vector=np.concatenate([np.reshape(rate, (1, 3)), outputs[0][:-1, :, 0]]),

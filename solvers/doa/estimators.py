@@ -26,6 +26,7 @@ from attopt.solvers.doa.batch_ls import BatchLsOptions, batch_least_squares
 from attopt.solvers.doa.ekf import (
     EKF_FAULTS,
     PROCESS_NOISE,
+    ROBUST_CHECK,
     DoaEkfFilter,
     EkfDynamics,
     ekf_dynamics,
@@ -72,12 +73,18 @@ class DoaEkf(PassEstimator):
             ``"T"``, ``"O"``, ``"I"``, or ``"none"`` for no check). Epochs it fails are
             flagged ``converging``; the runs are the track's ``report``
             (:class:`~attopt.solvers.start_hypotheses.StartCheck`).
+        robust_check: the check also compares with the run from the prior's start with
+            Huber-weighted updates (threshold
+            :data:`~attopt.solvers.doa.ekf.ROBUST_CHECK`): epochs where it lies outside the
+            reported covariance are flagged ``inconsistent`` (an outlier the Gaussian
+            update absorbed).  Not with a ``filter`` that has its own ``huber_threshold``.
     """
 
     process_noise: float = PROCESS_NOISE
     filter: FilterOptions = EKF_FAULTS
     compiled: bool = True
     start_hypotheses: Literal["none", "T", "O", "I"] = "O"
+    robust_check: bool = True
 
     def __post_init__(self) -> None:
         if self.start_hypotheses not in GROUPS:
@@ -118,11 +125,16 @@ class DoaEkf(PassEstimator):
             except ConvergenceError:
                 continue
         options = self.filter
+        robust = None
+        if self.robust_check and options.huber_threshold is None:
+            huber = replace(options, huber_threshold=ROBUST_CHECK)
+            robust = replace(self, filter=huber)._run(pass_, dynamics, prior, vectors)
         check = StartCheck(
             tuple(runs),
             options.consistency_false_alarm,
             options.consistency_window,
             diverged=len(starts) - len(runs),
+            robust=robust,
         )
         return checked(check)
 
@@ -189,9 +201,13 @@ class DoaRts(PassEstimator):
         if not isinstance(check, StartCheck):
             return rts_smooth(initial, self.forward.filter, self.name)
         options = self.forward.filter
-        smoothed = tuple(rts_smooth(run, options, self.name) for run in check.plausible())
+        smoothed = replace(
+            check,
+            runs=tuple(rts_smooth(run, options, self.name) for run in check.plausible()),
+            robust=None if check.robust is None else rts_smooth(check.robust, options, self.name),
+        )
         reported = rts_smooth(initial, options, self.name)
-        return checked(replace(check, runs=smoothed), whole_pass=True, reported=reported)
+        return checked(smoothed, whole_pass=True, reported=reported)
 
 
 @dataclass(frozen=True, repr=False)

@@ -200,8 +200,9 @@ class FilterOptions:
             and flagged beyond ``max_gyro_gap_s``); 0 turns the check off (a quantised
             record whose noise is below its quantum).
         huber_threshold: ``k`` of the Huber loss on each observation block's whitened
-            innovation norm at the prior, in the MEKF's and USQUE's updates
-            (:func:`robust_noise`); the blocks beyond it are down-weighted and counted
+            innovation norm at the prior, in the updates of the MEKF, USQUE and Yang et
+            al. 2014's EKF (:func:`robust_noise`); the blocks beyond it are down-weighted
+            and counted
             in ``n_downweighted``; ``None`` (default): the Gaussian update.  The batch
             smoother has its own (``GraphOptions.huber_threshold``).
 
