@@ -50,6 +50,8 @@ class BenchRow:
     median_iterations: float
     failures: int
     rms_error_deg: float
+    spread_ms: tuple[float, float] = (np.nan, np.nan)
+    """Smallest and largest of the repeats' medians."""
 
 
 def _epochs(n_epochs: int, seed: int) -> tuple[list[SnrEpoch], Rotation]:
@@ -144,7 +146,8 @@ def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
         for _ in range(repeats):
             seconds, solutions = _measure(solver, snapshots, warm)
             medians.append(float(np.median(seconds)))
-        rows.append(_row(name, float(np.median(medians)), solutions, truths))
+        row = _row(name, float(np.median(medians)), solutions, truths)
+        rows.append(replace(row, spread_ms=(1e3 * min(medians), 1e3 * max(medians))))
     reference = rows[0].median_ms
     rows = [replace(r, ratio_to_nlse=r.median_ms / reference) for r in rows]
     print(f"{len(epochs)} epochs, {OBSERVATIONS} observations each")
@@ -174,14 +177,16 @@ def _row(
 def format_table(rows: list[BenchRow]) -> str:
     """Markdown table of the measurements."""
     lines = [
-        "| solver | median ms/epoch | vs nlse (warm) | median iterations | failures | "
-        "RMS error (deg) |",
+        "| solver | median ms/epoch (min-max of repeats) | vs nlse (warm) | median iterations | "
+        "failures | RMS error (deg) |",
         "|---|---|---|---|---|---|",
     ]
     for r in rows:
+        low, high = r.spread_ms
         lines.append(
-            f"| {r.variant} | {r.median_ms:.2f} | {r.ratio_to_nlse:.2f}x | "
-            f"{r.median_iterations:g} | {r.failures} | {r.rms_error_deg:.2f} |"
+            f"| {r.variant} | {r.median_ms:.2f} ({low:.2f}-{high:.2f}) | "
+            f"{r.ratio_to_nlse:.2f}x | {r.median_iterations:g} | {r.failures} | "
+            f"{r.rms_error_deg:.2f} |"
         )
     return "\n".join(lines)
 
