@@ -103,14 +103,18 @@ INTEGRITY_TESTS: dict[str, Any] = {
     "mismatch_false_alarm": 0.0,
     "max_variance_factor": 1.0,
     "gyro_exclusions": 0,
+    "start_hypotheses": "none",
+    "robust_check": False,
 }
 """The options fields of the integrity tests and the value that turns each off: the
 filters' windowed innovation test
 (:func:`attopt.solvers.sequential.inconsistent_epochs`), the snapshot estimators'
 residual test (:func:`attopt.solvers.snapshot_sequence.residual_test`), the batch
 smoother's covariance scaling by the whole-pass variance factor, which acts on that
-test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`), and its gyro
-fault test (:func:`attopt.solvers.smoother.batch.gyro_faults`)."""
+test's outcome (:func:`attopt.solvers.smoother.batch.variance_factor`), its gyro
+fault test (:func:`attopt.solvers.smoother.batch.gyro_faults`), and the check of Yang
+et al. 2014's EKF against its runs from other starts and with Huber-weighted updates
+(:mod:`attopt.solvers.start_hypotheses`)."""
 
 
 def integrity_tests_off(found: Any) -> dict[str, Any]:

@@ -246,5 +246,12 @@ def unchecked(track: Track) -> Track:
 
 def flagged_by_start_check(reason: ArrayLike) -> NDArray[np.bool_]:
     """Which of the epochs' ``reason`` are the check's (:data:`AMBIGUOUS`, :data:`PULLED`,
-    :data:`SETTLING`): their estimates exist (the unchecked run's) but are not confirmed."""
+    :data:`SETTLING`): their estimates exist (the unchecked run's) but are not confirmed.
+
+    Example::
+
+        >>> from attopt.solvers.start_hypotheses import AMBIGUOUS, flagged_by_start_check
+        >>> flagged_by_start_check([AMBIGUOUS, "", "lost track"]).tolist()
+        [True, False, False]
+    """
     return np.char.endswith(np.asarray(reason, dtype=str), OUTSIDE)

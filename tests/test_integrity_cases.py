@@ -45,6 +45,9 @@ def test_integrity_tests_off_turns_every_test_off_and_nothing_else(name):
 def test_the_filters_and_the_snapshot_least_squares_have_their_tests_switchable():
     for name in ("mekf", "usque", "rts", "ekf_yang2014"):
         assert "consistency_window" in str(integrity_tests_off(ESTIMATORS[name]))
+    for name in ("ekf_yang2014", "rts_yang2014"):  # and the check against the other runs
+        table = str(integrity_tests_off(ESTIMATORS[name]))
+        assert "'start_hypotheses': 'none'" in table and "'robust_check': False" in table
     for name in ("deterministic", "nlse", "nlp", "nlp_truncated"):
         assert integrity_tests_off(ESTIMATORS[name]) == {"mismatch_false_alarm": 0.0}
     for name in ("fg_batch", "fg_batch_offsets"):  # the window, variance factor, gyro test

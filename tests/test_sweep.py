@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -9,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from pandas.testing import assert_frame_equal
 
@@ -16,7 +19,7 @@ from attopt.experiments.sweep import EngineSetupError, ManifestMismatchError, ru
 from attopt.experiments.sweep.engines import DaskEngine
 from attopt.experiments.sweep.seeding import trial_index, trial_seed
 from attopt.experiments.sweep.store import UNRECORDED, code_version
-from attopt.experiments.sweep.tasks import ChunkSpec
+from attopt.experiments.sweep.tasks import ChunkSpec, run_chunk
 from attopt.experiments.sweep.toys import NOOP
 from tests.report_tables import row, table
 from tests.sweep_toys import PROBE, TOY, TOY_WITH_REPORT
@@ -155,6 +158,24 @@ def test_failing_trials_are_recorded_and_the_sweep_goes_on(tmp_path):
 
     again = sweep(tmp_path, trials=6, overrides={"fail_every": 3, "doomed_setting": 2})
     assert again.n_computed == 0 and again.n_failed == 10
+
+
+def test_a_chunk_returns_the_parquet_file_the_store_writes(tmp_path):
+    """The worker sends its rows as the Parquet file itself, which reads back as the rows of
+    the sweep; the store writes the bytes it receives (their hash in each record)."""
+    result = sweep(tmp_path, trials=2)
+    specs = [ChunkSpec("c", "tests.sweep_toys:TOY", 0, ((0, 0), (0, 1)), {0: result.settings[0]})]
+    (chunk,) = (run_chunk(spec) for spec in specs)
+    stored = result.rows[result.rows["setting_index"] == 0].reset_index(drop=True)
+    assert isinstance(chunk.rows, bytes) and chunk.n_rows == len(stored) > 0
+    read = pq.read_table(pa.BufferReader(chunk.rows)).to_pandas()
+    assert_frame_equal(read, stored[read.columns], check_exact=True)
+    for path in (tmp_path / "trials").glob("*.json"):  # each record holds its file's hash
+        record = json.loads(path.read_text())
+        on_disk = (tmp_path / "rows" / f"{record['chunk']}.parquet").read_bytes()
+        assert record["rows_sha256"] == hashlib.sha256(on_disk).hexdigest()
+    empty = run_chunk(ChunkSpec("e", "tests.sweep_toys:TOY", 0, (), {}))
+    assert (empty.rows, empty.n_rows) == (b"", 0)
 
 
 def test_a_sweep_whose_every_trial_fails_still_writes_its_report(tmp_path):

@@ -214,18 +214,15 @@ class SweepStore:
     def commit(self, result: ChunkResult) -> None:
         """Store a finished chunk: its rows, then the record that marks it finished."""
         rows_sha256 = None
-        if len(result.rows):
-            sink = pa.BufferOutputStream()
-            pq.write_table(pa.Table.from_pandas(result.rows, preserve_index=False), sink)
-            data = sink.getvalue()
-            rows_sha256 = hashlib.sha256(data).hexdigest()
+        if result.n_rows:
+            rows_sha256 = hashlib.sha256(result.rows).hexdigest()
             path = self._rows_path(result.chunk_id)
-            _temporary(path).write_bytes(data)
+            _temporary(path).write_bytes(result.rows)
             os.replace(_temporary(path), path)
         record = ChunkRecord(
             chunk=result.chunk_id,
             tasks=list(result.tasks),
-            n_rows=len(result.rows),
+            n_rows=result.n_rows,
             failures=result.failures,
             elapsed_s=result.elapsed_s,
             code=self.code,

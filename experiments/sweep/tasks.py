@@ -3,8 +3,8 @@
 A :class:`ChunkSpec` carries only plain data (the experiment's import path, the
 root seed, the ``(setting_index, trial_index)`` pairs and the settings they
 use).  The worker imports the experiment once per process, runs the trials in
-order and returns their rows; a trial that raises is recorded as a failure and
-the chunk goes on.
+order and returns their rows as the Parquet file the store writes; a trial that
+raises is recorded as a failure and the chunk goes on.
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from attopt.experiments.experiment import Experiment, Row, Setting
 from attopt.experiments.registry import get_experiment
@@ -46,13 +48,27 @@ class ChunkSpec:
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """The rows and failures of a finished chunk."""
+    """The rows and failures of a finished chunk.
+
+    The rows travel as the Parquet file the store writes (:func:`parquet_bytes`): the
+    worker converts them, so the process that collects the chunks only writes bytes, and
+    what a worker sends is the compressed file, not the pickled frame (about a third of
+    its size for ``wahba-mag-sun``'s rows).
+    """
 
     chunk_id: str
     tasks: tuple[Task, ...]
-    rows: pd.DataFrame
+    rows: bytes
+    n_rows: int
     failures: list[dict[str, Any]]
     elapsed_s: float
+
+
+def parquet_bytes(rows: pd.DataFrame) -> bytes:
+    """``rows`` as a Parquet file (pyarrow's defaults, no index)."""
+    sink = pa.BufferOutputStream()
+    pq.write_table(pa.Table.from_pandas(rows, preserve_index=False), sink)
+    return sink.getvalue().to_pybytes()
 
 
 def default_chunk_size(n_tasks: int, workers: int) -> int:
@@ -107,10 +123,12 @@ def run_chunk(spec: ChunkSpec) -> ChunkResult:
         elif len(part):
             parts.append(part)
     frames = [pd.DataFrame.from_records(p) if isinstance(p, list) else p for p in parts]
+    rows = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     return ChunkResult(
         chunk_id=spec.chunk_id,
         tasks=spec.tasks,
-        rows=pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(),
+        rows=parquet_bytes(rows) if len(rows) else b"",
+        n_rows=len(rows),
         failures=failures,
         elapsed_s=time.perf_counter() - started,
     )
