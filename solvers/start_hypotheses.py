@@ -128,9 +128,17 @@ def largest_shift(exceedance: float = EXCEEDANCE) -> float:
     return float(brentq(lambda shift: ncx2.sf(quantile, 3, shift) - exceedance, 0.0, 1e3))
 
 
-def _threshold(reported: Track, false_alarm: float) -> float:
-    """Half the chi-square quantile, at ``1 - false_alarm``, of the start state's dimension."""
-    return 0.5 * chi2.isf(false_alarm, reported.state_covariance.shape[-1])
+def _plausible(runs: Sequence[Track], false_alarm: float, whole_pass: bool) -> NDArray[np.bool_]:
+    """``(runs, N)``: whether each run's cumulative innovation log-likelihood (the whole
+    pass's at every epoch with ``whole_pass``) is within half the chi-square quantile, at
+    ``1 - false_alarm`` with the start state's dimension, of the best run's."""
+    likelihood = np.array(
+        [np.cumsum(np.nan_to_num(run.diagnostics["log_likelihood"])) for run in runs]
+    )
+    if whole_pass:
+        likelihood[:] = likelihood[:, -1:]
+    threshold = 0.5 * chi2.isf(false_alarm, runs[0].state_covariance.shape[-1])
+    return likelihood >= np.max(likelihood, axis=0) - threshold
 
 
 def start_verdict(
@@ -149,12 +157,7 @@ def start_verdict(
     Huber-weighted updates from the same start, compared at every epoch.
     """
     reported = runs[0]
-    likelihood = np.array(
-        [np.cumsum(np.nan_to_num(run.diagnostics["log_likelihood"])) for run in runs]
-    )
-    if whole_pass:
-        likelihood[:] = likelihood[:, -1:]
-    plausible = likelihood >= np.max(likelihood, axis=0) - _threshold(reported, false_alarm)
+    plausible = _plausible(runs, false_alarm, whole_pass)
     reason = np.full(len(reported), "", dtype=object)
     compared = [(run, keep, AMBIGUOUS) for run, keep in zip(runs[1:], plausible[1:], strict=True)]
     if robust is not None:
@@ -195,8 +198,7 @@ class StartCheck:
 
     def plausible(self) -> tuple[Track, ...]:
         """The runs plausible over the whole pass (the first always kept)."""
-        total = np.array([np.nansum(run.diagnostics["log_likelihood"]) for run in self.runs])
-        keep = total >= np.max(total) - _threshold(self.runs[0], self.false_alarm)
+        keep = _plausible(self.runs, self.false_alarm, whole_pass=True)[:, -1]
         keep[0] = True
         return tuple(run for run, k in zip(self.runs, keep, strict=True) if k)
 

@@ -282,9 +282,27 @@ def geodesic_innovation(measured: Any, predicted: Any) -> tuple[Any, Any]:
     return geodesic, ca.logic_or(sine > 0, cosine > 0)
 
 
+def slot_innovations(
+    attitude: ca.SX, body: ca.SX, reference: ca.SX, slots: int
+) -> list[tuple[ca.SX, ca.SX, ca.SX]]:
+    """Per slot of ``slots`` unit vectors (``body``, ``reference`` ``slots x 3``), its
+    geodesic innovation at ``attitude``, its ``3 x 3`` Jacobian
+    (:func:`~attopt.formulations.attitude_measurement.body_vectors_model`, eqs. 30-33) and
+    whether the innovation is defined (:func:`geodesic_innovation`); CasADi."""
+    predicted, jacobian = attitude_model_function(body_vectors_model, ((slots, 3),))(
+        attitude, reference
+    )
+    out = []
+    for i in range(slots):
+        innovation, defined = geodesic_innovation(body[i, :].T, predicted[3 * i : 3 * i + 3])
+        out.append((innovation, jacobian[3 * i : 3 * i + 3, :], defined))
+    return out
+
+
 @lru_cache(maxsize=8)
 def vector_information_function(slots: int) -> ca.Function:
-    """``(A, body, reference, weight) -> (M, z, rows, cost)`` of up to ``slots`` unit vectors.
+    """``(A, body, reference, weight) -> (M, z, rows, cost, log_det_noise)`` of up to
+    ``slots`` unit vectors.
 
     ``body`` and ``reference`` are ``slots x 3`` (Yang et al. 2014 eqs. 12, 17),
     ``weight`` the ``slots`` inverse variances ``1 / sigma^2`` of ``R_W =
@@ -301,14 +319,11 @@ def vector_information_function(slots: int) -> ca.Function:
     body = ca.SX.sym("body", slots, 3)
     reference = ca.SX.sym("reference", slots, 3)
     weight = ca.SX.sym("weight", slots)
-    predicted, jacobian = attitude_model_function(body_vectors_model, ((slots, 3),))(
-        attitude, reference
-    )
     information, residual, rows = ca.SX.zeros(3, 3), ca.SX.zeros(3), ca.SX.zeros(1)
     cost, log_det_noise = ca.SX.zeros(1), ca.SX.zeros(1)
-    for i in range(slots):
-        h, j = predicted[3 * i : 3 * i + 3], jacobian[3 * i : 3 * i + 3, :]
-        innovation, defined = geodesic_innovation(body[i, :].T, h)
+    for i, (innovation, j, defined) in enumerate(
+        slot_innovations(attitude, body, reference, slots)
+    ):
         used = ca.if_else(defined, weight[i], 0.0)
         information += used * (j.T @ j)
         residual += used * (j.T @ innovation)
@@ -334,13 +349,8 @@ def huber_function(slots: int) -> ca.Function:
     weight = ca.SX.sym("weight", slots)
     covariance = ca.SX.sym("covariance", 3, 3)
     threshold = ca.SX.sym("huber")
-    predicted, jacobian = attitude_model_function(body_vectors_model, ((slots, 3),))(
-        attitude, reference
-    )
     weighted, downweighted = [], ca.SX.zeros(1)
-    for i in range(slots):
-        h, j = predicted[3 * i : 3 * i + 3], jacobian[3 * i : 3 * i + 3, :]
-        innovation, _ = geodesic_innovation(body[i, :].T, h)
+    for i, (innovation, j, _) in enumerate(slot_innovations(attitude, body, reference, slots)):
         variance = ca.if_else(weight[i] > 0, 1.0 / weight[i], 1.0)
         s = j @ covariance @ j.T + variance * ca.DM.eye(3)
         norm = ca.sqrt(ca.dot(innovation, ca.solve(s, innovation)))
