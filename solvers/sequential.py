@@ -300,6 +300,12 @@ class Recovery(ABC):
         """After the monitor's ``verdict`` (:data:`LOST`, :data:`STILL_LOST` or
         :data:`INCONSISTENT`): :data:`RESTARTED`, :data:`WAIT` or :data:`INFLATE`."""
 
+    @property
+    def pending(self) -> bool:
+        """Whether the filter's start still awaits its check (:func:`filter_result` flags
+        the epochs ``converging``); none by default."""
+        return False
+
 
 def inconsistent_epochs(
     nis: ArrayLike,
@@ -531,6 +537,7 @@ def run_filter(
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
+    unchecked = np.zeros(t.size, dtype=bool)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -539,12 +546,15 @@ def run_filter(
         if updated is not None:
             counts = _merged(counts, updated)
         lost[k] = monitor.lost
+        unchecked[k] = recovery is not None and recovery.pending
         if not record.store(k, filter, counts):
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     backward = None if history is None else history.history(record)
-    return filter_result(method, record, options, t, backward, lost, settling=True)
+    return filter_result(
+        method, record, options, t, backward, lost, settling=True, unchecked=unchecked
+    )
 
 
 def _update(
@@ -587,6 +597,7 @@ def filter_result(
     lost: NDArray[np.bool_] | None = None,
     tested: str = "innovations of the last {window} updates",
     settling: bool = False,
+    unchecked: NDArray[np.bool_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -594,10 +605,17 @@ def filter_result(
     * a non-finite state (set in ``record``);
     * a gyro gap longer than ``options.max_gyro_gap_s`` (when the record has
       ``gyro_gap_s``);
+    * a lost track (``lost``, from the :class:`TrackMonitor`; before the next rule,
+      since the recovery's inflation by ``recover_sigma`` is its consequence);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
-    * a lost track (``lost``, from the :class:`TrackMonitor`);
+    * a start not yet checked (``unchecked``: the recovery's
+      :attr:`Recovery.pending`, a start from a prior wider than
+      ``options.max_attitude_sigma`` that no single frame has yet confirmed);
     * a restarted filter still converging (:func:`converging_epochs` of the record's
-      ``restarts``, when it has them and ``options.consistency_window`` is not 0), or,
+      ``restarts``, when it has them and ``options.consistency_window`` is not 0), or one
+      that re-acquired a lost track without a restart (the epochs from the first after
+      ``lost`` to the ``consistency_window``-th update since: its first updates are
+      linearised where the filter drifted to while lost), or,
       with ``settling`` (the sequential loop's filters), one whose attitude sigma has
       fallen below ``options.max_attitude_sigma`` fewer than
       ``options.consistency_window`` updates before (its consistency test has not yet
@@ -626,14 +644,19 @@ def filter_result(
     if "gyro_gap_s" in record.diagnostics:
         long_gap = (record.diagnostics["gyro_gap_s"] > options.max_gyro_gap_s) & (reason == "")
         reason[long_gap] = f"gyro gap longer than {options.max_gyro_gap_s:g} s"
+    if lost is not None:
+        reason[lost & (reason == "")] = (
+            f"lost track: observations gated for {options.max_rejected_epochs} epochs"
+        )
     with np.errstate(invalid="ignore"):
         wide = (sigma > options.max_attitude_sigma) & (reason == "")
     reason[wide] = (
         f"attitude not determined: 1-sigma above {np.degrees(options.max_attitude_sigma):g} deg"
     )
-    if lost is not None:
-        reason[lost & (reason == "")] = (
-            f"lost track: observations gated for {options.max_rejected_epochs} epochs"
+    if unchecked is not None:
+        reason[unchecked & (reason == "")] = (
+            f"converging: started from a prior wider than "
+            f"{np.degrees(options.max_attitude_sigma):g} deg that no single frame has confirmed yet"
         )
     inconsistent = np.zeros(record.n, dtype=bool)
     if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
@@ -643,6 +666,15 @@ def filter_result(
             converging = converging_epochs(nis, dof, restarts, options.consistency_window)
             reason[converging & (reason == "")] = (
                 f"converging: restarted from a single-frame solution, fewer than "
+                f"{options.consistency_window} updates since"
+            )
+        if lost is not None:
+            regained = np.flatnonzero(lost[:-1] & ~lost[1:]) + 1
+            back = converging_epochs(
+                nis, dof, np.isin(np.arange(record.n), regained), options.consistency_window
+            )
+            reason[back & (reason == "")] = (
+                f"converging: re-acquired after a lost track, fewer than "
                 f"{options.consistency_window} updates since"
             )
         if settling:

@@ -107,13 +107,19 @@ def test_gyro_aided_rows_reach_the_posterior_bound() -> None:
         the start check to confirm them, so the rows show the unchecked runs' errors:
         this compares the paper's estimators, not their integrity); bounds over all."""
         chosen = settled[settled["method"] == method]
-        if method in ("mekf", "fg_batch"):
+        if method == "fg_batch":
             assert chosen["valid"].mean() >= 0.8, method
             if column.startswith("err"):
                 chosen = chosen[chosen["valid"]]
         return float(np.sqrt(sum((chosen[column.format(a)] ** 2).mean() for a in "xyz")))
 
-    assert rms("fg_batch") <= 1.05 * rms("mekf")
+    # one station in view: no epoch's measurement determines every axis, so no single
+    # frame checks the MEKF's start from the prior's 60 deg sigmas, and it is flagged
+    mekf = rows[rows["method"] == "mekf"]
+    assert set(mekf["reason"].str.split(" wider").str[0]) <= {
+        "converging: started from a prior",
+        "attitude not determined: 1-sigma above 15 deg",
+    }
     assert 0.5 < rms("fg_batch") / rms("fg_batch", "pbound_{}_deg") < 2.0
     for q in ("1e-09", "1e-12"):  # the RTS pass improves on its EKF, and the bound on both
         ekf, rts = f"ekf_yang2014_q{q}", f"rts_yang2014_q{q}"

@@ -606,8 +606,8 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     """The same gap above ``max_gyro_gap_s = 5``: no AHRS factor spans it (the
     attitude segments are not linked, the bias walk still is); the epochs in the
     gap with measurements are determined by them alone and valid, those without
-    (25-35 s) are undetermined (diffuse prior only) and flagged by the 30 deg
-    sigma rule; no motion is invented."""
+    (25-35 s) are undetermined (diffuse prior only) and flagged by the
+    ``max_attitude_sigma`` rule; no motion is invented."""
     run, gyro, prior = _gap_pass()
     strict = BatchSmoother(filter=FilterOptions(max_gyro_gap_s=5.0))
     result = solve_with(strict, gyro, run.t, run.measurements, prior, GYRO)
@@ -623,7 +623,8 @@ def test_long_gyro_gap_splits_the_pass_into_segments():
     blind = np.zeros(run.t.size, dtype=bool)
     blind[25:36] = True
     assert np.array_equal(~result.valid, blind)
-    assert set(result.reason[blind]) == {"attitude not determined: 1-sigma above 30 deg"}
+    limit = np.degrees(strict.filter.max_attitude_sigma)
+    assert set(result.reason[blind]) == {f"attitude not determined: 1-sigma above {limit:g} deg"}
     valid = result.valid
     delta = attitude_error(Rotation.from_quat(result.quaternion[valid]), run.truth_at_epochs[valid])
     sigma = np.sqrt(np.einsum("kii->ki", result.covariance[valid]))

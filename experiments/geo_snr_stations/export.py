@@ -36,7 +36,7 @@ filters (``usque``, ``mekf``, ...) on ``gyro_pass``, saved and loaded or not, gi
 trial's filter tracks bit for bit when run with the trial's options
 (:func:`~attopt.experiments.geo_snr_stations.experiment.configured`: no innovation gate,
 a 90 deg validity limit).  ``attopt estimate`` runs the registry's defaults (an
-innovation gate, a 30 deg validity limit), so its ``usque`` and ``mekf`` rows are the
+innovation gate, a 15 deg validity limit), so its ``usque`` and ``mekf`` rows are the
 trial's only where neither acts, typically without the manoeuvre (``sigma``,
 ``valid`` and the quaternions bit for bit; ``err_z_deg`` is the trial's
 ``yaw_err_deg``, while the trial's ``err_{x,y}_deg`` are pointing errors,

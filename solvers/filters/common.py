@@ -218,7 +218,7 @@ class FilterOptions:
     gate_probability: float = GATE_PROBABILITY
     hold_rate_sigma: float = np.radians(0.01)
     max_gyro_gap_s: float = 60.0
-    max_attitude_sigma: float = np.radians(30.0)
+    max_attitude_sigma: float = np.radians(15.0)
     unknown_rate_sigma: float = np.radians(1.0)
     relinearise_fraction: float = 0.01
     max_update_iterations: int = 10

@@ -126,7 +126,7 @@ class OffsetFilter(GyroFilter):
     for another frame (:class:`~attopt.formulations.attitude_measurement.ReferencedMeasurement`).
 
     Its default ``filter`` flags epochs whose attitude sigma exceeds
-    :data:`OFFSET_MAX_ATTITUDE_SIGMA` (5 deg, not the plain filters' 30 deg): with every
+    :data:`OFFSET_MAX_ATTITUDE_SIGMA` (5 deg, not the plain filters' 15 deg): with every
     aircraft's power free, one epoch constrains the attitude weakly (sigmas of 6-8 deg
     after a first update on ``adsb-snr``), and from such a spread the linearised
     filters were measured to drift into a wrong attitude that the offsets then absorb,

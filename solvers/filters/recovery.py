@@ -21,6 +21,17 @@ The MEKF and USQUE (:mod:`attopt.solvers.filters.estimators`) run through
   (Markley and Crassidis 2014 sec. 6.2 on the MEKF's small-error assumption;
   measured in ``adsb-sky``'s quick run: a 29 deg prior error against 10 deg
   sigmas left the MEKF 20-99 deg off for 240 s, NEES up to 35).
+* **Start against a wide prior** (an attitude sigma above ``max_attitude_sigma``: the
+  prior does not determine the attitude): the check waits for the first epoch whose
+  measurement alone determines every axis (:func:`determines`), and the epochs until then
+  are flagged ``converging`` (:attr:`SingleFrameRecovery.pending`), however small the
+  filter's covariance has become: its updates were linearised far from the truth, and
+  where they see only two axes (one unit vector) the covariance of the third shrinks
+  through the dynamics while its error stays.  Measured in ``doa-ground`` (the 98 deg start
+  of Yang et al. 2014 with 60 deg sigmas, one station in view): the MEKF was reported valid
+  7-18 deg off at sigmas of 0.1-6 deg (NEES up to 35) until a second station came into
+  view; with the wait, its converging rows' share beyond the integrity quantile fell from
+  0.43-0.53 to 0 (valid 0.89-0.92 -> 0.40-0.41).
 * **Re-acquisition** (``recovery = "restart"``): at every measurement epoch of
   a track the :class:`~attopt.solvers.sequential.TrackMonitor` finds lost, and
   when it finds the consistency window failing for ``max_rejected_epochs``
@@ -34,13 +45,18 @@ The MEKF and USQUE (:mod:`attopt.solvers.filters.estimators`) run through
   back to the covariance inflation (every ``max_rejected_epochs`` rejected
   epochs).
 
-A restart keeps the bias estimate and resets its covariance to the prior's
-(the gyro model's initial bias sigma without a prior), with no attitude-bias
-correlation: the updates that lost the track, or were made against a wrong
-attitude, also corrupted the bias, and its covariance then claims a precision
-the estimate does not have (``docs/filters.md``, Faults: the lost-track
-measurement in ``doa-ground``).  The reset is conservative: the bias is
-re-learnt from the following updates.
+A re-acquisition keeps the bias estimate and adds the prior's bias covariance (the gyro
+model's initial bias sigma without a prior) to the filter's, as the lost-track inflation
+does, with no attitude-bias correlation: the updates that lost the track, or were made
+against a wrong attitude, also corrupted the bias, and its covariance then claims a
+precision the estimate does not have (``docs/filters.md``, Faults: the lost-track
+measurement in ``doa-ground``); the bias is re-learnt from the following updates.  The
+filter's own covariance is kept in the sum because it may have grown beyond the prior's
+(a gyro-only stretch): reset to the prior's, the MEKF leaving the ``wahba-mag-sun`` eclipse
+with Liu et al. 2023's gyro read literally gated the Sun vector (NIS about 320) and
+restarted every 10 s for 330 s; with the sum it restarts twice and is valid 20 s after the
+eclipse.  A start (without a prior, or against a prior its first single frame
+contradicts) sets the bias covariance to the prior's.
 
 The single-frame solver is the registry's generic ``map_nlp``
 (:mod:`attopt.solvers.map_nlp`): it accepts every measurement type with a
@@ -123,6 +139,26 @@ def single_frame(
     ):
         return WAIT
     return SingleFrame(attitude, covariance)
+
+
+def determines(
+    filter: SequentialFilter, measurement: AttitudeMeasurement, options: FilterOptions
+) -> bool:
+    """Whether ``measurement`` alone determines every axis at the filter's attitude: the
+    largest sigma of the inverse of its information ``J^T R^-1 J`` (its finite rows) at
+    most ``options.max_attitude_sigma``.  A cheap test (one model evaluation) before the
+    single frame's NLP (tens of milliseconds), which the epochs that cannot give one (a
+    single unit vector) would otherwise run in vain."""
+    _, jacobian = measurement.predict(filter.attitude)
+    rows = np.all(np.isfinite(jacobian[0]), axis=1)
+    if rows.sum() < 3:
+        return False
+    noise = np.asarray(measurement.noise_covariance_at(filter.attitude), dtype=float)
+    noise = np.diag(noise) if noise.ndim == 1 else noise
+    h = jacobian[0][rows]
+    information = h.T @ np.linalg.lstsq(noise[np.ix_(rows, rows)], h, rcond=None)[0]
+    smallest = np.linalg.eigvalsh(0.5 * (information + information.T))[0]
+    return bool(smallest * options.max_attitude_sigma**2 >= 1.0)
 
 
 def filter_frame(
@@ -225,31 +261,47 @@ class SingleFrameRecovery(Recovery):
 
     Attributes:
         options: the filter's options (``recovery``, the tests' limits).
-        bias_covariance: ``(3, 3)`` the bias covariance a restart resets to.
+        bias_covariance: ``(3, 3)`` the prior's bias covariance, added to the filter's by a
+            re-acquisition.
         started: whether the filter has an attitude (a prior, or a single frame).
-        checked: whether the first measurement epoch has been checked against the
-            prior.
+        checked: whether the first measurement epoch (from a ``wide`` prior, the first
+            that determines every axis) has been checked against the prior.
+        wide: the prior's attitude sigma exceeds ``options.max_attitude_sigma``
+            (:attr:`pending`).
     """
 
     options: FilterOptions
     bias_covariance: Array
     started: bool = True
     checked: bool = False
+    wide: bool = False
 
     @classmethod
     def of(cls, options: FilterOptions, start: Prior, started: bool) -> SingleFrameRecovery:
         """The recovery of a filter started from ``start``: the pass's prior (``started``)
         or :func:`unknown_prior`."""
+        covariance = np.asarray(start.covariance)
         checked = options.recovery != "restart"
-        return cls(options, np.asarray(start.covariance)[3:, 3:], started, checked)
+        sigma = np.sqrt(np.max(np.diag(covariance)[:3]))
+        wide = started and not checked and bool(sigma > options.max_attitude_sigma)
+        return cls(options, covariance[3:, 3:], started, checked, wide)
+
+    @property
+    def pending(self) -> bool:
+        """A start from a ``wide`` prior that no single frame has checked yet (module
+        docstring)."""
+        return self.wide and not self.checked
 
     def before_update(
         self, filter: SequentialFilter, measurement: AttitudeMeasurement
     ) -> dict[str, float] | None:
         """Without a start: start from the epoch's single frame (or wait for one); at the
-        first measurement epoch: restart if the prior contradicts its single frame, else
-        update with the single frame (:func:`fuse`)."""
+        first measurement epoch (from a ``wide`` prior, the first whose measurement alone
+        determines every axis, :func:`determines`): restart if the prior contradicts its
+        single frame, else update with the single frame (:func:`fuse`)."""
         if self.started and self.checked:
+            return None
+        if self.wide and not determines(filter, measurement, self.options):
             return None
         frame = filter_frame(filter, measurement, self.options)
         if not self.started:
@@ -279,14 +331,20 @@ class SingleFrameRecovery(Recovery):
             filter, frame, self.options.consistency_false_alarm
         ):
             return WAIT
-        self._apply(filter, frame)
+        self._apply(filter, frame, updated=True)
         return RESTARTED
 
-    def _apply(self, filter: SequentialFilter, frame: SingleFrame) -> dict[str, float]:
-        """Set the attitude and covariance from ``frame``, keep the bias (module docstring;
-        the error state's attitude block first, as the gyro filters')."""
+    def _apply(
+        self, filter: SequentialFilter, frame: SingleFrame, updated: bool = False
+    ) -> dict[str, float]:
+        """Set the attitude and covariance from ``frame`` and keep the bias estimate, with
+        the prior's bias covariance (:attr:`bias_covariance`) at a start, added to the
+        filter's own at a re-acquisition (``updated``: the filter has updated since its
+        start; module docstring), without attitude-bias correlation (the error state's
+        attitude block first, as the gyro filters')."""
         covariance = np.zeros_like(filter.covariance)
         covariance[:3, :3] = frame.covariance
-        covariance[3:, 3:] = self.bias_covariance
+        own = filter.covariance[3:, 3:] if updated else 0.0
+        covariance[3:, 3:] = own + self.bias_covariance
         filter.reset(frame.attitude, covariance)
         return {"restarts": 1.0, "nis": np.nan, "nis_dof": 0.0}
