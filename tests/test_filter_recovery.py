@@ -222,7 +222,8 @@ def test_a_start_wider_than_the_limit_waits_for_a_single_frame(estimator):
     can check the filter, and its epochs are flagged (``attitude not determined``, then
     ``converging``: not yet confirmed) however small its covariance has become.  At 60 s
     the second vector appears: its single frame contradicts the filter (a restart) or is
-    fused, and from a window of updates later the filter is valid and consistent."""
+    fused, and from a window of updates later the filter is valid and consistent.  With
+    both vectors from the start the check is at the first epoch, as for any prior."""
     run = simulate_pass(np.random.default_rng(43), duration=120.0)
     first = 60
     measurements = [
@@ -242,6 +243,9 @@ def test_a_start_wider_than_the_limit_waits_for_a_single_frame(estimator):
     assert checked
     assert track.valid[first + WINDOW + 1 :].all()
     assert integrity_share(track, run) <= 0.001
+    both = solve_with(estimator(), run.gyro, run.t, run.measurements, prior)
+    assert both.diagnostics["restarts"][0] == 1.0 or both.diagnostics["nis_dof"][0] == 3.0
+    assert not any(r.startswith("converging: started") for r in both.reason)
 
 
 @FILTERS

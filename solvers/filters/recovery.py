@@ -22,12 +22,13 @@ The MEKF and USQUE (:mod:`attopt.solvers.filters.estimators`) run through
   measured in ``adsb-sky``'s quick run: a 29 deg prior error against 10 deg
   sigmas left the MEKF 20-99 deg off for 240 s, NEES up to 35).
 * **Start against a wide prior** (an attitude sigma above ``max_attitude_sigma``: the
-  prior does not determine the attitude): the check waits for the first epoch whose
-  measurement alone determines every axis (:func:`determines`), and the epochs until then
-  are flagged ``converging`` (:attr:`SingleFrameRecovery.pending`), however small the
-  filter's covariance has become: its updates were linearised far from the truth, and
-  where they see only two axes (one unit vector) the covariance of the third shrinks
-  through the dynamics while its error stays.  Measured in ``doa-ground`` (the 98 deg start
+  prior does not determine the attitude): when the first measurement epoch has no single
+  frame, the check waits for the first epoch whose measurement alone determines every axis
+  (:func:`determines`), and the epochs until then are flagged ``converging``
+  (:attr:`SingleFrameRecovery.pending`), however small the filter's covariance has
+  become: its updates were linearised far from the truth, and where they see only two
+  axes (one unit vector) the covariance of the third shrinks through the dynamics while
+  its error stays.  Measured in ``doa-ground`` (the 98 deg start
   of Yang et al. 2014 with 60 deg sigmas, one station in view): the MEKF was reported valid
   7-18 deg off at sigmas of 0.1-6 deg (NEES up to 35) until a second station came into
   view; with the wait, its converging rows' share beyond the integrity quantile fell from
@@ -268,6 +269,7 @@ class SingleFrameRecovery(Recovery):
             that determines every axis) has been checked against the prior.
         wide: the prior's attitude sigma exceeds ``options.max_attitude_sigma``
             (:attr:`pending`).
+        seen: whether a measurement epoch has been seen (the first is always tried).
     """
 
     options: FilterOptions
@@ -275,6 +277,7 @@ class SingleFrameRecovery(Recovery):
     started: bool = True
     checked: bool = False
     wide: bool = False
+    seen: bool = False
 
     @classmethod
     def of(cls, options: FilterOptions, start: Prior, started: bool) -> SingleFrameRecovery:
@@ -296,12 +299,14 @@ class SingleFrameRecovery(Recovery):
         self, filter: SequentialFilter, measurement: AttitudeMeasurement
     ) -> dict[str, float] | None:
         """Without a start: start from the epoch's single frame (or wait for one); at the
-        first measurement epoch (from a ``wide`` prior, the first whose measurement alone
-        determines every axis, :func:`determines`): restart if the prior contradicts its
-        single frame, else update with the single frame (:func:`fuse`)."""
+        first measurement epoch (from a ``wide`` prior without a single frame there, the
+        first whose measurement alone determines every axis, :func:`determines`): restart
+        if the prior contradicts its single frame, else update with the single frame
+        (:func:`fuse`)."""
         if self.started and self.checked:
             return None
-        if self.wide and not determines(filter, measurement, self.options):
+        first, self.seen = not self.seen, True
+        if self.wide and not first and not determines(filter, measurement, self.options):
             return None
         frame = filter_frame(filter, measurement, self.options)
         if not self.started:
@@ -309,9 +314,11 @@ class SingleFrameRecovery(Recovery):
                 return {}
             self.started = self.checked = True
             return self._apply(filter, frame)
-        self.checked = True
         if not isinstance(frame, SingleFrame):
+            # no frame: checked, unless a wide prior awaits an epoch that determines the attitude
+            self.checked = not self.wide or determines(filter, measurement, self.options)
             return None
+        self.checked = True
         if contradicts(filter, frame, self.options.consistency_false_alarm):
             return self._apply(filter, frame)
         return fuse(filter, frame)
