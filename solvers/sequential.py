@@ -537,7 +537,7 @@ def run_filter(
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
-    unchecked = np.zeros(t.size, dtype=bool)
+    pending = np.zeros(t.size, dtype=bool)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -546,15 +546,13 @@ def run_filter(
         if updated is not None:
             counts = _merged(counts, updated)
         lost[k] = monitor.lost
-        unchecked[k] = recovery is not None and recovery.pending
+        pending[k] = recovery is not None and recovery.pending
         if not record.store(k, filter, counts):
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     backward = None if history is None else history.history(record)
-    return filter_result(
-        method, record, options, t, backward, lost, settling=True, unchecked=unchecked
-    )
+    return filter_result(method, record, options, t, backward, lost, settling=True, pending=pending)
 
 
 def _update(
@@ -597,7 +595,7 @@ def filter_result(
     lost: NDArray[np.bool_] | None = None,
     tested: str = "innovations of the last {window} updates",
     settling: bool = False,
-    unchecked: NDArray[np.bool_] | None = None,
+    pending: NDArray[np.bool_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -608,7 +606,7 @@ def filter_result(
     * a lost track (``lost``, from the :class:`TrackMonitor`; before the next rule,
       since the recovery's inflation by ``recover_sigma`` is its consequence);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
-    * a start not yet checked (``unchecked``: the recovery's
+    * a start not yet checked (``pending``: the recovery's
       :attr:`Recovery.pending`, a start from a prior wider than
       ``options.max_attitude_sigma`` that no single frame has yet confirmed);
     * a restarted filter still converging (:func:`converging_epochs` of the record's
@@ -653,8 +651,8 @@ def filter_result(
     reason[wide] = (
         f"attitude not determined: 1-sigma above {np.degrees(options.max_attitude_sigma):g} deg"
     )
-    if unchecked is not None:
-        reason[unchecked & (reason == "")] = (
+    if pending is not None:
+        reason[pending & (reason == "")] = (
             f"converging: started from a prior wider than "
             f"{np.degrees(options.max_attitude_sigma):g} deg that no single frame has confirmed yet"
         )
@@ -662,28 +660,21 @@ def filter_result(
     if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
         nis, dof = record.diagnostics["nis"], record.diagnostics["nis_dof"]
         restarts = record.diagnostics.get("restarts")
+        begun = {}  # what (re)started the filter -> the epochs it did
         if restarts is not None:
-            converging = converging_epochs(nis, dof, restarts, options.consistency_window)
-            reason[converging & (reason == "")] = (
-                f"converging: restarted from a single-frame solution, fewer than "
-                f"{options.consistency_window} updates since"
-            )
+            begun["restarted from a single-frame solution"] = restarts > 0
         if lost is not None:
-            regained = np.flatnonzero(lost[:-1] & ~lost[1:]) + 1
-            back = converging_epochs(
-                nis, dof, np.isin(np.arange(record.n), regained), options.consistency_window
-            )
-            reason[back & (reason == "")] = (
-                f"converging: re-acquired after a lost track, fewer than "
-                f"{options.consistency_window} updates since"
+            begun["re-acquired after a lost track"] = np.r_[False, lost[:-1] & ~lost[1:]]
+        for what, epochs in begun.items():
+            converging = converging_epochs(nis, dof, epochs, options.consistency_window)
+            reason[converging & (reason == "")] = (
+                f"converging: {what}, fewer than {options.consistency_window} updates since"
             )
         if settling:
             with np.errstate(invalid="ignore"):
                 undetermined = sigma > options.max_attitude_sigma
-            determined = np.flatnonzero(undetermined[:-1] & ~undetermined[1:])  # the one before
-            settled = converging_epochs(
-                nis, dof, np.isin(np.arange(record.n), determined), options.consistency_window
-            )
+            determined = np.r_[undetermined[:-1] & ~undetermined[1:], False]  # the one before
+            settled = converging_epochs(nis, dof, determined, options.consistency_window)
             reason[settled & (reason == "")] = (
                 f"converging: the attitude 1-sigma fell below "
                 f"{np.degrees(options.max_attitude_sigma):g} deg fewer than "

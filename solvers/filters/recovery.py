@@ -315,8 +315,11 @@ class SingleFrameRecovery(Recovery):
             self.started = self.checked = True
             return self._apply(filter, frame)
         if not isinstance(frame, SingleFrame):
-            # no frame: checked, unless a wide prior awaits an epoch that determines the attitude
-            self.checked = not self.wide or determines(filter, measurement, self.options)
+            # no frame: checked, unless a wide prior awaits an epoch that determines the
+            # attitude (after the first epoch, this one does: it passed the test above)
+            self.checked = not (self.wide and first) or determines(
+                filter, measurement, self.options
+            )
             return None
         self.checked = True
         if contradicts(filter, frame, self.options.consistency_false_alarm):
