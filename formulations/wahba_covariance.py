@@ -71,6 +71,44 @@ def foam_covariance(b_matrix: Array, lambda_max: Array) -> Array:
     return (kappa[:, None, None] * np.eye(3) + bbt) / zeta[:, None, None]
 
 
+def anisotropic_covariance(body: Array, weights: Array, vector_covariance: Array) -> Array:
+    """Covariance ``(N, 3, 3)`` of the attitude that minimises Wahba's loss with weights
+    ``a_i`` when vector ``i``'s noise has covariance ``C_i`` ``(N, n, 3, 3)``.
+
+    To first order (Shuster and Oh 1981's linearisation of the QUEST measurement model;
+    Cilden Guler et al. 2017 eq. 11 for isotropic noise) the body-frame error of the
+    minimiser is ``F^-1 sum_i a_i [b_i x]^T nu_i`` for noise ``nu_i``, so its covariance is
+    the sandwich ``F^-1 G F^-1`` with ``F = sum_i a_i (I - b_i b_i^T)`` and
+    ``G = sum_i a_i^2 [b_i x]^T C_i [b_i x]``.  For ``C_i = (I - b_i b_i^T) / a_i``
+    (isotropic noise weighted by its inverse variance) ``G = F`` and this is the
+    solvers' own ``F^-1``; for anisotropic ``C_i`` (e.g. a DOA's, whose elevation
+    error grows towards the array's horizon) the isotropic weights' estimate has this
+    covariance, not ``F^-1``.  Absent vectors have zero weight.
+
+    Example::
+
+        >>> import numpy as np
+        >>> body = np.eye(3)[None, :2]
+        >>> weights = np.array([[1e6, 1e6]])
+        >>> isotropic = 1e-6 * (np.eye(3) - body[0, :, :, None] * body[0, :, None, :])
+        >>> np.allclose(anisotropic_covariance(body, weights, isotropic[None]),
+        ...             np.linalg.inv(1e6 * (2 * np.eye(3) - np.diag([1.0, 1.0, 0.0]))))
+        True
+    """
+    present = weights > 0.0
+    b = np.where(present[..., None], body, 0.0)
+    b = b / np.where(present, np.linalg.norm(b, axis=-1), 1.0)[..., None]
+    vector_covariance = np.where(present[..., None, None], vector_covariance, 0.0)
+    cross = np.zeros((*b.shape, 3))
+    cross[..., 0, 1], cross[..., 0, 2] = -b[..., 2], b[..., 1]
+    cross[..., 1, 0], cross[..., 1, 2] = b[..., 2], -b[..., 0]
+    cross[..., 2, 0], cross[..., 2, 1] = -b[..., 1], b[..., 0]
+    information = np.einsum("ns,nsji,nsjk->nik", weights, cross, cross)
+    spread = np.einsum("ns,nsji,nsjk,nskl->nil", weights**2, cross, vector_covariance, cross)
+    inverse = np.linalg.inv(information)
+    return inverse @ spread @ inverse
+
+
 def _entries(m: Array) -> Array:
     """The nine entries of each ``(3, 3)`` matrix as contiguous rows ``(9, N)``."""
     return np.ascontiguousarray(m.reshape(-1, 9).T)

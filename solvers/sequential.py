@@ -57,7 +57,7 @@ runs in CasADi (Yang et al. 2014's EKF on unit vectors).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar
 
@@ -306,6 +306,13 @@ class Recovery(ABC):
         the epochs ``converging``); none by default."""
         return False
 
+    @property
+    def unconfirmed(self) -> bool:
+        """Whether the filter went on from its prior after a check that found no single
+        frame to confirm it (:func:`filter_result` flags the epochs to a whole window of
+        updates after ``converging``); never by default."""
+        return False
+
 
 def inconsistent_epochs(
     nis: ArrayLike,
@@ -538,6 +545,7 @@ def run_filter(
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
     pending = np.zeros(t.size, dtype=bool)
+    unconfirmed = np.zeros(t.size, dtype=bool)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -547,12 +555,23 @@ def run_filter(
             counts = _merged(counts, updated)
         lost[k] = monitor.lost
         pending[k] = recovery is not None and recovery.pending
+        unconfirmed[k] = recovery is not None and recovery.unconfirmed
         if not record.store(k, filter, counts):
             break
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     backward = None if history is None else history.history(record)
-    return filter_result(method, record, options, t, backward, lost, settling=True, pending=pending)
+    return filter_result(
+        method,
+        record,
+        options,
+        t,
+        backward,
+        lost,
+        settling=True,
+        pending=pending,
+        unconfirmed=unconfirmed,
+    )
 
 
 def _update(
@@ -586,6 +605,19 @@ def _update(
     return counts
 
 
+def contradicted_start(
+    unconfirmed: NDArray[np.bool_], diagnostics: Mapping[str, Array]
+) -> NDArray[np.bool_]:
+    """The first epoch of ``unconfirmed`` (a filter going on from a prior no single frame
+    confirmed) if its update rejected at least as many observations as it used
+    (:func:`rejected_epoch`, the lost-track monitor's rule for an epoch), else none."""
+    start = np.zeros(unconfirmed.size, dtype=bool)
+    for k in np.flatnonzero(unconfirmed)[:1]:
+        counts = {n: diagnostics[n][k] for n in ("n_gated", "n_used", "n_unpredictable")}
+        start[k] = rejected_epoch(counts["n_gated"], counts["n_used"], counts["n_unpredictable"])
+    return start
+
+
 def filter_result(
     method: str,
     record: EpochRecord,
@@ -596,6 +628,7 @@ def filter_result(
     tested: str = "innovations of the last {window} updates",
     settling: bool = False,
     pending: NDArray[np.bool_] | None = None,
+    unconfirmed: NDArray[np.bool_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -613,7 +646,12 @@ def filter_result(
       ``restarts``, when it has them and ``options.consistency_window`` is not 0), or one
       that re-acquired a lost track without a restart (the epochs from the first after
       ``lost`` to the ``consistency_window``-th update since: its first updates are
-      linearised where the filter drifted to while lost), or,
+      linearised where the filter drifted to while lost), or one that went on from its
+      prior after a check that found no single frame to confirm it (``unconfirmed``,
+      the recovery's :attr:`Recovery.unconfirmed`) and whose update there rejected at
+      least as many observations as it used (:func:`contradicted_start`: the
+      observations contradict the prior, which no window of innovations has tested
+      yet; from that epoch to the ``consistency_window``-th update), or,
       with ``settling`` (the sequential loop's filters), one whose attitude sigma has
       fallen below ``options.max_attitude_sigma`` fewer than
       ``options.consistency_window`` updates before (its consistency test has not yet
@@ -665,6 +703,10 @@ def filter_result(
             begun["restarted from a single-frame solution"] = restarts > 0
         if lost is not None:
             begun["re-acquired after a lost track"] = np.r_[False, lost[:-1] & ~lost[1:]]
+        if unconfirmed is not None:
+            begun["a prior no single frame confirmed, contradicted by its first update"] = (
+                contradicted_start(unconfirmed, record.diagnostics)
+            )
         for what, epochs in begun.items():
             converging = converging_epochs(nis, dof, epochs, options.consistency_window)
             reason[converging & (reason == "")] = (

@@ -147,3 +147,27 @@ def test_gyro_rows_run_in_the_first_filter_trials_only() -> None:
     assert {"bls_yang2014", "mekf", "fg_batch"} <= set(first["method"])
     assert not {"bls_yang2014", "mekf", "fg_batch"} & set(second["method"])
     assert {"ekf_yang2014_q1e-09", "rts_yang2014_q1e-12", "wahba"} <= set(second["method"])
+
+
+def test_single_frame_rows_do_not_use_doas_below_musics_threshold() -> None:
+    """The first stretch with two stations in view (588-612 s): at 0 dB, L = 100 (output
+    SNR 1200) the ``wahba`` rows there are valid; at L = 10 (output SNR 120) every one is
+    flagged below MUSIC's threshold, while the DOAs stay accepted for the other rows."""
+    parameters = {
+        **EXPERIMENT.parameters,
+        "duration_s": 620.0,
+        "settle_s": 300.0,
+        "row_step_s": 1.0,
+        "table1_snr_db": [0.0],
+        "table2_snapshots": [10],
+        "filter_trials": 0,
+    }
+    rows = [EXPERIMENT.trial(s, np.random.SeedSequence(3)) for s in grid(parameters)]
+    stretch = [r[(r["method"] == "wahba") & r["t_s"].between(588.0, 611.0)] for r in rows]
+    high, single = stretch
+    assert len(high) == len(single) >= 20
+    assert high["valid"].mean() > 0.9
+    assert not single["valid"].any()
+    assert single["reason"].str.startswith("below MUSIC's threshold").all()
+    music = rows[1][rows[1]["method"] == "music"].iloc[0]
+    assert music["doa_accepted"] > 0.99 * music["doa_count"]

@@ -221,8 +221,10 @@ def test_a_start_wider_than_the_limit_waits_for_a_single_frame(estimator):
     first 60 s, one vector per epoch: no epoch determines every axis, so no single frame
     can check the filter, and its epochs are flagged (``attitude not determined``, then
     ``converging``: not yet confirmed) however small its covariance has become.  At 60 s
-    the second vector appears: its single frame contradicts the filter (a restart) or is
-    fused, and from a window of updates later the filter is valid and consistent.  With
+    the second vector appears: the filter restarts from its single frame (the updates so
+    far were linearised far from the truth; fused instead, they left the bias estimate
+    and its shrunken covariance, and ``doa-ground``'s MEKF 1-2 deg off at NEES up to 63
+    for 200-700 s), and from a window of updates later it is valid and consistent.  With
     both vectors from the start the check is at the first epoch, as for any prior."""
     run = simulate_pass(np.random.default_rng(43), duration=120.0)
     first = 60
@@ -237,10 +239,7 @@ def test_a_start_wider_than_the_limit_waits_for_a_single_frame(estimator):
     reasons = set(track.reason[:first])
     assert not track.valid[:first].any()
     assert any(r.startswith("converging: started from a prior wider than") for r in reasons)
-    checked = (
-        track.diagnostics["restarts"][first] == 1.0 or track.diagnostics["nis_dof"][first] == 3.0
-    )
-    assert checked
+    assert track.diagnostics["restarts"][first] == 1.0
     assert track.valid[first + WINDOW + 1 :].all()
     assert integrity_share(track, run) <= 0.001
     both = solve_with(estimator(), run.gyro, run.t, run.measurements, prior)
@@ -269,3 +268,36 @@ def test_a_track_regained_without_a_restart_is_converging_for_a_window(estimator
     assert np.flatnonzero(regained).tolist() == list(range(stop, stop + WINDOW + 1))
     assert track.valid[stop + WINDOW + 1 :].all()
     assert integrity_share(track, run) <= 0.001
+
+
+@FILTERS
+def test_a_prior_its_first_update_contradicts_is_converging_for_a_window(estimator):
+    """A prior 80 deg off at 10 deg sigmas (inside the limit) and one vector per epoch for
+    the first 60 s: the first epoch has no single frame (one vector leaves the rotation
+    about it free), so nothing checks the prior, and its update there gates the vector
+    (rejects as many observations as it uses: the lost-track monitor's rule for an
+    epoch).  That epoch is flagged ``converging``, and no epoch to the
+    ``consistency_window``-th update after it is valid (Liu et al. 2023's sky under real
+    aircraft antennas: USQUE's first epoch was reported valid 40 deg off, NEES 40, its
+    update using 1 of 87 SNRs).  From the true attitude the same start is not flagged."""
+    run = simulate_pass(np.random.default_rng(47), duration=120.0)
+    first = 60
+    measurements = [
+        VectorMeasurement(m.z.reshape(-1, 3)[:1], REFERENCES[:1], SIGMA) if k < first else m
+        for k, m in enumerate(run.measurements)
+    ]
+    axis = np.array([0.3, 1.0, -0.4]) / np.linalg.norm([0.3, 1.0, -0.4])
+    wrong = Rotation.from_rotvec(np.radians(80.0) * axis) * run.truth[0]
+    reason = "converging: a prior no single frame confirmed, contradicted by its first update"
+    prior = Prior(wrong, prior_covariance(np.radians(10.0)), bias=np.zeros(3))
+    track = solve_with(estimator(), run.gyro, run.t, measurements, prior)
+    assert track.reason[0] == f"{reason}, fewer than {WINDOW} updates since"
+    assert not track.valid[: WINDOW + 1].any()
+    right = solve_with(
+        estimator(),
+        run.gyro,
+        run.t,
+        measurements,
+        dataclasses.replace(prior, attitude=run.truth[0]),
+    )
+    assert not any(str(r).startswith(reason) for r in right.reason)

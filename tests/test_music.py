@@ -318,3 +318,33 @@ def test_no_sets_give_no_estimates() -> None:
     result = MUSIC.estimate_covariance(np.empty((0, M, M), dtype=complex), 100, snr_db=0.0)
     assert result.theta.shape == result.valid.shape == (0,) and result.covariance.shape == (0, 2, 2)
     assert all(value.shape == (0,) for value in result.diagnostics.values())
+
+
+def _share_beyond_quantile(snr_db: float, n_snapshots: int, n: int, seed: int) -> float:
+    """Share of ``n`` accepted estimates (random directions in the paper's 62 deg cone,
+    seeded) whose error lies beyond the chi-square(2) 1 - 1e-4 quantile of their covariance."""
+    rng = np.random.default_rng(seed)
+    theta = np.arccos(rng.uniform(np.cos(np.radians(62.0)), 1.0, n))
+    phi = rng.uniform(0.0, 2.0 * np.pi, n)
+    r = simulate_sample_covariance(theta, phi, snr_db, n_snapshots, rng, YANG2014_UCA)
+    result = MUSIC.estimate_covariance(r, n_snapshots, snr_db=snr_db)
+    v = result.valid
+    error = np.column_stack([result.theta[v] - theta[v], wrapped(result.phi[v] - phi[v])])
+    nees = np.einsum("ni,nij,nj->n", error, np.linalg.inv(result.covariance[v]), error)
+    return float(np.mean(nees > -2.0 * np.log(1e-4)))
+
+
+@pytest.mark.slow
+def test_estimates_below_the_threshold_output_snr_are_marked_and_have_heavier_tails() -> None:
+    """``below_threshold`` marks ``L M SNR < 150``; 30,000 sets each: at 0 dB, L = 10
+    (output SNR 120) the share beyond the 1 - 1e-4 quantile is above 0.001, at 0 dB, L = 50
+    (600) below 0.0006 (the module docstring's threshold region)."""
+    r = simulate_sample_covariance(
+        np.full(2, 0.5), np.full(2, 1.0), 0.0, 10, np.random.default_rng(2), YANG2014_UCA
+    )
+    for n_snapshots, below in [(10, True), (13, False)]:
+        result = MUSIC.estimate_covariance(r, n_snapshots, snr_db=0.0)
+        assert (result.diagnostics["below_threshold"] == below).all()
+        np.testing.assert_allclose(result.diagnostics["output_snr"], 12.0 * n_snapshots)
+    assert _share_beyond_quantile(0.0, 10, 30_000, seed=5) > 0.001
+    assert _share_beyond_quantile(0.0, 50, 30_000, seed=6) < 0.0006

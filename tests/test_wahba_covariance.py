@@ -95,3 +95,88 @@ def test_svd_covariance_equals_seed_eq19_form():
     s1, s2, s3 = s[0, 0], s[0, 1], d[0] * s[0, 2]
     eq19 = u[0] @ np.diag([1 / (s2 + s3), 1 / (s3 + s1), 1 / (s1 + s2)]) @ u[0].T
     np.testing.assert_allclose(svd_covariance(b, optimal)[0], eq19, rtol=1e-10)
+
+
+def _anisotropic_noise(truth, reference, stretch, sigma, trials, rng):
+    """Body vectors whose noise across each direction has standard deviations ``sigma`` and
+    ``stretch * sigma`` (rad), and their ``3 x 3`` covariances."""
+    h = truth.apply(reference)
+    first = np.cross(h, [0.3, 0.5, 0.8])
+    first /= np.linalg.norm(first, axis=-1, keepdims=True)
+    second = np.cross(h, first)
+    covariance = sigma**2 * (
+        np.einsum("ni,nj->nij", first, first) + stretch**2 * np.einsum("ni,nj->nij", second, second)
+    )
+    draws = rng.normal(size=(trials, len(h), 2)) * sigma * np.array([1.0, stretch])
+    body = h + draws[..., :1] * first + draws[..., 1:] * second
+    return body / np.linalg.norm(body, axis=-1, keepdims=True), covariance
+
+
+@pytest.mark.parametrize(
+    "solver", [s for s in ESTIMATORS if s.vectorised and s.optimal], ids=lambda s: s.label
+)
+def test_anisotropic_vector_covariance_matches_monte_carlo(solver):
+    """With noise three times larger along one axis across each direction than the other,
+    the covariance given the vectors' covariances matches the scatter; the isotropic
+    weights' own covariance, which assumes the mean variance, misses it by far."""
+    reference = _unit([[1, 0, 0], [0.2, 1, 0], [0, 0.3, 1]])
+    trials = 4000
+    body, covariance = _anisotropic_noise(
+        TRUTH, reference, 3.0, 0.002, trials, np.random.default_rng(21)
+    )
+    isotropic = np.einsum("nii->n", covariance) / 2.0
+    weights = np.tile(1.0 / isotropic, (trials, 1))
+    references = np.broadcast_to(reference, body.shape)
+    given = solver.solve_batch(
+        body, references, weights, None, np.broadcast_to(covariance, (trials, *covariance.shape))
+    )
+    plain = solver.solve_batch(body, references, weights)
+    errors = attitude_error(given.attitude(), TRUTH)
+    scatter = errors.T @ errors / trials
+    np.testing.assert_allclose(given.quaternion, plain.quaternion)
+    predicted = given.covariance.mean(axis=0)
+    assert np.linalg.norm(scatter - predicted) < 0.1 * np.trace(predicted)
+    assert np.linalg.norm(scatter - plain.covariance.mean(axis=0)) > 0.2 * np.trace(scatter)
+
+
+def test_isotropic_vector_covariances_give_the_solvers_own_covariance():
+    """``C_i = sigma_i^2 I`` with weights ``1 / sigma_i^2``: the sandwich is eq. 32's inverse."""
+    from attopt.solvers.wahba import QUEST
+
+    reference, sigmas = GEOMETRIES["five-vectors"]
+    body = noisy_body(TRUTH, reference, sigmas, np.random.default_rng(5))[None]
+    covariance = sigmas[None, :, None, None] ** 2 * np.eye(3)
+    args = (body, reference[None], sigmas[None] ** -2.0)
+    np.testing.assert_allclose(
+        QUEST.solve_batch(*args, None, covariance).covariance,
+        QUEST.solve_batch(*args).covariance,
+        rtol=1e-9,
+    )
+
+
+def test_a_sequence_of_full_covariance_measurements_gets_their_covariance():
+    """``solve_sequence`` passes measurements' ``3 x 3`` covariances on as ``solve_batch``'s
+    ``vector_covariance``; their isotropic equivalents are the weights."""
+    from attopt.formulations.attitude_measurement import VectorMeasurement
+    from attopt.formulations.snapshot import Snapshot
+    from attopt.solvers.wahba import QUEST
+
+    reference = _unit([[1, 0, 0], [0.2, 1, 0], [0, 0.3, 1]])
+    body, covariance = _anisotropic_noise(TRUTH, reference, 3.0, 0.002, 2, np.random.default_rng(4))
+    covariance = covariance + 1e-10 * np.eye(3)  # positive definite, as measurements need
+    snapshots = [Snapshot((VectorMeasurement(b, reference, covariance=covariance),)) for b in body]
+    track = QUEST.solve_sequence(snapshots)
+    weights = np.stack([m.sigma**-2.0 for s in snapshots for m in s.measurements])
+    expected = QUEST.solve_batch(
+        body,
+        np.broadcast_to(reference, body.shape),
+        weights,
+        None,
+        np.broadcast_to(covariance, (2, *covariance.shape)),
+    )
+    np.testing.assert_allclose(track.covariance, expected.covariance, rtol=1e-12)
+    assert not np.allclose(
+        track.covariance,
+        QUEST.solve_batch(body, np.broadcast_to(reference, body.shape), weights).covariance,
+        rtol=0.05,
+    )

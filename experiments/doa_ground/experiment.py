@@ -147,7 +147,7 @@ from attopt.formulations.doa_array import (
 )
 from attopt.formulations.doa_crb import stochastic_crb
 from attopt.formulations.doa_measurement import DoaMeasurement
-from attopt.formulations.errors import ConvergenceError, UnobservableError
+from attopt.formulations.errors import ConvergenceError, ModelMismatchError, UnobservableError
 from attopt.formulations.gyro import GyroModel
 from attopt.formulations.passes import Pass, Prior
 from attopt.solvers.bounds import posterior_bound_ekf
@@ -316,6 +316,7 @@ def music_estimator(music: MusicGrid, array: UniformCircularArray) -> MusicEstim
         music.cone_half_angle_deg,
         music.peak_ratio_threshold,
         music.horizon_angle_deg,
+        music.threshold_output_snr,
     )
 
 
@@ -326,6 +327,7 @@ def _music(
     cone_half_angle_deg: float,
     peak_ratio_threshold: float,
     horizon_angle_deg: float,
+    threshold_output_snr: float,
 ) -> MusicEstimator:
     return MusicEstimator(
         array=array,
@@ -333,6 +335,7 @@ def _music(
         grid_step=grid_step,
         peak_ratio_threshold=peak_ratio_threshold,
         horizon_angle=float(np.radians(horizon_angle_deg)),
+        threshold_output_snr=threshold_output_snr,
     )
 
 
@@ -383,7 +386,7 @@ def simulate_pass(setting: Setting, seed: np.random.SeedSequence) -> SimulatedPa
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
     """One pass at the setting's SNR and ``L``: every estimator on the same DOAs (docstring)."""
     simulated = simulate_pass(setting, seed)
-    parameters, geometry, vectors = simulated.parameters, simulated.geometry, simulated.vectors
+    parameters, geometry = simulated.parameters, simulated.geometry
     epochs, stations, doas, doa_pass = (
         simulated.epochs,
         simulated.stations,
@@ -404,7 +407,7 @@ def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
         for label, run in runs.items()
     ]
     frames += [
-        _wahba_rows(label, name, geometry, vectors, row_epochs, common, setting, parameters)
+        _wahba_rows(label, name, simulated, row_epochs, common, setting)
         for label, name in WAHBA.items()
     ]
     if trial_index(seed) < parameters.filter_trials:
@@ -735,19 +738,34 @@ def _estimates(
 def _wahba_rows(
     label: str,
     name: str,
-    geometry: DoaGroundGeometry,
-    vectors: tuple[np.ndarray, np.ndarray, np.ndarray],
+    simulated: SimulatedPass,
     rows: np.ndarray,
     common: Mapping[str, Any],
     setting: Setting,
-    parameters: DoaGroundParameters,
 ) -> pd.DataFrame:
     """Single-epoch solutions of Wahba solver ``name`` (its vectorised path) at the row
-    epochs, with the single-epoch CRB."""
-    body, reference, sigma = (v[rows] for v in vectors)
+    epochs, with the single-epoch CRB.
+
+    Weighted by the DOAs' isotropic ``1 / sigma^2`` (:func:`unit_vector_observations`),
+    with the covariance of that solution under each DOA's full unit-vector covariance
+    (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`: at 60 deg from the array
+    axis a DOA's elevation error is twice its azimuth's).  An epoch with a DOA below
+    MUSIC's threshold SNR is flagged (its error's tail is not Gaussian there:
+    :mod:`attopt.solvers.doa.music`, Threshold region).
+    """
+    parameters, geometry = simulated.parameters, simulated.geometry
+    body, reference, sigma = (v[rows] for v in simulated.vectors)
     present = np.isfinite(body).all(axis=-1)
+    covariance, below = (v[rows] for v in _doa_vector_statistics(simulated))
     track = configured(name, parameters.estimator_options).solve_batch(
-        np.where(present[..., None], body, reference), reference, sigma**-2.0, present
+        np.where(present[..., None], body, reference), reference, sigma**-2.0, present, covariance
+    )
+    threshold = parameters.music.threshold_output_snr
+    track = track.flagged(
+        (below & present).any(axis=1),
+        f"below MUSIC's threshold: a DOA's output SNR L M SNR is below {threshold:g}, where "
+        "its covariance does not describe its error's tail",
+        ModelMismatchError,
     )
     array = parameters.array.array()
     bound = np.array([_single_epoch_bound(geometry, k, setting, array) for k in rows])
@@ -761,6 +779,21 @@ def _wahba_rows(
             **status_columns(track),
         }
     )
+
+
+def _doa_vector_statistics(simulated: SimulatedPass) -> tuple[np.ndarray, np.ndarray]:
+    """Each ``(epoch, station)``'s unit-vector covariance ``(N, S, 3, 3)`` (eq. 12, zero
+    where absent) and whether its DOA is below MUSIC's threshold ``(N, S)``."""
+    doas = simulated.doas
+    shape = simulated.geometry.visible.shape
+    covariance = np.zeros((*shape, 3, 3))
+    below = np.zeros(shape, dtype=bool)
+    index = simulated.epochs[doas.valid], simulated.stations[doas.valid]
+    covariance[index] = unit_vector_covariance(
+        doas.theta[doas.valid], doas.phi[doas.valid], doas.covariance[doas.valid]
+    )
+    below[index] = doas.diagnostics["below_threshold"][doas.valid]
+    return covariance, below
 
 
 def _single_epoch_bound(

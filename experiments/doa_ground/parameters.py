@@ -219,6 +219,14 @@ class MusicGrid(Parameters):
     horizon_angle_deg: float = Field(
         85.0, gt=0.0, le=90.0, description="Estimates at or beyond this polar angle are rejected."
     )
+    threshold_output_snr: float = Field(
+        150.0,
+        ge=0.0,
+        description=(
+            "Output SNR L M SNR below which a DOA's covariance does not describe its tail: "
+            "single-frame rows do not use it (docs/doa.md)."
+        ),
+    )
 
 
 class FilterPrior(Parameters):

@@ -26,6 +26,19 @@ For each snapshot set ``X`` (``M x L``):
    (MUSIC is asymptotically efficient for one source, so this is its
    large-``L`` covariance).
 
+Threshold region.  Below an output SNR ``L M SNR`` (the matched beamformer's) of
+about 150 the estimates are not yet asymptotic: the signal eigenvalue is not
+well separated from the noise eigenvalues, and now and then the principal
+eigenvector follows the noise to a sidelobe or the flank of the main lobe (a
+subspace swap).  The CRB above still describes the typical error there, but not
+its tail: measured on Yang et al. 2014's array (``docs/doa.md``, MUSIC's threshold
+region), the share of estimates beyond the chi-square(2) ``1 - 1e-4`` quantile of
+their covariance is 0.0013-0.004 at output SNRs of 12-120 and 0.0001-0.0007 from
+190 up.  Such estimates stay valid (a filter's gate and prior keep such a DOA
+from moving it far), and ``diagnostics["below_threshold"]`` marks them for the
+estimators that must not trust their covariance's tail, such as a single-frame
+solution (:attr:`MusicEstimator.threshold_output_snr`).
+
 Outcomes (``reason`` of an invalid set; ``theta``, ``phi`` and the covariance
 are NaN there):
 
@@ -89,8 +102,11 @@ class DoaEstimates:
         reason: ``(N,)`` str, empty where valid.
         error: ``(N,)`` exception class of invalid sets, None where valid.
         diagnostics: ``peak_ratio`` (second / main MUSIC peak), ``snr`` (linear,
-            per element, used for the covariance), ``rank_deficient`` (``L < M``),
-            ``iterations`` (Newton steps of the main peak), each ``(N,)``.
+            per element, used for the covariance), ``output_snr`` (``L M snr``),
+            ``below_threshold`` (``output_snr`` below the estimator's
+            ``threshold_output_snr``: module docstring, Threshold region),
+            ``rank_deficient`` (``L < M``), ``iterations`` (Newton steps of the main
+            peak), each ``(N,)``.
     """
 
     theta: Array
@@ -153,6 +169,9 @@ class MusicEstimator:
         peak_ratio_threshold: ambiguous when the second peak's MUSIC
             spectrum is at least this fraction of the main peak's.
         horizon_angle: estimates with ``theta`` at or beyond it are rejected.
+        threshold_output_snr: output SNR ``L M snr`` below which an estimate is
+            marked ``below_threshold`` (module docstring, Threshold region; measured
+            for Yang et al. 2014's 12-element array).
         step_tolerance: Newton step (direction cosines) that ends refinement
             (the error after it is of the order of its square).
         max_iterations: Newton iterations before ``ConvergenceError``.
@@ -163,6 +182,7 @@ class MusicEstimator:
     grid_step: float = 0.04
     peak_ratio_threshold: float = 0.5
     horizon_angle: float = float(np.radians(85.0))
+    threshold_output_snr: float = 150.0
     step_tolerance: float = 1e-8
     max_iterations: int = 40
 
@@ -299,6 +319,7 @@ class MusicEstimator:
         with np.errstate(invalid="ignore"):
             doa_covariance = stochastic_crb(theta, phi, snr, n_snapshots, self.array)
         nan = np.where(valid, 0.0, np.nan)
+        output_snr = n_snapshots * m * snr
         return DoaEstimates(
             theta=theta + nan,
             phi=phi + nan,
@@ -309,6 +330,8 @@ class MusicEstimator:
             diagnostics={
                 "peak_ratio": ratio,
                 "snr": snr,
+                "output_snr": output_snr,
+                "below_threshold": ~(output_snr >= self.threshold_output_snr),
                 "rank_deficient": np.full(n, n_snapshots < m),
                 "iterations": iterations[0].astype(float),
             },

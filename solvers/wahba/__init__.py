@@ -27,7 +27,7 @@ direction.
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
@@ -44,6 +44,7 @@ from attopt.formulations.vector_observations import (
     as_batch,
     prepare_observations,
 )
+from attopt.formulations.wahba_covariance import anisotropic_covariance
 from attopt.solvers.estimator import SnapshotEstimator
 from attopt.solvers.results import Solution, Track
 from attopt.solvers.wahba import compiled as compiled_path
@@ -131,6 +132,7 @@ class WahbaSolver(SnapshotEstimator):
         reference: ArrayLike,
         weights: ArrayLike,
         present: ArrayLike | None = None,
+        vector_covariance: ArrayLike | None = None,
     ) -> Track:
         """Solve ``N`` epochs of ``(N, n, 3)`` vectors with weights ``(N, n)``; ``present``
         ``(N, n)`` masks absent vectors.  Invalid epochs are flagged, not raised.
@@ -138,17 +140,25 @@ class WahbaSolver(SnapshotEstimator):
         The weights are read as inverse variances ``a_i = 1 / sigma_i^2`` (rad^-2)
         of isotropic direction noise: the covariance is the attitude error's (rad^2)
         for those, and scales by ``1 / c`` when every weight is scaled by ``c``
-        (the attitude does not change).
+        (the attitude does not change).  With ``vector_covariance`` ``(N, n, 3, 3)``,
+        each body vector's noise covariance (rad^2), the covariance of an optimal
+        solver is that of the weighted solution under that noise instead
+        (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`); TRIAD's
+        stays eq. 11's with the weights' isotropic variances.
         """
         if self.kernel is not None and compiled_path.enabled():
             batch = as_batch(body, reference, weights, present)
-            return solve_compiled(
+            track = solve_compiled(
                 self.name, self.kernel, self.failure, batch, self.parallel_tolerance
             )
-        obs = prepare_observations(
-            body, reference, weights, present, parallel_tolerance=self.parallel_tolerance
-        )
-        return solve_prepared(self.name, self.estimate, obs)
+        else:
+            obs = prepare_observations(
+                body, reference, weights, present, parallel_tolerance=self.parallel_tolerance
+            )
+            track = solve_prepared(self.name, self.estimate, obs)
+        if vector_covariance is None or not self.optimal or not track.valid.any():
+            return track
+        return _with_vector_covariance(track, body, weights, present, vector_covariance)
 
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
@@ -170,7 +180,9 @@ class WahbaSolver(SnapshotEstimator):
     ) -> Track:
         """Every epoch's vector measurements, padded to a common count, by :meth:`solve_batch`.
 
-        Weights ``1 / sigma_i^2`` from each measurement's ``sigma``; an epoch
+        Weights ``1 / sigma_i^2`` from each measurement's ``sigma``; where a
+        measurement gives full ``3 x 3`` covariances, the covariance is the weighted
+        solution's under them (:meth:`solve_batch`'s ``vector_covariance``).  An epoch
         without measurement (``None``) is flagged as having fewer than two
         vectors.  ``prior`` is not used: the solution is closed-form.
         """
@@ -180,25 +192,61 @@ class WahbaSolver(SnapshotEstimator):
         reference = np.zeros((len(vectors), n, 3))
         weights = np.zeros((len(vectors), n))
         present = np.zeros((len(vectors), n), dtype=bool)
-        for i, (b, r, sigma) in enumerate(vectors):
+        covariance = np.zeros((len(vectors), n, 3, 3))
+        for i, (b, r, sigma, c) in enumerate(vectors):
             k = sigma.size
             body[i, :k], reference[i, :k], weights[i, :k] = b, r, sigma**-2.0
-            present[i, :k] = True
-        return self.solve_batch(body, reference, weights, present)
+            present[i, :k], covariance[i, :k] = True, c
+        full = any(m.noise_covariance.ndim == 2 for m in self._measurements(snapshots))
+        return self.solve_batch(body, reference, weights, present, covariance if full else None)
 
-    def _vectors(self, snapshot: Snapshot | None) -> tuple[Array, Array, Array]:
-        """The snapshot's body vectors, references and sigmas, stacked (empty if none)."""
+    def _measurements(self, snapshots: Sequence[Snapshot | None]) -> Iterator[VectorMeasurement]:
+        """Every vector measurement of ``snapshots``."""
+        for snapshot in snapshots:
+            if snapshot is not None:
+                yield from snapshot.of_type(VectorMeasurement)
+
+    def _vectors(self, snapshot: Snapshot | None) -> tuple[Array, Array, Array, Array]:
+        """The snapshot's body vectors, references, sigmas and ``3 x 3`` noise covariances,
+        stacked (empty if none)."""
         parts = []
         if snapshot is not None:
             self.check_types(snapshot.types)
             parts = snapshot.of_type(VectorMeasurement)
         if not parts:
-            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3, 3))
         return (
             np.concatenate([m.z.reshape(-1, 3) for m in parts]),
             np.concatenate([m.reference for m in parts]),
             np.concatenate([m.sigma for m in parts]),
+            np.concatenate([_vector_blocks(m) for m in parts]),
         )
+
+
+def _vector_blocks(measurement: VectorMeasurement) -> Array:
+    """``(k, 3, 3)`` noise covariance of each of the measurement's ``k`` vectors."""
+    noise = measurement.noise_covariance
+    k = measurement.reference.shape[0]
+    if noise.ndim == 1:
+        return noise.reshape(k, 3)[:, :, None] * np.eye(3)
+    return np.stack([noise[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(k)])
+
+
+def _with_vector_covariance(
+    track: Track,
+    body: ArrayLike,
+    weights: ArrayLike,
+    present: ArrayLike | None,
+    vector_covariance: ArrayLike,
+) -> Track:
+    """``track`` with the covariances of its valid epochs under the vectors' noise
+    covariances (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`)."""
+    b, _, a, p = as_batch(body, body, weights, present)
+    c = np.asarray(vector_covariance, dtype=float).reshape(*a.shape, 3, 3)
+    valid = track.valid
+    covariance = track.covariance.copy()
+    covariance[valid] = anisotropic_covariance(b[valid], np.where(p, a, 0.0)[valid], c[valid])
+    return replace(track, covariance=covariance)
 
 
 def _check_one_epoch(n_epochs: int) -> None:
