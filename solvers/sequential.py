@@ -612,9 +612,11 @@ def contradicted_start(
     confirmed) if its update rejected at least as many observations as it used
     (:func:`rejected_epoch`, the lost-track monitor's rule for an epoch), else none."""
     start = np.zeros(unconfirmed.size, dtype=bool)
-    for k in np.flatnonzero(unconfirmed)[:1]:
-        counts = {n: diagnostics[n][k] for n in ("n_gated", "n_used", "n_unpredictable")}
-        start[k] = rejected_epoch(counts["n_gated"], counts["n_used"], counts["n_unpredictable"])
+    if unconfirmed.any():
+        k = np.argmax(unconfirmed)
+        start[k] = rejected_epoch(
+            *(diagnostics[name][k] for name in ("n_gated", "n_used", "n_unpredictable"))
+        )
     return start
 
 

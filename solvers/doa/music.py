@@ -331,6 +331,7 @@ class MusicEstimator:
                 "peak_ratio": ratio,
                 "snr": snr,
                 "output_snr": output_snr,
+                # NaN output SNR (one snapshot, no SNR given) counts as below
                 "below_threshold": ~(output_snr >= self.threshold_output_snr),
                 "rank_deficient": np.full(n, n_snapshots < m),
                 "iterations": iterations[0].astype(float),

@@ -158,7 +158,9 @@ class WahbaSolver(SnapshotEstimator):
             track = solve_prepared(self.name, self.estimate, obs)
         if vector_covariance is None or not self.optimal or not track.valid.any():
             return track
-        return _with_vector_covariance(track, body, weights, present, vector_covariance)
+        return _with_vector_covariance(
+            track, as_batch(body, reference, weights, present), vector_covariance
+        )
 
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
@@ -234,18 +236,19 @@ def _vector_blocks(measurement: VectorMeasurement) -> Array:
 
 def _with_vector_covariance(
     track: Track,
-    body: ArrayLike,
-    weights: ArrayLike,
-    present: ArrayLike | None,
+    batch: tuple[Array, Array, Array, NDArray[np.bool_]],
     vector_covariance: ArrayLike,
 ) -> Track:
     """``track`` with the covariances of its valid epochs under the vectors' noise
-    covariances (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`)."""
-    b, _, a, p = as_batch(body, body, weights, present)
-    c = np.asarray(vector_covariance, dtype=float).reshape(*a.shape, 3, 3)
+    covariances (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`);
+    ``batch`` the observations as :func:`as_batch` gives them."""
+    body, _, weights, present = batch
+    c = np.asarray(vector_covariance, dtype=float).reshape(*weights.shape, 3, 3)
     valid = track.valid
     covariance = track.covariance.copy()
-    covariance[valid] = anisotropic_covariance(b[valid], np.where(p, a, 0.0)[valid], c[valid])
+    covariance[valid] = anisotropic_covariance(
+        body[valid], np.where(present, weights, 0.0)[valid], c[valid]
+    )
     return replace(track, covariance=covariance)
 
 
