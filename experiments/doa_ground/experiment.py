@@ -317,6 +317,7 @@ def music_estimator(music: MusicGrid, array: UniformCircularArray) -> MusicEstim
         music.peak_ratio_threshold,
         music.horizon_angle_deg,
         music.threshold_output_snr,
+        music.threshold_variance_factor,
     )
 
 
@@ -328,6 +329,7 @@ def _music(
     peak_ratio_threshold: float,
     horizon_angle_deg: float,
     threshold_output_snr: float,
+    threshold_variance_factor: float,
 ) -> MusicEstimator:
     return MusicEstimator(
         array=array,
@@ -336,6 +338,7 @@ def _music(
         peak_ratio_threshold=peak_ratio_threshold,
         horizon_angle=float(np.radians(horizon_angle_deg)),
         threshold_output_snr=threshold_output_snr,
+        threshold_variance_factor=threshold_variance_factor,
     )
 
 

@@ -227,6 +227,14 @@ class MusicGrid(Parameters):
             "single-frame rows do not use it (docs/doa.md)."
         ),
     )
+    threshold_variance_factor: float = Field(
+        2.0,
+        ge=1.0,
+        description=(
+            "Below threshold_output_snr a DOA's covariance is the CRB times this factor "
+            "(docs/doa.md)."
+        ),
+    )
 
 
 class FilterPrior(Parameters):

@@ -24,20 +24,27 @@ For each snapshot set ``X`` (``M x L``):
 4. Covariance: the stochastic CRB (:func:`attopt.formulations.doa_crb.stochastic_crb`)
    at the estimate, with the SNR given or estimated from the eigenvalues
    (MUSIC is asymptotically efficient for one source, so this is its
-   large-``L`` covariance).
+   large-``L`` covariance), widened below the threshold output SNR (below).
 
 Threshold region.  Below an output SNR ``L M SNR`` (the matched beamformer's) of
 about 150 the estimates are not yet asymptotic: the signal eigenvalue is not
 well separated from the noise eigenvalues, and now and then the principal
 eigenvector follows the noise to a sidelobe or the flank of the main lobe (a
-subspace swap).  The CRB above still describes the typical error there, but not
+subspace swap).  The CRB above roughly describes the typical error there, but not
 its tail: measured on Yang et al. 2014's array (``docs/doa.md``, MUSIC's threshold
 region), the share of estimates beyond the chi-square(2) ``1 - 1e-4`` quantile of
-their covariance is 0.0013-0.004 at output SNRs of 12-120 and 0.0001-0.0007 from
-190 up.  Such estimates stay valid (a filter's gate and prior keep such a DOA
-from moving it far), and ``diagnostics["below_threshold"]`` marks them for the
-estimators that must not trust their covariance's tail, such as a single-frame
-solution (:attr:`MusicEstimator.threshold_output_snr`).
+the CRB is 0.0013-0.004 at output SNRs of 12-120 and 0.0001-0.0007 from 190 up.
+Their core is wider than the CRB too (variance 1.1-1.2 times it at output SNRs
+of 76-120), and ``theta`` is biased by up to 0.05-0.18 of its sigma, depending on
+the direction: a single estimate hardly shows it, but a filter or smoother that
+averages hundreds of them does (measured on ``doa-ground``'s pass, ``docs/doa.md``:
+a gyro-aided MEKF and Yang et al. 2014's RTS pass beyond the 1 - 1e-4 quantile
+14-27 times as often as a consistent estimator).  So below the threshold the
+covariance is the CRB times :attr:`MusicEstimator.threshold_variance_factor` (2),
+the widening measured to make those filters consistent there, and
+``diagnostics["below_threshold"]`` marks such estimates for the estimators that
+must not trust their covariance's tail at all, such as a single-frame solution
+(:attr:`MusicEstimator.threshold_output_snr`).
 
 Outcomes (``reason`` of an invalid set; ``theta``, ``phi`` and the covariance
 are NaN there):
@@ -172,6 +179,9 @@ class MusicEstimator:
         threshold_output_snr: output SNR ``L M snr`` below which an estimate is
             marked ``below_threshold`` (module docstring, Threshold region; measured
             for Yang et al. 2014's 12-element array).
+        threshold_variance_factor: below ``threshold_output_snr`` the covariance is
+            the CRB times this factor (module docstring, Threshold region; 1 gives
+            the CRB everywhere).
         step_tolerance: Newton step (direction cosines) that ends refinement
             (the error after it is of the order of its square).
         max_iterations: Newton iterations before ``ConvergenceError``.
@@ -183,6 +193,7 @@ class MusicEstimator:
     peak_ratio_threshold: float = 0.5
     horizon_angle: float = float(np.radians(85.0))
     threshold_output_snr: float = 150.0
+    threshold_variance_factor: float = 2.0
     step_tolerance: float = 1e-8
     max_iterations: int = 40
 
@@ -320,10 +331,13 @@ class MusicEstimator:
             doa_covariance = stochastic_crb(theta, phi, snr, n_snapshots, self.array)
         nan = np.where(valid, 0.0, np.nan)
         output_snr = n_snapshots * m * snr
+        # NaN output SNR (one snapshot, no SNR given) counts as below
+        below = ~(output_snr >= self.threshold_output_snr)
+        widening = np.where(below, self.threshold_variance_factor, 1.0)
         return DoaEstimates(
             theta=theta + nan,
             phi=phi + nan,
-            covariance=doa_covariance + nan[:, None, None],
+            covariance=doa_covariance * widening[:, None, None] + nan[:, None, None],
             valid=valid,
             reason=reason,
             error=error,
@@ -331,8 +345,7 @@ class MusicEstimator:
                 "peak_ratio": ratio,
                 "snr": snr,
                 "output_snr": output_snr,
-                # NaN output SNR (one snapshot, no SNR given) counts as below
-                "below_threshold": ~(output_snr >= self.threshold_output_snr),
+                "below_threshold": below,
                 "rank_deficient": np.full(n, n_snapshots < m),
                 "iterations": iterations[0].astype(float),
             },
