@@ -166,6 +166,21 @@ def stored_rotations(quaternion: ArrayLike) -> Rotation:
     return Rotation(np.asarray(quaternion, dtype=float), normalize=False)
 
 
+def largest_attitude_sigma(covariance: ArrayLike) -> np.ndarray:
+    """The largest standard deviation of the attitude covariance ``(..., 3, 3)``: the
+    square root of its largest diagonal entry, the measure ``max_attitude_sigma`` limits
+    (``FilterOptions``).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.sequential import largest_attitude_sigma
+        >>> float(largest_attitude_sigma(np.diag([1e-4, 4e-4, 9e-4])))
+        0.03
+    """
+    return np.sqrt(np.max(np.diagonal(np.asarray(covariance), axis1=-2, axis2=-1), axis=-1))
+
+
 def rejected_epoch(n_gated: float, n_used: float, n_unpredictable: float = 0.0) -> bool:
     """An epoch whose rejected observation blocks are at least as many as its used ones:
     gated, or ``n_unpredictable`` blocks the model cannot predict at the estimate (an SNR
@@ -676,8 +691,7 @@ def filter_result(
     """
     attitude = 3 * record.state.index("attitude")
     block = slice(attitude, attitude + 3)
-    variance = np.diagonal(record.covariance[:, block, block], axis1=1, axis2=2)
-    sigma = np.sqrt(np.max(variance, axis=1))
+    sigma = largest_attitude_sigma(record.covariance[:, block, block])
     reason = record.reason.copy()
     if "gyro_gap_s" in record.diagnostics:
         long_gap = (record.diagnostics["gyro_gap_s"] > options.max_gyro_gap_s) & (reason == "")

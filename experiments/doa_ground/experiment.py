@@ -352,6 +352,10 @@ class SimulatedPass:
         epochs, stations: the visible ``(epoch, station)`` pairs MUSIC estimated,
             epoch-major.
         doas: MUSIC's estimates of those pairs.
+        vector_covariance: each ``(epoch, station)``'s unit-vector covariance ``(N, S, 3,
+            3)`` (eq. 12; zero where MUSIC gave no DOA).
+        below_threshold: ``(N, S)``, whether that DOA is below MUSIC's threshold output
+            SNR.
         vectors: body vectors, reference vectors and sigmas, ``(N, S, .)``
             (:func:`unit_vector_observations`).
         pass_: the pass of the unit vectors with the scenario's rigid-body dynamics and
@@ -364,6 +368,8 @@ class SimulatedPass:
     epochs: np.ndarray
     stations: np.ndarray
     doas: DoaEstimates
+    vector_covariance: np.ndarray
+    below_threshold: np.ndarray
     vectors: tuple[np.ndarray, np.ndarray, np.ndarray]
     pass_: Pass
 
@@ -381,9 +387,12 @@ def simulate_pass(setting: Setting, seed: np.random.SeedSequence) -> SimulatedPa
         parameters.array,
         parameters.music,
     )
-    vectors = unit_vector_observations(geometry, epochs, stations, doas)
+    covariance, below = _doa_vector_statistics(geometry.visible.shape, epochs, stations, doas)
+    vectors = unit_vector_observations(geometry, epochs, stations, doas, covariance)
     doa_pass = _vector_pass(geometry, vectors, _prior(parameters.prior))
-    return SimulatedPass(parameters, geometry, epochs, stations, doas, vectors, doa_pass)
+    return SimulatedPass(
+        parameters, geometry, epochs, stations, doas, covariance, below, vectors, doa_pass
+    )
 
 
 def trial(setting: Setting, seed: np.random.SeedSequence) -> pd.DataFrame:
@@ -493,7 +502,9 @@ def _model_bound(
         truth_doa[:, 0], truth_doa[:, 1], 10.0 ** (snr_db / 10.0), snapshots, array
     )
     sigma = np.ones(geometry.visible.shape)
-    sigma[geometry.visible] = _isotropic_sigma(truth_doa[:, 0], truth_doa[:, 1], crb)
+    sigma[geometry.visible] = _isotropic_sigma(
+        unit_vector_covariance(truth_doa[:, 0], truth_doa[:, 1], crb)
+    )
     covariance = np.diag(np.radians([prior_sigma_deg] * 3 + [prior_rate_sigma_deg_s] * 3) ** 2)
     reference = _unit(geometry.line_of_sight_km)
     body = np.einsum("nij,nsj->nsi", geometry.truth.as_matrix(), reference)
@@ -677,28 +688,29 @@ def _gyro_rows(
 
 
 def unit_vector_observations(
-    geometry: DoaGroundGeometry, epochs: np.ndarray, stations: np.ndarray, doas: DoaEstimates
+    geometry: DoaGroundGeometry,
+    epochs: np.ndarray,
+    stations: np.ndarray,
+    doas: DoaEstimates,
+    covariance: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body vectors ``S_dr`` (eq. 12), reference vectors ``S_o`` (eq. 17), sigmas; ``(N, S, .)``.
 
-    Sigmas by :func:`_isotropic_sigma` of MUSIC's ``(theta, phi)`` covariance.
-    Body vectors are NaN (and sigmas 1) where a station is not visible or MUSIC
-    rejected it; measurements leave those out.
+    Sigmas by :func:`_isotropic_sigma` of each DOA's unit-vector ``covariance`` ``(N, S,
+    3, 3)`` (:func:`_doa_vector_statistics`).  Body vectors are NaN (and sigmas 1) where
+    a station is not visible or MUSIC rejected it; measurements leave those out.
     """
     n, count = geometry.visible.shape
     body = np.full((n, count, 3), np.nan)
-    sigma = np.ones((n, count))
     body[epochs, stations] = doa_unit_vector(doas.theta, doas.phi)
-    sigma[epochs, stations] = np.nan_to_num(
-        _isotropic_sigma(doas.theta, doas.phi, doas.covariance), nan=1.0
-    )
+    present = np.isfinite(body).all(axis=-1)
+    sigma = np.where(present, _isotropic_sigma(covariance), 1.0)
     return body, _unit(geometry.line_of_sight_km), sigma
 
 
-def _isotropic_sigma(theta: np.ndarray, phi: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+def _isotropic_sigma(unit_covariance: np.ndarray) -> np.ndarray:
     """``sigma`` of ``R_W = sigma^2 E`` (isotropic form of eq. 22): ``sigma^2 = tr(R_W) / 2``
-    with ``R_W`` the unit-vector covariance of the ``(theta, phi)`` covariance (eq. 12)."""
-    unit_covariance = unit_vector_covariance(theta, phi, covariance)
+    with ``R_W`` a DOA's unit-vector covariance (eq. 12)."""
     return np.sqrt(0.5 * np.trace(unit_covariance, axis1=-2, axis2=-1))
 
 
@@ -759,7 +771,7 @@ def _wahba_rows(
     parameters, geometry = simulated.parameters, simulated.geometry
     body, reference, sigma = (v[rows] for v in simulated.vectors)
     present = np.isfinite(body).all(axis=-1)
-    covariance, below = (v[rows] for v in _doa_vector_statistics(simulated))
+    covariance, below = simulated.vector_covariance[rows], simulated.below_threshold[rows]
     track = configured(name, parameters.estimator_options).solve_batch(
         np.where(present[..., None], body, reference), reference, sigma**-2.0, present, covariance
     )
@@ -784,14 +796,15 @@ def _wahba_rows(
     )
 
 
-def _doa_vector_statistics(simulated: SimulatedPass) -> tuple[np.ndarray, np.ndarray]:
-    """Each ``(epoch, station)``'s unit-vector covariance ``(N, S, 3, 3)`` (eq. 12, zero
-    where absent) and whether its DOA is below MUSIC's threshold ``(N, S)``."""
-    doas = simulated.doas
-    shape = simulated.geometry.visible.shape
+def _doa_vector_statistics(
+    shape: tuple[int, int], epochs: np.ndarray, stations: np.ndarray, doas: DoaEstimates
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each ``(epoch, station)``'s unit-vector covariance ``(*shape, 3, 3)`` (eq. 12, zero
+    where absent) and whether its DOA is below MUSIC's threshold ``shape``, from the DOAs
+    ``doas`` of the pairs ``(epochs, stations)``."""
     covariance = np.zeros((*shape, 3, 3))
     below = np.zeros(shape, dtype=bool)
-    index = simulated.epochs[doas.valid], simulated.stations[doas.valid]
+    index = epochs[doas.valid], stations[doas.valid]
     covariance[index] = unit_vector_covariance(
         doas.theta[doas.valid], doas.phi[doas.valid], doas.covariance[doas.valid]
     )

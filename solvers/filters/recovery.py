@@ -110,6 +110,7 @@ from attopt.solvers.sequential import (
     WAIT,
     Recovery,
     SequentialFilter,
+    largest_attitude_sigma,
 )
 
 Array = NDArray[np.float64]
@@ -145,7 +146,7 @@ def single_frame(
     covariance = track.covariance[0]
     if not (track.valid[0] and np.all(np.isfinite(covariance))):
         return INFLATE
-    if np.sqrt(np.max(np.diag(covariance))) > options.max_attitude_sigma:
+    if largest_attitude_sigma(covariance) > options.max_attitude_sigma:
         return INFLATE
     dof = measurement.size - 3
     if dof > 0 and chi_square_tail(2.0 * track.loss[0], dof) < options.consistency_false_alarm:
@@ -304,7 +305,7 @@ class SingleFrameRecovery(Recovery):
         or :func:`unknown_prior`."""
         covariance = np.asarray(start.covariance)
         checked = options.recovery != "restart"
-        sigma = np.sqrt(np.max(np.diag(covariance)[:3]))
+        sigma = largest_attitude_sigma(covariance[:3, :3])
         wide = started and not checked and bool(sigma > options.max_attitude_sigma)
         return cls(options, covariance[3:, 3:], started, checked, wide)
 

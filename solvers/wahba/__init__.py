@@ -27,7 +27,7 @@ direction.
 from __future__ import annotations
 
 from abc import abstractmethod
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
@@ -195,33 +195,28 @@ class WahbaSolver(SnapshotEstimator):
         weights = np.zeros((len(vectors), n))
         present = np.zeros((len(vectors), n), dtype=bool)
         covariance = np.zeros((len(vectors), n, 3, 3))
-        for i, (b, r, sigma, c) in enumerate(vectors):
+        for i, (b, r, sigma, c, _) in enumerate(vectors):
             k = sigma.size
             body[i, :k], reference[i, :k], weights[i, :k] = b, r, sigma**-2.0
             present[i, :k], covariance[i, :k] = True, c
-        full = any(m.noise_covariance.ndim == 2 for m in self._measurements(snapshots))
+        full = any(v[4] for v in vectors)
         return self.solve_batch(body, reference, weights, present, covariance if full else None)
 
-    def _measurements(self, snapshots: Sequence[Snapshot | None]) -> Iterator[VectorMeasurement]:
-        """Every vector measurement of ``snapshots``."""
-        for snapshot in snapshots:
-            if snapshot is not None:
-                yield from snapshot.of_type(VectorMeasurement)
-
-    def _vectors(self, snapshot: Snapshot | None) -> tuple[Array, Array, Array, Array]:
+    def _vectors(self, snapshot: Snapshot | None) -> tuple[Array, Array, Array, Array, bool]:
         """The snapshot's body vectors, references, sigmas and ``3 x 3`` noise covariances,
-        stacked (empty if none)."""
+        stacked (empty if none), and whether any measurement gave full covariances."""
         parts = []
         if snapshot is not None:
             self.check_types(snapshot.types)
             parts = snapshot.of_type(VectorMeasurement)
         if not parts:
-            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3, 3))
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3, 3)), False
         return (
             np.concatenate([m.z.reshape(-1, 3) for m in parts]),
             np.concatenate([m.reference for m in parts]),
             np.concatenate([m.sigma for m in parts]),
             np.concatenate([_vector_blocks(m) for m in parts]),
+            any(m.noise_covariance.ndim == 2 for m in parts),
         )
 
 
