@@ -315,18 +315,15 @@ class Recovery(ABC):
         """After the monitor's ``verdict`` (:data:`LOST`, :data:`STILL_LOST` or
         :data:`INCONSISTENT`): :data:`RESTARTED`, :data:`WAIT` or :data:`INFLATE`."""
 
-    @property
-    def pending(self) -> bool:
-        """Whether the filter's start still awaits its check (:func:`filter_result` flags
-        the epochs ``converging``); none by default."""
-        return False
+    def after_update(self, counts: Mapping[str, float]) -> None:  # noqa: B027 (optional hook)
+        """Called with the counts of every update the filter made itself; nothing by
+        default."""
 
     @property
-    def unconfirmed(self) -> bool:
-        """Whether the filter went on from its prior after a check that found no single
-        frame to confirm it (:func:`filter_result` flags the epochs to a whole window of
-        updates after ``converging``); never by default."""
-        return False
+    def pending(self) -> str:
+        """Why the filter's start still awaits its check (:func:`filter_result` flags the
+        epochs ``converging: <why>``); empty if it does not, as by default."""
+        return ""
 
 
 def inconsistent_epochs(
@@ -559,8 +556,7 @@ def run_filter(
     record = EpochRecord(t.size, filter.state, filter.diagnostics)
     history = _HistoryRecorder(t.size, filter) if filter.smoothable else None
     lost = np.zeros(t.size, dtype=bool)
-    pending = np.zeros(t.size, dtype=bool)
-    unconfirmed = np.zeros(t.size, dtype=bool)
+    pending = np.full(t.size, "", dtype=object)
     for k, (time, measurement) in enumerate(zip(t, measurements, strict=True)):
         counts = filter.predict(float(time))
         if history is not None:
@@ -569,8 +565,7 @@ def run_filter(
         if updated is not None:
             counts = _merged(counts, updated)
         lost[k] = monitor.lost
-        pending[k] = recovery is not None and recovery.pending
-        unconfirmed[k] = recovery is not None and recovery.unconfirmed
+        pending[k] = "" if recovery is None else recovery.pending
         if not record.store(k, filter, counts):
             break
         if history is not None:
@@ -585,7 +580,6 @@ def run_filter(
         lost,
         settling=True,
         pending=pending,
-        unconfirmed=unconfirmed,
     )
 
 
@@ -605,6 +599,8 @@ def _update(
     counts = filter.update(measurement)
     if counts is None:
         return None
+    if recovery is not None:
+        recovery.after_update(counts)
     verdict = monitor.due(counts)
     if verdict is None and monitor.lost:
         verdict = STILL_LOST
@@ -620,21 +616,6 @@ def _update(
     return counts
 
 
-def contradicted_start(
-    unconfirmed: NDArray[np.bool_], diagnostics: Mapping[str, Array]
-) -> NDArray[np.bool_]:
-    """The first epoch of ``unconfirmed`` (a filter going on from a prior no single frame
-    confirmed) if its update rejected at least as many observations as it used
-    (:func:`rejected_epoch`, the lost-track monitor's rule for an epoch), else none."""
-    start = np.zeros(unconfirmed.size, dtype=bool)
-    if unconfirmed.any():
-        k = np.argmax(unconfirmed)
-        start[k] = rejected_epoch(
-            *(diagnostics[name][k] for name in ("n_gated", "n_used", "n_unpredictable"))
-        )
-    return start
-
-
 def filter_result(
     method: str,
     record: EpochRecord,
@@ -644,8 +625,7 @@ def filter_result(
     lost: NDArray[np.bool_] | None = None,
     tested: str = "innovations of the last {window} updates",
     settling: bool = False,
-    pending: NDArray[np.bool_] | None = None,
-    unconfirmed: NDArray[np.bool_] | None = None,
+    pending: NDArray[np.object_] | None = None,
 ) -> Track:
     """Assemble a recursive estimator's :class:`~attopt.solvers.results.Track` at the
     epochs ``t``, flagging epochs by these rules (in this order of precedence):
@@ -656,19 +636,15 @@ def filter_result(
     * a lost track (``lost``, from the :class:`TrackMonitor`; before the next rule,
       since the recovery's inflation by ``recover_sigma`` is its consequence);
     * an attitude 1-sigma above ``options.max_attitude_sigma``;
-    * a start not yet checked (``pending``: the recovery's
-      :attr:`Recovery.pending`, a start from a prior wider than
-      ``options.max_attitude_sigma`` that no single frame has yet confirmed);
+    * a start not yet checked (``pending``: the recovery's :attr:`Recovery.pending`, why
+      the epoch awaits a single frame: a start from a prior wider than
+      ``options.max_attitude_sigma``, or one its first update contradicted, that no single
+      frame has yet confirmed), ``converging: <why>``;
     * a restarted filter still converging (:func:`converging_epochs` of the record's
       ``restarts``, when it has them and ``options.consistency_window`` is not 0), or one
       that re-acquired a lost track without a restart (the epochs from the first after
       ``lost`` to the ``consistency_window``-th update since: its first updates are
-      linearised where the filter drifted to while lost), or one that went on from its
-      prior after a check that found no single frame to confirm it (``unconfirmed``,
-      the recovery's :attr:`Recovery.unconfirmed`) and whose update there rejected at
-      least as many observations as it used (:func:`contradicted_start`: the
-      observations contradict the prior, which no window of innovations has tested
-      yet; from that epoch to the ``consistency_window``-th update), or,
+      linearised where the filter drifted to while lost), or,
       with ``settling`` (the sequential loop's filters), one whose attitude sigma has
       fallen below ``options.max_attitude_sigma`` fewer than
       ``options.consistency_window`` updates before (its consistency test has not yet
@@ -706,10 +682,8 @@ def filter_result(
         f"attitude not determined: 1-sigma above {np.degrees(options.max_attitude_sigma):g} deg"
     )
     if pending is not None:
-        reason[pending & (reason == "")] = (
-            f"converging: started from a prior wider than "
-            f"{np.degrees(options.max_attitude_sigma):g} deg that no single frame has confirmed yet"
-        )
+        waiting = (pending != "") & (reason == "")
+        reason[waiting] = "converging: " + pending[waiting]
     inconsistent = np.zeros(record.n, dtype=bool)
     if {"nis", "nis_dof"} <= set(record.diagnostics) and options.consistency_window:
         nis, dof = record.diagnostics["nis"], record.diagnostics["nis_dof"]
@@ -719,10 +693,6 @@ def filter_result(
             begun["restarted from a single-frame solution"] = restarts > 0
         if lost is not None:
             begun["re-acquired after a lost track"] = np.r_[False, lost[:-1] & ~lost[1:]]
-        if unconfirmed is not None:
-            begun["a prior no single frame confirmed, contradicted by its first update"] = (
-                contradicted_start(unconfirmed, record.diagnostics)
-            )
         for what, epochs in begun.items():
             converging = converging_epochs(nis, dof, epochs, options.consistency_window)
             reason[converging & (reason == "")] = (

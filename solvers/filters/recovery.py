@@ -22,14 +22,15 @@ The MEKF and USQUE (:mod:`attopt.solvers.filters.estimators`) run through
   measured in ``adsb-sky``'s quick run: a 29 deg prior error against 10 deg
   sigmas left the MEKF 20-99 deg off for 240 s, NEES up to 35).  When that epoch has no
   single frame (a measurement that does not determine every axis, or one whose residuals
-  fail their test), the filter goes on from the prior unconfirmed
-  (:attr:`SingleFrameRecovery.unconfirmed`); if its update there rejects at least as many
-  observations as it uses, the measurements contradict the prior, and the epochs to a
-  whole window of updates later are flagged ``converging``
-  (:func:`~attopt.solvers.sequential.contradicted_start`): measured in ``adsb-sky``'s
-  quick run under the real sky, USQUE's first epoch was reported valid 40 deg off (NEES
-  40), its update using 1 of 87 SNRs (84 unpredictable at the prior's attitude, 2
-  gated).
+  fail their test), the filter goes on from the prior unconfirmed; if its update there
+  rejects at least as many observations as it uses (:func:`~attopt.solvers.sequential.
+  rejected_epoch`), the measurements contradict the prior, and the filter waits for a
+  single frame as from a wide prior (below; :meth:`SingleFrameRecovery.after_update`).
+  Measured in ``adsb-sky``'s quick run under the real sky: USQUE's first epoch was
+  reported valid 40 deg off (NEES 40), its update using 1 of 87 SNRs (84 unpredictable at
+  the prior's attitude, 2 gated); and on a test pass with one vector per epoch for 60 s
+  and a prior 70-80 deg off (10 deg sigmas), flagging only the window of updates after
+  that epoch left 33-34 later epochs valid beyond the integrity quantile.
 * **Start against a wide prior** (an attitude sigma above ``max_attitude_sigma``: the
   prior does not determine the attitude): when the first measurement epoch has no single
   frame, the check waits for the first epoch whose measurement alone determines every axis
@@ -90,6 +91,7 @@ a measurement the model does not fit (a burst of outliers) gives no restart.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,6 +113,7 @@ from attopt.solvers.sequential import (
     Recovery,
     SequentialFilter,
     largest_attitude_sigma,
+    rejected_epoch,
 )
 
 Array = NDArray[np.float64]
@@ -284,11 +287,14 @@ class SingleFrameRecovery(Recovery):
         started: whether the filter has an attitude (a prior, or a single frame).
         checked: whether the first measurement epoch (from a ``wide`` prior, the first
             that determines every axis) has been checked against the prior.
-        wide: the prior's attitude sigma exceeds ``options.max_attitude_sigma``
-            (:attr:`pending`).
+        wide: the prior's attitude sigma exceeds ``options.max_attitude_sigma``, or the
+            first update from an unconfirmed prior contradicted it (``contradicted``):
+            the check waits for an epoch that determines every axis (:attr:`pending`).
         seen: whether a measurement epoch has been seen (the first is always tried).
-        unconfirmed: whether the check of the prior found no single frame and the filter
-            went on from the prior (:attr:`~attopt.solvers.sequential.Recovery.unconfirmed`).
+        unconfirmed: the check of the prior found no single frame and the filter went on
+            from the prior; the update that follows has not been judged yet
+            (:meth:`after_update`).
+        contradicted: that update rejected at least as many observations as it used.
     """
 
     options: FilterOptions
@@ -298,6 +304,7 @@ class SingleFrameRecovery(Recovery):
     wide: bool = False
     seen: bool = False
     unconfirmed: bool = False
+    contradicted: bool = False
 
     @classmethod
     def of(cls, options: FilterOptions, start: Prior, started: bool) -> SingleFrameRecovery:
@@ -310,10 +317,18 @@ class SingleFrameRecovery(Recovery):
         return cls(options, covariance[3:, 3:], started, checked, wide)
 
     @property
-    def pending(self) -> bool:
-        """A start from a ``wide`` prior that no single frame has checked yet (module
-        docstring)."""
-        return self.wide and not self.checked
+    def pending(self) -> str:
+        """Why the start awaits a single frame: a ``wide`` prior, or one its first update
+        contradicted, that no single frame has checked yet (module docstring); else
+        empty."""
+        if not self.wide or self.checked:
+            return ""
+        if self.contradicted:
+            return "a prior no single frame confirmed, contradicted by its first update"
+        return (
+            f"started from a prior wider than {np.degrees(self.options.max_attitude_sigma):g} "
+            "deg that no single frame has confirmed yet"
+        )
 
     def before_update(
         self, filter: SequentialFilter, measurement: AttitudeMeasurement
@@ -350,6 +365,19 @@ class SingleFrameRecovery(Recovery):
             return self._apply(filter, frame)
         return fuse(filter, frame)
 
+    def after_update(self, counts: Mapping[str, float]) -> None:
+        """The update after going on from an unconfirmed prior: if it rejected at least as
+        many observations as it used (:func:`~attopt.solvers.sequential.rejected_epoch`),
+        the prior is contradicted, and the filter waits for a single frame as from a wide
+        prior (module docstring)."""
+        if not self.unconfirmed:
+            return
+        self.unconfirmed = False
+        names = ("n_gated", "n_used", "n_unpredictable")
+        if rejected_epoch(*(counts.get(name, 0.0) for name in names)):
+            self.contradicted = self.wide = True
+            self.checked = False
+
     def restart(
         self, filter: SequentialFilter, measurement: AttitudeMeasurement, verdict: str
     ) -> str:
@@ -365,6 +393,7 @@ class SingleFrameRecovery(Recovery):
             filter, frame, self.options.consistency_false_alarm
         ):
             return WAIT
+        self.checked = True  # a single frame now gives the attitude
         self._apply(filter, frame, updated=True)
         return RESTARTED
 
