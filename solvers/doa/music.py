@@ -39,7 +39,7 @@ of 76-120), and ``theta`` is biased by up to 0.05-0.18 of its sigma, depending o
 the direction: a single estimate hardly shows it, but a filter or smoother that
 averages hundreds of them does (measured on ``doa-ground``'s pass, ``docs/doa.md``:
 a gyro-aided MEKF and Yang et al. 2014's RTS pass beyond the 1 - 1e-4 quantile
-14-27 times as often as a consistent estimator).  So below the threshold the
+11-27 times as often as a consistent estimator).  So below the threshold the
 covariance is the CRB times :attr:`MusicEstimator.threshold_variance_factor` (2),
 the widening measured to make those filters consistent there, and
 ``diagnostics["below_threshold"]`` marks such estimates for the estimators that
