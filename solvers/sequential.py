@@ -571,16 +571,7 @@ def run_filter(
         if history is not None:
             history.filtered_attitude[k] = filter.attitude_values()
     backward = None if history is None else history.history(record)
-    return filter_result(
-        method,
-        record,
-        options,
-        t,
-        backward,
-        lost,
-        settling=True,
-        pending=pending,
-    )
+    return filter_result(method, record, options, t, backward, lost, settling=True, pending=pending)
 
 
 def _update(
