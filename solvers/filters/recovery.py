@@ -285,11 +285,12 @@ class SingleFrameRecovery(Recovery):
         bias_covariance: ``(3, 3)`` the prior's bias covariance, added to the filter's by a
             re-acquisition.
         started: whether the filter has an attitude (a prior, or a single frame).
-        checked: whether the first measurement epoch (from a ``wide`` prior, the first
+        checked: whether the first measurement epoch (with :attr:`awaits_frame`, the first
             that determines every axis) has been checked against the prior.
-        wide: the prior's attitude sigma exceeds ``options.max_attitude_sigma``, or the
-            first update from an unconfirmed prior contradicted it (``contradicted``):
-            the check waits for an epoch that determines every axis (:attr:`pending`).
+        awaits_frame: the check waits for an epoch that determines every axis
+            (:attr:`pending`): the prior's attitude sigma exceeds
+            ``options.max_attitude_sigma``, or the first update from an unconfirmed prior
+            contradicted it (``contradicted``).
         seen: whether a measurement epoch has been seen (the first is always tried).
         unconfirmed: the check of the prior found no single frame and the filter went on
             from the prior; the update that follows has not been judged yet
@@ -301,7 +302,7 @@ class SingleFrameRecovery(Recovery):
     bias_covariance: Array
     started: bool = True
     checked: bool = False
-    wide: bool = False
+    awaits_frame: bool = False
     seen: bool = False
     unconfirmed: bool = False
     contradicted: bool = False
@@ -314,14 +315,14 @@ class SingleFrameRecovery(Recovery):
         checked = options.recovery != "restart"
         sigma = largest_attitude_sigma(covariance[:3, :3])
         wide = started and not checked and bool(sigma > options.max_attitude_sigma)
-        return cls(options, covariance[3:, 3:], started, checked, wide)
+        return cls(options, covariance[3:, 3:], started, checked, awaits_frame=wide)
 
     @property
     def pending(self) -> str:
-        """Why the start awaits a single frame: a ``wide`` prior, or one its first update
-        contradicted, that no single frame has checked yet (module docstring); else
-        empty."""
-        if not self.wide or self.checked:
+        """Why the start awaits a single frame: a prior wider than the limit, or one its
+        first update contradicted, that no single frame has checked yet (module
+        docstring); else empty."""
+        if not self.awaits_frame or self.checked:
             return ""
         if self.contradicted:
             return "a prior no single frame confirmed, contradicted by its first update"
@@ -335,14 +336,14 @@ class SingleFrameRecovery(Recovery):
     ) -> dict[str, float] | None:
         """Without a start: start from the epoch's single frame (or wait for one); at the
         first measurement epoch: restart if the prior contradicts its single frame, else
-        update with the single frame (:func:`fuse`); from a ``wide`` prior without a single
-        frame there, at the first epoch whose measurement alone determines every axis
+        update with the single frame (:func:`fuse`); with :attr:`awaits_frame` (no single
+        frame there), at the first epoch whose measurement alone determines every axis
         (:func:`determines`): restart from its single frame as a re-acquisition does
         (module docstring)."""
         if self.started and self.checked:
             return None
         first, self.seen = not self.seen, True
-        if self.wide and not first and not determines(filter, measurement, self.options):
+        if self.awaits_frame and not first and not determines(filter, measurement, self.options):
             return None
         frame = filter_frame(filter, measurement, self.options)
         if not self.started:
@@ -353,7 +354,7 @@ class SingleFrameRecovery(Recovery):
         if not isinstance(frame, SingleFrame):
             # no frame: checked, unless a wide prior awaits an epoch that determines the
             # attitude (after the first epoch, this one does: it passed the test above)
-            self.checked = not (self.wide and first) or determines(
+            self.checked = not (self.awaits_frame and first) or determines(
                 filter, measurement, self.options
             )
             self.unconfirmed = self.checked
@@ -375,7 +376,7 @@ class SingleFrameRecovery(Recovery):
         self.unconfirmed = False
         names = ("n_gated", "n_used", "n_unpredictable")
         if rejected_epoch(*(counts.get(name, 0.0) for name in names)):
-            self.contradicted = self.wide = True
+            self.contradicted = self.awaits_frame = True
             self.checked = False
 
     def restart(
