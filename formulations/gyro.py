@@ -64,7 +64,7 @@ from scipy.spatial.transform import Rotation
 
 Array = NDArray[np.float64]
 
-_SERIES_LIMIT = 1e-3
+SERIES_LIMIT = 1e-3
 """Below this ``|omega dt|`` (rad) the closed forms use their Taylor series."""
 
 
@@ -158,13 +158,13 @@ def error_state_transition(rate: ArrayLike, dt: ArrayLike) -> Array:
     1)``.  ``Phi11 = exp(-[w x] dt)`` (the rotation matrix of the attitude
     increment) and ``Phi12 = int_0^dt exp(-[w x] s) ds``
     (Markley and Crassidis 2014, eqs. 6.83-6.84), by Taylor series below
-    :data:`_SERIES_LIMIT`.
+    :data:`SERIES_LIMIT`.
     """
     w = np.asarray(rate, dtype=float)
     angle = np.linalg.norm(w, axis=-1)[..., None, None] * dt
     cross = _cross_matrices(w) * dt
     cross2 = cross @ cross
-    small = angle < _SERIES_LIMIT
+    small = angle < SERIES_LIMIT
     safe = np.where(small, 1.0, angle)
     # (1 - cos x) / x^2 and (x - sin x) / x^3 and sin x / x
     c1 = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)

@@ -276,3 +276,16 @@ def _process_directory() -> Path:
     directory = Path(tempfile.mkdtemp(prefix="attopt-kernels-"))
     atexit.register(shutil.rmtree, directory, ignore_errors=True)
     return directory
+
+
+def report_compilation(label: str, seconds: float, stats: object) -> bool:
+    """Print the cost of a first call that compiled a numba loop (``stats``, the loop's
+    ``.stats``, count a cache miss), as the CasADi kernels' compilation is printed; nothing
+    when it was loaded from numba's cache.  Returns whether it printed."""
+    if not sum(stats.cache_misses.values()):
+        return False
+    print(
+        f"attopt: compiled {label} in {seconds:.2f} s (once per machine, in {stats.cache_path})",
+        file=sys.stderr,
+    )
+    return True

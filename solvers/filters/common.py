@@ -72,6 +72,7 @@ from attopt.formulations.quaternion_algebra import (
     to_mrp,
 )
 from attopt.solvers.estimator import Estimator
+from attopt.solvers.filters import compiled
 from attopt.solvers.gyro_timeline import (
     COINCIDENCE,
     GyroTimeline,
@@ -485,8 +486,18 @@ def propagate_covariance(
     ``Phi_j`` is :func:`~attopt.formulations.gyro.error_state_transition`, ``Q_j`` the
     step's :func:`step_noise` (with the gap growth ``hold_variance``).
     """
-    total = np.eye(STATE_SIZE)
     noise = step_noise(model, dt, hold_variance)
+    if compiled.enabled():
+        return compiled.covariance_steps(np.ascontiguousarray(covariance), rates, dt, noise)
+    return covariance_steps(covariance, rates, dt, noise)
+
+
+def covariance_steps(
+    covariance: Array, rates: Array, dt: Array, noise: Array
+) -> tuple[Array, Array]:
+    """The numpy reference of :func:`attopt.solvers.filters.compiled.covariance_steps`:
+    ``P <- Phi_j P Phi_j^T + Q_j`` over the steps, and the product of the ``Phi_j``."""
+    total = np.eye(STATE_SIZE)
     for phi, q in zip(error_state_transition(rates, dt[:, None, None]), noise, strict=True):
         covariance = phi @ covariance @ phi.T + q
         total = phi @ total
@@ -756,6 +767,18 @@ def propagate_quaternion(quaternion: Array, rates: Array, dt: ArrayLike) -> Arra
     ``4 x 4`` matrix product per step, later steps on the left)."""
     rates = np.asarray(rates, dtype=float)
     dt = np.asarray(dt, dtype=float)
+    if compiled.enabled():
+        quaternions = np.atleast_2d(np.asarray(quaternion, dtype=float))
+        stacked = np.broadcast_to(rates, (quaternions.shape[0], *rates.shape[-2:]))
+        steps = np.broadcast_to(dt, rates.shape[-2:-1])
+        out = compiled.quaternion_steps(quaternions, np.ascontiguousarray(stacked), steps.copy())
+        return out.reshape(np.shape(quaternion))
+    return quaternion_steps(quaternion, rates, dt)
+
+
+def quaternion_steps(quaternion: Array, rates: Array, dt: Array) -> Array:
+    """The numpy reference of :func:`attopt.solvers.filters.compiled.quaternion_steps`
+    (:func:`propagate_quaternion`'s arguments)."""
     steps = left_matrices(from_rotation_vector(-rates * (dt[..., None] if dt.ndim else dt)))
     total = np.asarray(quaternion, dtype=float)[..., None]
     for j in range(rates.shape[-2]):

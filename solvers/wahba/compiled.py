@@ -29,7 +29,8 @@ The helpers are inlined into each method's loop (numba counts the references of 
 array passed to a function that is not, which cost more than a QUEST solve), one loop
 per method.  numba caches the machine code on disk beside this module (``__pycache__``,
 or ``$NUMBA_CACHE_DIR``): the first call of a method on a machine compiles its loop
-(5-10 s, printed on standard error by :func:`report_compilation`), later processes load it
+(5-10 s, printed on standard error by
+:func:`~attopt.formulations.kernels.report_compilation`), later processes load it
 (0.01-0.2 s).
 
 Example::
@@ -46,7 +47,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 import time
 from functools import cache
 from typing import NamedTuple
@@ -55,7 +55,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV
+from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV, report_compilation
 from attopt.formulations.vector_observations import (
     BAD_WEIGHT,
     BODY_PARALLEL,
@@ -158,26 +158,14 @@ def solve_epochs(
     )
     if method not in _READY:
         _READY.add(method)
-        report_compilation(NAMES[method], time.perf_counter() - start, loop.stats)
+        report_compilation(
+            f"the {NAMES[method]} Wahba loop", time.perf_counter() - start, loop.stats
+        )
     return out
 
 
 _READY: set[int] = set()
 """The methods whose loop this process has called (compiled or loaded)."""
-
-
-def report_compilation(name: str, seconds: float, stats: object) -> bool:
-    """Print the cost of a first call that compiled the loop (numba's ``stats`` count a
-    cache miss), as the measurement kernels do; nothing when it was loaded from the
-    cache.  Returns whether it printed."""
-    if not sum(stats.cache_misses.values()):
-        return False
-    print(
-        f"attopt: compiled the {name} Wahba loop in {seconds:.2f} s "
-        f"(once per machine, in {stats.cache_path})",
-        file=sys.stderr,
-    )
-    return True
 
 
 @_jit

@@ -1,0 +1,108 @@
+"""The filters' compiled gyro propagation against its numpy reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
+
+from attopt.formulations.gyro import MEMS_GYRO, SERIES_LIMIT
+from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV
+from attopt.solvers.filters import common, compiled
+
+# Rate scales (rad/s) over 0.1 s steps: angles below, at and far above the series limit.
+SCALES = st.sampled_from([0.0, 1e-7, 0.5 * SERIES_LIMIT / 0.1, SERIES_LIMIT / 0.1, 0.05, 2.0])
+
+
+def _draw(seed: int, scale: float, k: int) -> tuple[np.ndarray, ...]:
+    rng = np.random.default_rng(seed)
+    rates = rng.normal(size=(k, 3)) * scale
+    dt = rng.uniform(0.02, 0.2, size=k)
+    a = rng.normal(size=(6, 6))
+    covariance = a @ a.T + 1e-3 * np.eye(6)
+    noise = common.step_noise(MEMS_GYRO, dt, rng.uniform(0.0, 1e-8, size=k))
+    return rates, dt, covariance, noise
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=SCALES, k=st.integers(0, 25))
+def test_compiled_covariance_steps_equal_the_numpy_reference(
+    seed: int, scale: float, k: int
+) -> None:
+    rates, dt, covariance, noise = _draw(seed, scale, k)
+    p, total = compiled.covariance_steps(covariance, rates, dt, noise)
+    p_ref, total_ref = common.covariance_steps(covariance, rates, dt, noise)
+    np.testing.assert_allclose(p, p_ref, rtol=1e-12, atol=1e-12 * np.abs(p_ref).max())
+    np.testing.assert_allclose(total, total_ref, rtol=1e-12, atol=1e-13)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=SCALES, k=st.integers(0, 25))
+def test_compiled_quaternion_steps_equal_the_numpy_reference(
+    seed: int, scale: float, k: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    quaternions = Rotation.random(13, rng=rng).as_quat()
+    rates = rng.normal(size=(13, k, 3)) * scale
+    dt = rng.uniform(0.02, 0.2, size=k)
+    out = compiled.quaternion_steps(quaternions, rates, dt)
+    np.testing.assert_allclose(out, common.quaternion_steps(quaternions, rates, dt), atol=1e-14)
+
+
+def test_a_pass_of_steps_matches_scipy_and_the_closed_form_transition() -> None:
+    """600 steps at a real rate: the attitude equals scipy's chain of increments, and the
+    transitions' product the product of ``error_state_transition`` (independent code)."""
+    rng = np.random.default_rng(3)
+    rates = np.array([0.01, -0.02, 0.005]) + 1e-3 * rng.normal(size=(600, 3))
+    dt = np.full(600, 0.1)
+    start = Rotation.from_rotvec([0.3, -0.2, 1.0])
+    expected = start
+    for w in rates:
+        expected = Rotation.from_rotvec(-w * 0.1) * expected
+    out = compiled.quaternion_steps(start.as_quat()[None], rates[None], dt)[0]
+    assert (Rotation.from_quat(out) * expected.inv()).magnitude() < 1e-12
+    _, total = compiled.covariance_steps(np.eye(6), rates, dt, np.zeros((600, 6, 6)))
+    from attopt.formulations.gyro import error_state_transition
+
+    product = np.eye(6)
+    for w in rates:
+        product = error_state_transition(w, 0.1) @ product
+    np.testing.assert_allclose(total, product, atol=1e-12)
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_the_dispatch_keeps_shapes_and_values(
+    monkeypatch: pytest.MonkeyPatch, enabled: bool
+) -> None:
+    """``propagate_quaternion`` and ``propagate_covariance`` give the same values on either
+    path, for one quaternion, a stack, rates shared by the stack, a scalar step and no
+    steps."""
+    monkeypatch.setattr(compiled, "enabled", lambda: enabled)
+    rng = np.random.default_rng(5)
+    one, stack = Rotation.random(rng=rng).as_quat(), Rotation.random(4, rng=rng).as_quat()
+    rates, own = 0.1 * rng.normal(size=(7, 3)), 0.1 * rng.normal(size=(4, 7, 3))
+    dt = np.full(7, 0.1)
+    cases = [(one, rates, dt), (one, rates, 0.1), (stack, own, dt), (stack, rates, dt)]
+    cases.append((one, rates[:0], dt[:0]))
+    for quaternion, r, step in cases:
+        out = common.propagate_quaternion(quaternion, r, step)
+        reference = common.quaternion_steps(quaternion, np.asarray(r), np.asarray(step))
+        assert out.shape == np.shape(quaternion)
+        np.testing.assert_allclose(out, reference, atol=1e-14)
+    p, total = common.propagate_covariance(np.eye(6), rates, np.zeros(7), MEMS_GYRO, dt)
+    p_ref, total_ref = common.covariance_steps(
+        np.eye(6), rates, dt, common.step_noise(MEMS_GYRO, dt, np.zeros(7))
+    )
+    np.testing.assert_allclose(p, p_ref, rtol=1e-12)
+    np.testing.assert_allclose(total, total_ref, rtol=1e-12, atol=1e-15)
+
+
+def test_the_interpreted_setting_turns_the_compiled_path_off(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv(KERNELS_ENV, INTERPRETED)
+    assert not compiled.enabled.__wrapped__()
+    monkeypatch.delenv(KERNELS_ENV)
+    assert compiled.enabled.__wrapped__()
