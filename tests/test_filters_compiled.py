@@ -106,3 +106,14 @@ def test_the_interpreted_setting_turns_the_compiled_path_off(
     assert not compiled.enabled.__wrapped__()
     monkeypatch.delenv(KERNELS_ENV)
     assert compiled.enabled.__wrapped__()
+
+
+def test_the_propagation_benchmark_prints_both_paths_and_their_agreement(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from attopt.experiments.benchmarks import propagation
+
+    propagation.main(["--runs", "1", "--calls", "3", "--steps", "4"])
+    rows = [line for line in capsys.readouterr().out.splitlines() if "prediction |" in line]
+    assert [row.split(" | ")[0] for row in rows] == ["| MEKF prediction", "| USQUE prediction"]
+    assert all(float(row.split(" | ")[-1].rstrip(" |")) <= 1e-12 for row in rows)

@@ -1,0 +1,106 @@
+"""Benchmark of the filters' compiled gyro propagation (:mod:`attopt.solvers.filters.compiled`).
+
+``python -m attopt.experiments.benchmarks.propagation [--runs 5] [--steps 10] [--calls
+2000]`` times one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a
+few deg/s) two ways in the same process and run: the numpy reference
+(:func:`~attopt.solvers.filters.common.covariance_steps`,
+:func:`~attopt.solvers.filters.common.quaternion_steps`) and the compiled loops.  Two
+cases: the MEKF's (the covariance and one attitude) and USQUE's (the process noise over
+the steps from a zero covariance, and the 13 sigma attitudes).  It prints the median,
+minimum and maximum over ``--runs`` of the mean time per prediction (``--calls`` calls
+each), the ratio of the medians, and the largest difference between the two paths'
+outputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from attopt.formulations.gyro import MEMS_GYRO
+from attopt.solvers.filters import common, compiled
+
+
+def _inputs(steps: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    dt = np.full(steps, 0.1)
+    a = rng.normal(size=(6, 6))
+    return {
+        "rates": np.radians([1.0, -2.0, 0.5]) + 1e-3 * rng.normal(size=(steps, 3)),
+        "dt": dt,
+        "covariance": 1e-4 * (a @ a.T + np.eye(6)),
+        "noise": common.step_noise(MEMS_GYRO, dt, np.zeros(steps)),
+        "attitude": Rotation.random(rng=rng).as_quat()[None],
+        "sigma": Rotation.random(13, rng=rng).as_quat(),
+    }
+
+
+def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]]:
+    """Per case, the numpy and compiled predictions (the same arguments)."""
+    sigma_rates = np.ascontiguousarray(np.broadcast_to(x["rates"], (13, *x["rates"].shape)))
+    zero = np.zeros((6, 6))
+
+    def mekf(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
+        return lambda: (
+            *covariance_steps(x["covariance"], x["rates"], x["dt"], x["noise"]),
+            quaternion_steps(x["attitude"], x["rates"][None], x["dt"]),
+        )
+
+    def usque(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
+        return lambda: (
+            covariance_steps(zero, x["rates"], x["dt"], x["noise"])[0],
+            quaternion_steps(x["sigma"], sigma_rates, x["dt"]),
+        )
+
+    paths = {
+        "numpy": (common.covariance_steps, common.quaternion_steps),
+        "compiled": (compiled.covariance_steps, compiled.quaternion_steps),
+    }
+    return {
+        "MEKF prediction": {name: mekf(*f) for name, f in paths.items()},
+        "USQUE prediction": {name: usque(*f) for name, f in paths.items()},
+    }
+
+
+def _time(call: Callable[[], tuple], runs: int, calls: int) -> list[float]:
+    call()  # compile or load, warm up
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        for _ in range(calls):
+            call()
+        times.append((time.perf_counter() - start) / calls * 1e6)
+    return times
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--calls", type=int, default=2000)
+    args = parser.parse_args(argv)
+    print(f"{args.steps} gyro steps per prediction; us per prediction, median (min-max)")
+    print("| case | numpy | compiled | numpy / compiled | largest difference |")
+    print("|---|---|---|---|---|")
+    for case, paths in _cases(_inputs(args.steps)).items():
+        numpy_times = _time(paths["numpy"], args.runs, args.calls)
+        compiled_times = _time(paths["compiled"], args.runs, args.calls)
+        difference = max(
+            float(np.max(np.abs(a - b), initial=0.0))
+            for a, b in zip(paths["numpy"](), paths["compiled"](), strict=True)
+        )
+        cells = [
+            f"{statistics.median(t):.1f} ({min(t):.1f}-{max(t):.1f})"
+            for t in (numpy_times, compiled_times)
+        ]
+        ratio = statistics.median(numpy_times) / statistics.median(compiled_times)
+        print(f"| {case} | {cells[0]} | {cells[1]} | {ratio:.1f}x | {difference:.1e} |")
+
+
+if __name__ == "__main__":
+    main()
