@@ -310,6 +310,26 @@ def _near_coplanar_lines_of_sight(boresight, tilt, out_of_plane):
     return body / np.linalg.norm(body, axis=1, keepdims=True)
 
 
+def test_the_second_minimum_is_found_when_the_cones_are_exactly_symmetric():
+    """The symmetric geometry below gives ``g . v_1`` of zero or of round-off, depending on
+    the machine's arithmetic: the second minimum must be the same either way."""
+    from attopt.solvers.snr.boresight import _second_minimum
+
+    b = BORESIGHTS[0]
+    los = _near_coplanar_lines_of_sight(b, np.radians(20.0), 0.01)
+    w = np.full(3, 0.01) ** -2
+    s, v = np.linalg.eigh(los.T @ (w[:, None] * los))
+    gamma = v.T @ (los.T @ (w * (los @ b)))
+    found = []
+    for residue in (0.0, 1e-12 * np.abs(gamma).max()):
+        gamma[1] = residue
+        second = _second_minimum(s - s[0], v, gamma)
+        assert second is not None
+        found.append(second)
+    assert np.linalg.norm(found[0] - found[1]) < 1e-9
+    assert abs(np.degrees(np.arccos(found[0] @ b)) - 40.0) < 2.0
+
+
 def test_boresight_second_minimum_within_the_gate_is_reported():
     """Noise-free cones of three nearly coplanar lines of sight: the global fit is the
     true boresight, and its mirror image 40 deg away is a second minimum whose cost is

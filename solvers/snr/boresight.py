@@ -181,10 +181,13 @@ def _second_minimum(shift: Array, v: Array, gamma: Array) -> Array | None:
     second minimum has ``t`` in ``(-shift_1, 0)`` (``lambda`` between the two smallest
     eigenvalues), where ``|b(t)|^2`` is convex with poles at both ends: it exists only
     if that minimum of ``|b(t)|^2`` is below 1, and is the root whose Hessian on the
-    tangent plane, ``T^T (M - lambda I) T``, is positive definite.
+    tangent plane, ``T^T (M - lambda I) T``, is positive definite.  Where ``gamma_1 = 0``
+    (the cones symmetric about ``v_1``'s plane, as exactly as round-off makes them)
+    ``|b(t)|^2`` has no pole at ``-shift_1`` but stays convex on the interval, and the
+    search is the same.
     """
     width = float(shift[1])
-    if not width > 0.0 or gamma[0] == 0.0 or gamma[1] == 0.0:
+    if not width > 0.0 or gamma[0] == 0.0:
         return None
 
     def excess(t: float) -> float:
