@@ -54,9 +54,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from pathlib import Path
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
@@ -65,6 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 from attopt.cache import cache_directory
 
 Array = NDArray[np.float64]
+T = TypeVar("T")
 
 logger = logging.getLogger(__name__)
 
@@ -278,6 +281,14 @@ def _process_directory() -> Path:
     return directory
 
 
+@cache
+def compiled_loops() -> bool:
+    """Whether the numba loops (the Wahba solvers', the filters' propagation) are used: not
+    disabled by :data:`KERNELS_ENV`, read once per process (reading the environment costs a
+    tenth of a compiled call)."""
+    return os.environ.get(KERNELS_ENV, "").lower() != INTERPRETED
+
+
 def report_compilation(label: str, seconds: float, stats: object) -> bool:
     """Print the cost of a first call that compiled a numba loop (``stats``, the loop's
     ``.stats``, count a cache miss), as the CasADi kernels' compilation is printed; nothing
@@ -289,3 +300,19 @@ def report_compilation(label: str, seconds: float, stats: object) -> bool:
         file=sys.stderr,
     )
     return True
+
+
+_CALLED: set[str] = set()
+"""The labels of the numba loops this process has called (compiled or loaded)."""
+
+
+def first_call(loop: Callable[..., T], label: str, *args: object) -> T:
+    """``loop(*args)`` (a numba loop), printing by :func:`report_compilation` what compiling
+    it cost if this is the process's first call of ``label``."""
+    if label in _CALLED:
+        return loop(*args)
+    start = time.perf_counter()
+    out = loop(*args)
+    _CALLED.add(label)
+    report_compilation(label, time.perf_counter() - start, loop.stats)
+    return out

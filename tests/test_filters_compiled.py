@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -9,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.gyro import MEMS_GYRO, SERIES_LIMIT
-from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV
+from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV, compiled_loops, first_call
 from attopt.solvers.filters import common, compiled
 
 # Rate scales (rad/s) over 0.1 s steps: angles below, at and far above the series limit.
@@ -79,7 +81,7 @@ def test_the_dispatch_keeps_shapes_and_values(
     """``propagate_quaternion`` and ``propagate_covariance`` give the same values on either
     path, for one quaternion, a stack, rates shared by the stack, a scalar step and no
     steps."""
-    monkeypatch.setattr(compiled, "enabled", lambda: enabled)
+    monkeypatch.setattr(common, "compiled_loops", lambda: enabled)
     rng = np.random.default_rng(5)
     one, stack = Rotation.random(rng=rng).as_quat(), Rotation.random(4, rng=rng).as_quat()
     rates, own = 0.1 * rng.normal(size=(7, 3)), 0.1 * rng.normal(size=(4, 7, 3))
@@ -103,9 +105,28 @@ def test_the_interpreted_setting_turns_the_compiled_path_off(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     monkeypatch.setenv(KERNELS_ENV, INTERPRETED)
-    assert not compiled.enabled.__wrapped__()
+    assert not compiled_loops.__wrapped__()
     monkeypatch.delenv(KERNELS_ENV)
-    assert compiled.enabled.__wrapped__()
+    assert compiled_loops.__wrapped__()
+
+
+def test_a_loops_compilation_is_printed_at_its_first_call_only(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """``first_call`` reports a loop whose first call compiled it (a cache miss), once per
+    label; the result is the loop's either way."""
+
+    class Loop:
+        stats = SimpleNamespace(cache_misses={"sig": 1}, cache_path="/cache")
+
+        def __call__(self, x: float) -> float:
+            return 2.0 * x
+
+    label = "a test loop that compiles"
+    assert first_call(Loop(), label, 1.5) == 3.0
+    assert first_call(Loop(), label, 2.0) == 4.0
+    printed = capsys.readouterr().err
+    assert printed.count(f"attopt: compiled {label} in ") == 1 and "/cache" in printed
 
 
 def test_the_propagation_benchmark_prints_both_paths_and_their_agreement(

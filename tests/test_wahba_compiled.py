@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.errors import ConvergenceError
+from attopt.formulations.kernels import compiled_loops
 from attopt.solvers.wahba import ESTIMATORS, Q_METHOD, compiled
 from attopt.solvers.wahba.driver import solve_compiled
 
@@ -29,7 +30,7 @@ its Rayleigh refinement, so either path of it can be that far from the optimum (
 1e-3 rad on an epoch with ``lambda_0 / gap = 2.4e7``, where the SVD agrees with the numpy
 q-method to 1e-9 rad)."""
 pytestmark = pytest.mark.skipif(
-    not compiled.enabled(), reason="ATTOPT_KERNELS=interpreted: the compiled path is off"
+    not compiled_loops(), reason="ATTOPT_KERNELS=interpreted: the compiled path is off"
 )
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

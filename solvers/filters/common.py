@@ -62,6 +62,7 @@ from scipy.stats import chi2
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
 from attopt.formulations.gyro import GyroModel, GyroSamples, error_state_transition
+from attopt.formulations.kernels import compiled_loops
 from attopt.formulations.passes import GyroRecord, Pass, Prior
 from attopt.formulations.quaternion_algebra import (
     compose,
@@ -487,7 +488,7 @@ def propagate_covariance(
     step's :func:`step_noise` (with the gap growth ``hold_variance``).
     """
     noise = step_noise(model, dt, hold_variance)
-    if compiled.enabled():
+    if compiled_loops():
         return compiled.covariance_steps(np.ascontiguousarray(covariance), rates, dt, noise)
     return covariance_steps(covariance, rates, dt, noise)
 
@@ -767,7 +768,7 @@ def propagate_quaternion(quaternion: Array, rates: Array, dt: ArrayLike) -> Arra
     ``4 x 4`` matrix product per step, later steps on the left)."""
     rates = np.asarray(rates, dtype=float)
     dt = np.asarray(dt, dtype=float)
-    if compiled.enabled():
+    if compiled_loops():
         quaternions = np.atleast_2d(np.asarray(quaternion, dtype=float))
         stacked = np.broadcast_to(rates, (quaternions.shape[0], *rates.shape[-2:]))
         steps = np.broadcast_to(dt, rates.shape[-2:-1])

@@ -35,29 +35,18 @@ Example::
 from __future__ import annotations
 
 import math
-import os
-import time
-from collections.abc import Callable
-from functools import cache
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
 from attopt.formulations.gyro import SERIES_LIMIT
-from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV, report_compilation
+from attopt.formulations.kernels import first_call
 
 Array = NDArray[np.float64]
 
 _jit = njit(cache=True, error_model="numpy")
 """numba's compilation, cached on disk, with numpy's float semantics."""
-
-
-@cache
-def enabled() -> bool:
-    """Whether the compiled propagation is used: not disabled by ``ATTOPT_KERNELS=
-    interpreted``, read once per process."""
-    return os.environ.get(KERNELS_ENV, "").lower() != INTERPRETED
 
 
 @_jit
@@ -94,7 +83,9 @@ def covariance_steps(
     ``dt`` ``(k,)`` and noises ``noise`` ``(k, 6, 6)``, and the product ``Phi_k ... Phi_1``
     (:func:`attopt.solvers.filters.common.propagate_covariance`); C-contiguous float
     arrays (numba compiles one loop per layout)."""
-    return _first_call(_covariance_steps, "covariance", covariance, rates, dt, noise)
+    return first_call(
+        _covariance_steps, "the filters' covariance propagation loop", covariance, rates, dt, noise
+    )
 
 
 def quaternion_steps(quaternions: Array, rates: Array, dt: Array) -> Array:
@@ -102,24 +93,9 @@ def quaternion_steps(quaternions: Array, rates: Array, dt: Array) -> Array:
     own ``rates[i]`` ``(K, k, 3)`` with lengths ``dt`` ``(k,)``: ``q <- exp(-[w_j x] dt_j)
     q``, the increment's quaternion composed on the left
     (:func:`attopt.solvers.filters.common.propagate_quaternion`)."""
-    return _first_call(_quaternion_steps, "quaternion", quaternions, rates, dt)
-
-
-_READY: set[str] = set()
-"""The loops this process has called (compiled or loaded)."""
-
-
-def _first_call(loop: Callable, name: str, *args: Array) -> object:
-    """``loop(*args)``, printing the compilation's cost if this first call compiled it."""
-    if name in _READY:
-        return loop(*args)
-    start = time.perf_counter()
-    out = loop(*args)
-    _READY.add(name)
-    report_compilation(
-        f"the filters' {name} propagation loop", time.perf_counter() - start, loop.stats
+    return first_call(
+        _quaternion_steps, "the filters' quaternion propagation loop", quaternions, rates, dt
     )
-    return out
 
 
 @_jit

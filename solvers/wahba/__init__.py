@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, VectorMeasurement
+from attopt.formulations.kernels import compiled_loops
 from attopt.formulations.passes import Prior
 from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.vector_observations import (
@@ -146,7 +147,8 @@ class WahbaSolver(SnapshotEstimator):
         (:func:`~attopt.formulations.wahba_covariance.anisotropic_covariance`); TRIAD's
         stays eq. 11's with the weights' isotropic variances.
         """
-        if self.kernel is not None and compiled_path.enabled():
+        batch = None
+        if self.kernel is not None and compiled_loops():
             batch = as_batch(body, reference, weights, present)
             track = solve_compiled(
                 self.name, self.kernel, self.failure, batch, self.parallel_tolerance
@@ -158,14 +160,14 @@ class WahbaSolver(SnapshotEstimator):
             track = solve_prepared(self.name, self.estimate, obs)
         if vector_covariance is None or not self.optimal or not track.valid.any():
             return track
-        return _with_vector_covariance(
-            track, as_batch(body, reference, weights, present), vector_covariance
-        )
+        if batch is None:
+            batch = as_batch(body, reference, weights, present)
+        return _with_vector_covariance(track, batch, vector_covariance)
 
     def solve_vectors(self, body: ArrayLike, reference: ArrayLike, weights: ArrayLike) -> Solution:
         """Solve one epoch (``(n, 3)`` vectors, weights as in :meth:`solve_batch`); raises a
         specific error on bad input."""
-        if self.kernel is not None and compiled_path.enabled():
+        if self.kernel is not None and compiled_loops():
             epoch = as_batch(body, reference, weights, None)
             _check_one_epoch(epoch[0].shape[0])
             return solve_one_compiled(

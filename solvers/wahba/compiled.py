@@ -46,16 +46,13 @@ Example::
 from __future__ import annotations
 
 import math
-import os
-import time
-from functools import cache
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV, report_compilation
+from attopt.formulations.kernels import first_call
 from attopt.formulations.vector_observations import (
     BAD_WEIGHT,
     BODY_PARALLEL,
@@ -92,13 +89,6 @@ JACOBI_SWEEPS = 20
 EPS = np.finfo(float).eps
 EPS2 = EPS**2
 """Jacobi stops when the off-diagonal's squared norm is below ``EPS2`` times ``K``'s."""
-
-
-@cache
-def enabled() -> bool:
-    """Whether the compiled path is used: not disabled by ``ATTOPT_KERNELS=interpreted``,
-    read once per process (reading the environment costs a tenth of a compiled call)."""
-    return os.environ.get(KERNELS_ENV, "").lower() != INTERPRETED
 
 
 COLUMNS = 19
@@ -145,10 +135,10 @@ def solve_epochs(
     :func:`~attopt.formulations.vector_observations.as_batch` returns them) by ``method``:
     the ``(N, COLUMNS)`` buffer of :data:`COLUMNS` (:meth:`Solved.of` splits it)."""
     out = np.empty((weights.shape[0], COLUMNS))
-    loop = _SOLVE[method]
-    start = time.perf_counter()
     # C-contiguous inputs: numba compiles (and caches) one loop per array layout.
-    loop(
+    first_call(
+        _SOLVE[method],
+        f"the {NAMES[method]} Wahba loop",
         np.ascontiguousarray(body),
         np.ascontiguousarray(reference),
         np.ascontiguousarray(weights),
@@ -156,16 +146,7 @@ def solve_epochs(
         tolerance,
         out,
     )
-    if method not in _READY:
-        _READY.add(method)
-        report_compilation(
-            f"the {NAMES[method]} Wahba loop", time.perf_counter() - start, loop.stats
-        )
     return out
-
-
-_READY: set[int] = set()
-"""The methods whose loop this process has called (compiled or loaded)."""
 
 
 @_jit
