@@ -32,7 +32,24 @@ diagnostic summed.  At each epoch :func:`start_verdict`:
   a whole window of updates (``window``, the consistency test's,
   :func:`~attopt.solvers.sequential.converging_epochs`): runs that join each other do so
   with what their linearisation left them (measured on a noise-free 1,200 s pass from the
-  paper's start: NEES 21-24 in the first six epochs that pass).
+  paper's start: NEES 21-24 in the first six epochs that pass);
+* and, for a filter that keeps its history
+  (:attr:`~attopt.solvers.results.Track.history`), only once the disagreement it had at
+  the last failing epoch ``k`` has died out in its own error dynamics
+  (:func:`carried_epochs`): each plausible run's error-state difference ``d_i(k)`` is
+  carried by the filter's closed-loop error transition ``M_j = P_j|j P_j|j-1^-1 Phi_j``
+  (:func:`closed_loop_transitions`: the linear map of an error before epoch ``j``'s
+  prediction onto the error after its update, since ``I - K_j H_j = P_j|j P_j|j-1^-1``),
+  ``d_i(m) = M_m ... M_k+1 d_i(k)``, until it lies within the reported error state's
+  covariance by the same shift, and the epochs are flagged up to the last at which its
+  attitude part lies outside the attitude covariance.  The runs themselves join faster
+  than that: the nonlinear filter draws every start onto the same estimate, so their
+  agreement does not say that the truth's error has died out.  Measured in ``doa-ground``
+  (``Q = 1e-9``, 0 dB, L = 1000, the paper's start): the runs agree from t = 231 s, when
+  the error about the one station's line of sight is still 25 deg against a 1-sigma of 5
+  deg (NEES 26); it falls to 4 deg by t = 400 s, and the carried differences keep the
+  epochs flagged until t = 591 s (the EKF's largest valid NEES 26 -> 10, its RTS pass's 40
+  -> 5, on an 800 s pass).
 
 A second check needs no other start: an update that absorbs an outlier (a MUSIC DOA from
 an ambiguous peak) moves the estimate by more than its covariance then says, and no later
@@ -49,7 +66,7 @@ raises (a diverging rate) explains nothing and is left out.  A smoother over the
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
@@ -61,7 +78,7 @@ from scipy.stats import chi2, ncx2
 
 from attopt.formulations.errors import ModelMismatchError
 from attopt.solvers.results import Track, attitude_errors, normalised_errors
-from attopt.solvers.sequential import converging_epochs
+from attopt.solvers.sequential import FilterHistory, converging_epochs
 
 Array = NDArray[np.float64]
 
@@ -81,6 +98,13 @@ PULLED = f"inconsistent: the run with Huber-weighted updates lies {OUTSIDE}"
 """The reason of an epoch the robust run fails (an outlier the Gaussian update absorbed)."""
 SETTLING = "converging: fewer than {window} updates since another run last lay " + OUTSIDE
 """The reason of an epoch within ``window`` updates after the last it failed."""
+CARRIED = (
+    "converging: the difference of a run that lay "
+    + OUTSIDE
+    + ", carried by this filter's error dynamics, still lies outside it"
+)
+"""The reason of an epoch before the differences of the last it failed have died out in the
+filter's error dynamics (:func:`carried_epochs`)."""
 
 
 @lru_cache(maxsize=3)
@@ -175,6 +199,125 @@ def start_verdict(
     return reason
 
 
+def closed_loop_transitions(history: FilterHistory) -> Array:
+    """``(N, s, s)``: the filter's error transition through each epoch's prediction and
+    update, ``M_j = P_j|j P_j|j-1^-1 Phi_j`` (``I - K_j H_j = P_j|j P_j|j-1^-1`` for the
+    Kalman gain; ``M_j = Phi_j`` at an epoch without an update), NaN where the history is
+    not finite.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.sequential import FilterHistory
+        >>> from attopt.solvers.start_hypotheses import closed_loop_transitions
+        >>> predicted, filtered = 4.0 * np.eye(6)[None], np.eye(6)[None]
+        >>> history = FilterHistory(None, None, predicted, np.eye(6)[None], None, None, filtered)
+        >>> float(closed_loop_transitions(history)[0, 0, 0])
+        0.25
+    """
+    predicted = np.asarray(history.predicted_covariance, dtype=float)
+    filtered = np.asarray(history.filtered_covariance, dtype=float)
+    transition = np.asarray(history.transition, dtype=float)
+    finite = (
+        np.isfinite(predicted).all(axis=(1, 2))
+        & np.isfinite(filtered).all(axis=(1, 2))
+        & np.isfinite(transition).all(axis=(1, 2))
+    )
+    result = np.full(predicted.shape, np.nan)
+    # P_f P_p^-1 = (P_p^-1 P_f)^T for the symmetric covariances
+    gain = np.swapaxes(np.linalg.solve(predicted[finite], filtered[finite]), 1, 2)
+    result[finite] = gain @ transition[finite]
+    return result
+
+
+def carried_epochs(
+    covariance: Array,
+    attitude: slice,
+    differences: Mapping[int, Array],
+    limit: float,
+    transitions: Array,
+) -> NDArray[np.bool_]:
+    """The epochs from each of ``differences``' epoch to the last at which, carried by the
+    reported run's closed-loop ``transitions`` (``(N, s, s)``,
+    :func:`closed_loop_transitions` of its history; module docstring), it lies outside the
+    reported attitude covariance (the ``attitude`` block of the error-state
+    ``covariance``, ``(N, s, s)``).
+
+    ``differences`` maps an epoch ``k`` to ``(s, r)`` error states at ``k`` of other runs
+    relative to the reported run's.  Each is carried from ``k`` while its noncentrality in
+    the whole error state, ``d^T P^-1 d``, exceeds ``limit`` (:func:`largest_shift`): the
+    whole state's bounds the attitude block's, which can pass through zero while the
+    difference lives on in the rate or bias and turns back into attitude (measured in
+    ``doa-ground``: the attitude block's alone falls within the limit at t = 305-325 s and
+    is back at 27 by t = 430 s).  The epochs flagged run from ``k`` to the last at which the
+    attitude block's noncentrality ``d_a^T P_a^-1 d_a`` exceeds ``limit`` (none when it
+    never does), through any passage within it.  The carrying of all of them stops at an
+    epoch with a non-finite transition or covariance (the filter's track ends there).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.start_hypotheses import carried_epochs
+        >>> unit, halving = np.tile(np.eye(3), (6, 1, 1)), np.tile(0.5 * np.eye(3), (6, 1, 1))
+        >>> difference = {0: np.array([[4.0], [0.0], [0.0]])}  # halved: 2, 1, 0.5, ...
+        >>> carried_epochs(unit, slice(0, 3), difference, 1.17, halving).tolist()
+        [False, True, False, False, False, False]
+    """
+    n = len(covariance)
+    flagged = np.zeros(n, dtype=bool)
+    pending = dict(differences)
+    size = transitions.shape[-1]
+    carried, origin, reach = np.zeros((size, 0)), np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+
+    def settle(keep: NDArray[np.bool_]) -> None:
+        """Flag the reach of the columns not kept, and keep the others."""
+        nonlocal carried, origin, reach
+        for start, stop in zip(origin[~keep], reach[~keep], strict=True):
+            flagged[start + 1 : stop + 1] = True
+        carried, origin, reach = carried[:, keep], origin[keep], reach[keep]
+
+    m = min(pending, default=n)
+    while m < n - 1:
+        if m in pending:
+            added = pending.pop(m)
+            carried = np.hstack([carried, added])
+            origin = np.r_[origin, np.full(added.shape[1], m)]
+            reach = np.r_[reach, np.full(added.shape[1], m)]
+        if not carried.shape[1]:
+            if not pending:
+                break
+            m = min(pending)
+            continue
+        m += 1
+        carried = transitions[m] @ carried
+        if not (np.isfinite(carried).all() and np.isfinite(covariance[m]).all()):
+            settle(np.zeros(carried.shape[1], dtype=bool))
+            continue
+        error = carried[attitude]
+        block = covariance[m][attitude, attitude]
+        outside = np.einsum("ir,ir->r", error, np.linalg.solve(block, error)) > limit
+        reach[outside] = m
+        settle(np.einsum("ir,ir->r", carried, np.linalg.solve(covariance[m], carried)) > limit)
+    settle(np.zeros(carried.shape[1], dtype=bool))
+    return flagged
+
+
+def _differences(reported: Track, runs: Sequence[Track], k: int) -> Array:
+    """``(s, r)``: the error states at epoch ``k`` of ``runs`` relative to ``reported``'s
+    (attitude: :func:`~attopt.solvers.results.attitude_errors`; the other block: the
+    difference), in ``reported``'s state order."""
+    other = next(name for name in reported.state if name != "attitude")
+    differences = np.zeros((reported.state_covariance.shape[-1], len(runs)))
+    quaternions = np.array([run.quaternion[k] for run in runs])
+    differences[reported.block("attitude")] = attitude_errors(
+        quaternions, Rotation.from_quat(np.tile(reported.quaternion[k], (len(runs), 1)))
+    ).T
+    differences[reported.block(other)] = np.array(
+        [getattr(run, other)[k] - getattr(reported, other)[k] for run in runs]
+    ).T
+    return differences
+
+
 @dataclass(frozen=True)
 class StartCheck:
     """A filter's runs from its start hypotheses, kept in the checked track's ``report``.
@@ -221,10 +364,40 @@ def checked(check: StartCheck, whole_pass: bool = False, reported: Track | None 
     settling = converging_epochs(
         reported.diagnostics["nis"], reported.diagnostics["nis_dof"], last, check.window
     )
+    carried = _carried(reported, runs, check, whole_pass, np.flatnonzero(last))
     flagged = reported.flagged(reason == AMBIGUOUS, AMBIGUOUS)
     flagged = flagged.flagged(reason == PULLED, PULLED, ModelMismatchError)
     flagged = flagged.flagged(settling, SETTLING.format(window=check.window))
+    flagged = flagged.flagged(carried, CARRIED)
     return replace(flagged, report=check)
+
+
+def _carried(
+    reported: Track,
+    runs: Sequence[Track],
+    check: StartCheck,
+    whole_pass: bool,
+    last_failures: NDArray[np.intp],
+) -> NDArray[np.bool_]:
+    """:func:`carried_epochs` from the differences, at the last epoch of each failing
+    stretch (``last_failures``), of the runs plausible and valid there; none for a track
+    without a history."""
+    if reported.history is None or not last_failures.size:
+        return np.zeros(len(reported), dtype=bool)
+    plausible = _plausible(runs, check.false_alarm, whole_pass)
+    differences = {}
+    for k in last_failures:
+        keep = plausible[1:, k]
+        compared = [run for run, kept in zip(runs[1:], keep, strict=True) if kept and run.valid[k]]
+        if compared:
+            differences[int(k)] = _differences(reported, compared, k)
+    return carried_epochs(
+        reported.state_covariance,
+        reported.block("attitude"),
+        differences,
+        largest_shift(check.exceedance),
+        closed_loop_transitions(reported.history),
+    )
 
 
 def unchecked(track: Track) -> Track:
