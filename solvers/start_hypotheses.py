@@ -224,8 +224,10 @@ def closed_loop_transitions(history: FilterHistory) -> Array:
         & np.isfinite(transition).all(axis=(1, 2))
     )
     result = np.full(predicted.shape, np.nan)
-    # P_f P_p^-1 = (P_p^-1 P_f)^T for the symmetric covariances
-    gain = np.swapaxes(np.linalg.solve(predicted[finite], filtered[finite]), 1, 2)
+    try:  # P_f P_p^-1 = (P_p^-1 P_f)^T for the symmetric covariances
+        gain = np.swapaxes(np.linalg.solve(predicted[finite], filtered[finite]), 1, 2)
+    except np.linalg.LinAlgError:  # a singular prediction (no process noise, a zero prior)
+        gain = filtered[finite] @ np.linalg.pinv(predicted[finite], hermitian=True)
     result[finite] = gain @ transition[finite]
     return result
 

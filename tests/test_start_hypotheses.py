@@ -248,6 +248,10 @@ def test_closed_loop_transitions_are_the_kalman_update_after_the_transition(seed
     np.testing.assert_allclose(closed[1], transition[1], rtol=1e-10, atol=1e-12)
     history.transition[1, 0, 0] = np.nan
     assert np.isnan(closed_loop_transitions(history)[1]).all()
+    # a singular prediction (a state without noise): the pseudo-inverse's map, finite
+    history.predicted_covariance[0, 5, :] = history.predicted_covariance[0, :, 5] = 0.0
+    history.filtered_covariance[0, 5, :] = history.filtered_covariance[0, :, 5] = 0.0
+    assert np.isfinite(closed_loop_transitions(history)[0]).all()
 
 
 def test_carried_differences_are_flagged_to_their_last_passage_outside_the_attitude():
