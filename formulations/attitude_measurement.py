@@ -382,7 +382,9 @@ class VectorMeasurement(AttitudeMeasurement):
             b = np.array(body, dtype=float).reshape(-1, 3)
             r = np.array(reference, dtype=float).reshape(-1, 3)
             if covariance is None:
-                s = np.broadcast_to(np.asarray(sigma, dtype=float), (b.shape[0],))
+                s = np.asarray(sigma, dtype=float)
+                if s.shape != (b.shape[0],):
+                    s = np.broadcast_to(s, (b.shape[0],))
             else:
                 c = np.broadcast_to(np.asarray(covariance, dtype=float), (b.shape[0], 3, 3))
         except ValueError as exc:
@@ -391,24 +393,28 @@ class VectorMeasurement(AttitudeMeasurement):
             ) from None
         if r.shape != b.shape:
             raise InvalidObservationError(f"body {b.shape} and reference {r.shape} differ")
+        # ndarray methods, not np.all / np.repeat: a pass builds one of these per epoch
         keep = np.isfinite(b).all(axis=1) & np.isfinite(r).all(axis=1)
-        self.reference = r[keep]
-        self.z = b[keep].ravel()
-        self.blocks = np.repeat(np.arange(int(keep.sum())), 3)
+        if not keep.all():
+            b, r = b[keep], r[keep]
+        self.reference = r
+        self.z = b.ravel()
+        self.blocks = np.arange(b.shape[0]).repeat(3)
         if covariance is None:
-            if not (np.all(np.isfinite(s[keep])) and np.all(s[keep] > 0)):
+            s = s[keep]
+            if not ((s > 0.0) & (s < np.inf)).all():  # NaN fails both
                 raise InvalidObservationError(
                     "vector standard deviations must be finite and positive"
                 )
-            self.sigma = s[keep].copy()
-            self.noise_covariance = np.repeat(s[keep] ** 2, 3)
+            self.sigma = s
+            self.noise_covariance = (s**2).repeat(3)
             return
         c = c[keep]
         if not np.all(np.isfinite(c)) or not np.allclose(c, c.transpose(0, 2, 1)):
             raise InvalidObservationError("vector covariances must be finite and symmetric")
         if c.shape[0] and np.linalg.eigvalsh(c).min() <= 0:
             raise InvalidObservationError("vector covariances must be positive definite")
-        unit = b[keep] / np.linalg.norm(b[keep], axis=1, keepdims=True)
+        unit = b / np.linalg.norm(b, axis=1, keepdims=True)
         perpendicular = np.eye(3) - unit[:, :, None] * unit[:, None, :]
         self.sigma = np.sqrt(np.einsum("kij,kjl,kli->k", perpendicular, c, perpendicular) / 2.0)
         self.noise_covariance = block_diag(*c) if c.shape[0] else np.zeros((0, 0))

@@ -270,6 +270,23 @@ def test_vector_measurement_drops_nan_vectors():
     assert values.shape == (1, 6) and jacobian.shape == (1, 6, 3)
 
 
+def test_vector_measurement_with_covariances_drops_nan_vectors_as_if_never_given():
+    """With full covariances, a NaN vector is dropped with its covariance: the measurement
+    equals the one of the other vectors alone (isotropic sigmas from the right rows)."""
+    rng = np.random.default_rng(2)
+    reference = _unit_vectors(rng, 4)
+    body = Rotation.from_rotvec([0.01, -0.02, 0.03]).apply(reference)
+    factor = rng.normal(size=(4, 3, 3))
+    covariance = 1e-6 * (factor @ factor.transpose(0, 2, 1) + np.eye(3))
+    body_with_nan = body.copy()
+    body_with_nan[1, 2] = np.nan
+    kept = [0, 2, 3]
+    measurement = VectorMeasurement(body_with_nan, reference, covariance=covariance)
+    alone = VectorMeasurement(body[kept], reference[kept], covariance=covariance[kept])
+    for name in ("z", "reference", "sigma", "noise_covariance", "blocks"):
+        np.testing.assert_array_equal(getattr(measurement, name), getattr(alone, name))
+
+
 def test_referenced_measurement_is_inner_at_attitude_times_frame_inverse():
     rng = np.random.default_rng(6)
     reference = _unit_vectors(rng, 3)
