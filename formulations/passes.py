@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -321,7 +322,12 @@ class Pass:
         return [None if s is None else s.measurement() for s in self.snapshots]
 
     def types(self) -> frozenset[type[AttitudeMeasurement]]:
-        """Every measurement class in the pass."""
+        """Every measurement class in the pass (found once: a pass does not change, and
+        every estimator checks them)."""
+        return self._types
+
+    @cached_property
+    def _types(self) -> frozenset[type[AttitudeMeasurement]]:
         return frozenset().union(*(s.types for s in self.snapshots if s is not None))
 
     def __repr__(self) -> str:
