@@ -99,9 +99,8 @@ PULLED = f"inconsistent: the run with Huber-weighted updates lies {OUTSIDE}"
 SETTLING = "converging: fewer than {window} updates since another run last lay " + OUTSIDE
 """The reason of an epoch within ``window`` updates after the last it failed."""
 CARRIED = (
-    "converging: the difference of a run that lay "
-    + OUTSIDE
-    + ", carried by this filter's error dynamics, still lies outside it"
+    "converging: a run's difference from the last epoch it lay outside, carried by this "
+    "filter's error dynamics, still lies " + OUTSIDE
 )
 """The reason of an epoch before the differences of the last it failed have died out in the
 filter's error dynamics (:func:`carried_epochs`)."""
@@ -423,7 +422,8 @@ def unchecked(track: Track) -> Track:
 
 def flagged_by_start_check(reason: ArrayLike) -> NDArray[np.bool_]:
     """Which of the epochs' ``reason`` are the check's (:data:`AMBIGUOUS`, :data:`PULLED`,
-    :data:`SETTLING`): their estimates exist (the unchecked run's) but are not confirmed.
+    :data:`SETTLING`, :data:`CARRIED`): their estimates exist (the unchecked run's) but are
+    not confirmed.
 
     Example::
 

@@ -144,7 +144,7 @@ def test_checked_flags_and_then_waits_a_window_before_an_epoch_counts():
     assert all(reason.startswith("converging: fewer than 3 updates") for reason in settling)
     assert np.isnan(track.quaternion[:5]).all() and np.isnan(track.rate[:5]).all()
     assert flagged_by_start_check(track.reason).tolist() == [True] * 5 + [False] * 3
-    assert flagged_by_start_check([PULLED]).all()
+    assert flagged_by_start_check([PULLED, CARRIED]).all()
     assert not flagged_by_start_check(["converging: restarted", "inconsistent"]).any()
     assert track.report is check and checked(StartCheck((reported,), 1e-6, 3)) is reported
     assert unchecked(track) is reported and unchecked(reported) is reported
