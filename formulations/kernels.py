@@ -99,9 +99,14 @@ def compiler() -> str | None:
     return shutil.which(os.environ.get("CC") or "cc")
 
 
+def interpreted() -> bool:
+    """Whether :data:`KERNELS_ENV` asks for the interpreted paths (read at each call)."""
+    return os.environ.get(KERNELS_ENV, "").lower() == INTERPRETED
+
+
 def compiled_kernels() -> bool:
     """Whether kernels are compiled: not disabled by :data:`KERNELS_ENV`, and a compiler."""
-    return os.environ.get(KERNELS_ENV, "").lower() != INTERPRETED and compiler() is not None
+    return not interpreted() and compiler() is not None
 
 
 def kernel(function: ca.Function) -> ca.Function:
@@ -286,7 +291,7 @@ def compiled_loops() -> bool:
     """Whether the numba loops (the Wahba solvers', the filters' propagation) are used: not
     disabled by :data:`KERNELS_ENV`, read once per process (reading the environment costs a
     tenth of a compiled call)."""
-    return os.environ.get(KERNELS_ENV, "").lower() != INTERPRETED
+    return not interpreted()
 
 
 def report_compilation(label: str, seconds: float, stats: object) -> bool:

@@ -179,8 +179,14 @@ def start_verdict(
     the whole pass's likelihood at every epoch (smoothed runs).  ``robust``: the run with
     Huber-weighted updates from the same start, compared at every epoch.
     """
+    return _verdict(runs, _plausible(runs, false_alarm, whole_pass), exceedance, robust)
+
+
+def _verdict(
+    runs: Sequence[Track], plausible: NDArray[np.bool_], exceedance: float, robust: Track | None
+) -> NDArray[np.object_]:
+    """:func:`start_verdict` with the runs' plausibility ``plausible`` (:func:`_plausible`)."""
     reported = runs[0]
-    plausible = _plausible(runs, false_alarm, whole_pass)
     reason = np.full(len(reported), "", dtype=object)
     compared = [(run, keep, AMBIGUOUS) for run, keep in zip(runs[1:], plausible[1:], strict=True)]
     if robust is not None:
@@ -359,13 +365,14 @@ def checked(check: StartCheck, whole_pass: bool = False, reported: Track | None 
     if len(check.runs) == 1 and check.robust is None:
         return reported
     runs = (reported, *check.runs[1:])
-    reason = start_verdict(runs, check.false_alarm, check.exceedance, whole_pass, check.robust)
+    plausible = _plausible(runs, check.false_alarm, whole_pass)
+    reason = _verdict(runs, plausible, check.exceedance, check.robust)
     failed = reason != ""
     last = np.append(failed[:-1] & ~failed[1:], False)
     settling = converging_epochs(
         reported.diagnostics["nis"], reported.diagnostics["nis_dof"], last, check.window
     )
-    carried = _carried(reported, runs, check, whole_pass, np.flatnonzero(last))
+    carried = _carried(reported, runs, plausible, check.exceedance, np.flatnonzero(last))
     flagged = reported.flagged(reason == AMBIGUOUS, AMBIGUOUS)
     flagged = flagged.flagged(reason == PULLED, PULLED, ModelMismatchError)
     flagged = flagged.flagged(settling, SETTLING.format(window=check.window))
@@ -376,16 +383,15 @@ def checked(check: StartCheck, whole_pass: bool = False, reported: Track | None 
 def _carried(
     reported: Track,
     runs: Sequence[Track],
-    check: StartCheck,
-    whole_pass: bool,
+    plausible: NDArray[np.bool_],
+    exceedance: float,
     last_failures: NDArray[np.intp],
 ) -> NDArray[np.bool_]:
     """:func:`carried_epochs` from the differences, at the last epoch of each failing
-    stretch (``last_failures``), of the runs plausible and valid there; none for a track
-    without a history."""
+    stretch (``last_failures``), of the runs ``plausible`` and valid there; none for a
+    track without a history."""
     if reported.history is None or not last_failures.size:
         return np.zeros(len(reported), dtype=bool)
-    plausible = _plausible(runs, check.false_alarm, whole_pass)
     differences = {}
     for k in last_failures:
         keep = plausible[1:, k]
@@ -396,7 +402,7 @@ def _carried(
         reported.state_covariance,
         reported.block("attitude"),
         differences,
-        largest_shift(check.exceedance),
+        largest_shift(exceedance),
         closed_loop_transitions(reported.history),
     )
 
