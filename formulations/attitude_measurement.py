@@ -441,15 +441,20 @@ class VectorMeasurement(AttitudeMeasurement):
         return super().predict(attitude)
 
     def innovation(self, predicted: Array) -> Array:
+        # the norms as ndarray sums, the special cases only when present: the filters and
+        # smoothers call this every epoch (same values as np.linalg.norm, bit for bit)
         h = predicted.reshape(*predicted.shape[:-1], -1, 3)
-        unit = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        unit = h / np.sqrt((h * h).sum(axis=-1, keepdims=True))
         z = self.z.reshape(-1, 3)
-        cosine = np.sum(z * unit, axis=-1, keepdims=True)
+        cosine = (z * unit).sum(axis=-1, keepdims=True)
         perpendicular = z - cosine * unit
-        sine = np.linalg.norm(perpendicular, axis=-1, keepdims=True)
+        sine = np.sqrt((perpendicular * perpendicular).sum(axis=-1, keepdims=True))
+        positive = sine > 0
+        if positive.all():
+            return (np.arctan2(sine, cosine) * perpendicular / sine).reshape(predicted.shape)
         with np.errstate(invalid="ignore", divide="ignore"):
             geodesic = np.arctan2(sine, cosine) * perpendicular / sine
-        geodesic = np.where(sine > 0, geodesic, np.where(cosine > 0, 0.0, np.nan))
+        geodesic = np.where(positive, geodesic, np.where(cosine > 0, 0.0, np.nan))
         return geodesic.reshape(predicted.shape)
 
 

@@ -136,14 +136,22 @@ def error_jacobian(delta: ArrayLike) -> Array:
     (Markley and Crassidis 2014, ch. 3; ``B^-1 = 16 B^T / (1 + |p|^2)^2``) for the
     attitude ``C(delta) A`` of :func:`attopt.formulations.attitude_model.increment_matrix`;
     ``I`` at ``delta = 0``.
-    Closed form rather than AD, for speed (every update calls it); the test suite checks
-    it against CasADi's derivative of ``increment_matrix``.
+    Closed form rather than AD, for speed (every update calls it), written out entry by
+    entry (a third of the cost of the matrix expression, the same values to the bit); the
+    test suite checks it against CasADi's derivative of ``increment_matrix``.
     """
     p = np.asarray(delta, dtype=float) / 4.0
     norm2 = float(p @ p)
-    x, y, z = p
-    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return ((1.0 - norm2) * np.eye(3) + 2.0 * cross + 2.0 * np.outer(p, p)) / (1.0 + norm2) ** 2
+    x, y, z = p.tolist()
+    a, d = 1.0 - norm2, (1.0 + norm2) ** 2
+    xy, xz, yz = 2.0 * x * y, 2.0 * x * z, 2.0 * y * z
+    return np.array(
+        [
+            [(a + 2.0 * x * x) / d, (-2.0 * z + xy) / d, (2.0 * y + xz) / d],
+            [(2.0 * z + xy) / d, (a + 2.0 * y * y) / d, (-2.0 * x + yz) / d],
+            [(-2.0 * y + xz) / d, (2.0 * x + yz) / d, (a + 2.0 * z * z) / d],
+        ]
+    )
 
 
 @dataclass(frozen=True)
@@ -510,12 +518,13 @@ def step_noise(model: GyroModel, dt: Array, hold_variance: Array) -> Array:
     growth (:meth:`~attopt.formulations.gyro.GyroModel.process_noise` once per length)."""
     if dt.size == 0:
         return np.zeros((0, STATE_SIZE, STATE_SIZE))
-    if np.all(dt == dt[0]):  # the usual run of whole sampling intervals
+    if (dt == dt[0]).all():  # the usual run of whole sampling intervals
         q = np.repeat(_process_noise(model, float(dt[0]))[None], dt.size, axis=0)
     else:
         lengths, index = np.unique(dt, return_inverse=True)
         q = np.stack([_process_noise(model, float(length)) for length in lengths])[index]
-    q[:, [0, 1, 2], [0, 1, 2]] += hold_variance[:, None]
+    if hold_variance.any():  # a gap: the steps' attitude variance grows
+        q[:, [0, 1, 2], [0, 1, 2]] += hold_variance[:, None]
     return q
 
 
@@ -582,6 +591,28 @@ def kalman_gain(
     projected = h.T @ r_inv_nu
     nis = float(innovation @ r_inv_nu - projected @ posterior @ projected)
     return posterior @ r_inv_h.T, nis, posterior
+
+
+def block_labels(labels: NDArray[np.intp]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The distinct block labels of ``labels`` and each row's index among them
+    (``np.unique(labels, return_inverse=True)``), found once per layout.
+
+    Cached: the filters and smoothers ask it at every epoch, and a pass's epochs repeat a
+    few layouts.  The arrays are shared, not to be modified.
+    """
+    return _block_labels(np.ascontiguousarray(labels, dtype=np.intp).tobytes())
+
+
+@lru_cache(maxsize=1024)
+def _block_labels(labels: bytes) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    ids, index = np.unique(np.frombuffer(labels, dtype=np.intp), return_inverse=True)
+    ids.flags.writeable = index.flags.writeable = False
+    return ids, index
+
+
+def count_blocks(labels: NDArray[np.intp]) -> int:
+    """The number of distinct block labels in ``labels`` (:func:`block_labels`)."""
+    return 0 if labels.size == 0 else int(block_labels(labels)[0].size)
 
 
 @lru_cache(maxsize=1024)
@@ -653,9 +684,11 @@ def gate(
     if probability >= 1.0 or innovation.size == 0:
         return keep
     nis, size = block_nis(innovation, factor, weight, noise, blocks)
+    # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
+    if (size == size[0]).all():  # the usual epoch: blocks of one size
+        return nis <= gate_threshold(probability, int(size[0]))
     sizes, index = np.unique(size, return_inverse=True)
     threshold = np.array([gate_threshold(probability, int(n)) for n in sizes])
-    # not (nis <= threshold): a NaN NIS (non-finite S or innovation) is rejected too
     return nis <= threshold[index]
 
 
@@ -708,7 +741,7 @@ def huber_noise(
         return noise
     nis, _ = block_nis(innovation, factor, weight, noise_subset(noise, rows), blocks)
     weighted, down = robust_noise(noise, rows, nis, options.huber_threshold)
-    counts["n_downweighted"] = float(np.unique(blocks[down]).size)
+    counts["n_downweighted"] = float(count_blocks(blocks[down]))
     return weighted
 
 

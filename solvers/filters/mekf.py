@@ -34,6 +34,7 @@ from attopt.solvers.filters.common import (
     GyroStateFilter,
     PreparedGyro,
     apply_error,
+    count_blocks,
     error_jacobian,
     gate,
     huber_noise,
@@ -151,7 +152,7 @@ def update(
                 blocks[rows],
                 options.gate_probability,
             )
-            counts["n_gated"] = float(np.unique(blocks[rows[~accepted]]).size)
+            counts["n_gated"] = float(count_blocks(blocks[rows[~accepted]]))
             counts["n_nan"], counts["n_unpredictable"] = float(n_nan), float(n_unpredictable)
             rows = rows[accepted]
             if rows.size == 0:
@@ -204,7 +205,7 @@ def update(
     reset = np.eye(n_state)
     reset[:3, :3] = error_jacobian(state[:3])
     covariance, repaired = repair_covariance(reset @ covariance @ reset.T)
-    counts["n_used"] = float(np.unique(blocks[rows]).size)
+    counts["n_used"] = float(count_blocks(blocks[rows]))
     counts["covariance_repairs"] = float(repaired)
     attitude = apply_error(state[:3], attitude)
     return attitude, bias + state[3:STATE_SIZE], covariance, counts, state[STATE_SIZE:]

@@ -140,6 +140,7 @@ from attopt.solvers.filters.common import (
     GyroStateFilter,
     PreparedGyro,
     apply_error,
+    count_blocks,
     error_jacobian,
     gate,
     huber_noise,
@@ -322,13 +323,13 @@ def update(
     accepted = gate(  # (U7) per block
         nu, factor, weight, noise_subset(r_all, rows), blocks, options.gate_probability
     )
-    counts["n_gated"] = float(np.unique(blocks[~accepted]).size)
+    counts["n_gated"] = float(count_blocks(blocks[~accepted]))
     if not accepted.any():
         return attitude, bias, covariance, counts, state[STATE_SIZE:]
     rows, innovations, blocks = rows[accepted], innovations[:, accepted], blocks[accepted]
     nu, factor = nu[accepted], factor[:, accepted]
     slopes = None if slopes is None else slopes[accepted]
-    counts["n_used"] = float(np.unique(blocks).size)
+    counts["n_used"] = float(count_blocks(blocks))
     r_all = huber_noise(r_all, rows, nu, factor, weight, blocks, options, counts)
     r = noise_subset(r_all, rows)
     posterior = covariance

@@ -66,12 +66,21 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement, predict_each
 from attopt.formulations.errors import InvalidObservationError
-from attopt.solvers.filters.common import gate, noise_subset, usable_rows
+from attopt.solvers.filters.common import (
+    block_labels,
+    count_blocks,
+    gate,
+    noise_subset,
+    usable_rows,
+)
 from attopt.solvers.robust import huber_cost, huber_weights
 from attopt.solvers.smoother.conventions import Array, attitude_key, offset_key
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
 UNIT1 = gtsam.noiseModel.Unit.Create(1)
+NO_BLOCKS = np.zeros(0, dtype=np.intp)
+"""No block lost (shared, not to be modified)."""
+NO_BLOCKS.flags.writeable = False
 
 
 FD_STEP = 1e-6
@@ -197,7 +206,7 @@ class EpochFactor:
         """Use ``rows`` from now on (whitener, block labels)."""
         self.rows = rows
         labels = self.measurement.blocks[rows]
-        self.block_ids, self.block_index = np.unique(labels, return_inverse=True)
+        self.block_ids, self.block_index = block_labels(labels)
         if self.noise_diagonal is not None:
             d = self.noise_diagonal[rows]
             if not np.all(d > 0):  # also False for NaN
@@ -264,8 +273,9 @@ class EpochFactor:
         if slope is not None:
             jac = np.column_stack([jac, slope[self.rows]])
         bad = ~(np.isfinite(nu) & np.isfinite(jac).all(axis=1))
-        lost = np.unique(self.measurement.blocks[self.rows[bad]])
-        return nu, jac, lost
+        if not bad.any():
+            return nu, jac, NO_BLOCKS
+        return nu, jac, np.unique(self.measurement.blocks[self.rows[bad]])
 
     def _kept(self, lost: NDArray[np.intp]) -> NDArray[np.bool_]:
         return ~np.isin(self.measurement.blocks[self.rows], lost)
@@ -381,7 +391,7 @@ def evaluate_factors(
 def prepare_factor(
     node: int,
     measurement: AttitudeMeasurement,
-    attitude: Rotation,
+    attitude: Rotation | None,
     attitude_covariance: Array,
     gate_probability: float,
     offset_index: NDArray[np.intp] | None = None,
@@ -394,7 +404,8 @@ def prepare_factor(
     ``prediction`` and ``noise``: the measurement's ``predict`` and ``noise_covariance_at``
     at ``attitude`` when already computed (over a pass by
     :func:`~attopt.formulations.attitude_measurement.predict_each` and
-    :func:`~attopt.formulations.attitude_measurement.noise_covariance_each`).
+    :func:`~attopt.formulations.attitude_measurement.noise_covariance_each`); with both
+    given, ``attitude`` is not used and may be ``None``.
 
     With offsets modelled (``offset_index``, all offsets 0 initially) the gate
     adds the offsets' prior variance to ``R``, so that a transmitter's offset
@@ -431,7 +442,7 @@ def prepare_factor(
         measurement.blocks[rows],
         gate_probability,
     )
-    counts["n_gated"] = float(np.unique(measurement.blocks[rows[~accepted]]).size)
+    counts["n_gated"] = float(count_blocks(measurement.blocks[rows[~accepted]]))
     rows = rows[accepted]
     if rows.size == 0:
         return None, counts

@@ -269,7 +269,7 @@ def build_problem(
         factor, epoch_counts = prepare_factor(
             int(node),
             measurements[k],
-            start.attitudes[node],
+            None,  # predicted and noise already evaluated at start.attitudes[node]
             start.covariance[node, :3, :3],
             rules.gate_probability,
             offset_index[k],
