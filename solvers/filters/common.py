@@ -441,9 +441,10 @@ class GyroStateFilter(SequentialFilter):
         self.offsets = offsets
         self.node = 0
 
-    def advance(self, transition: Array, stop: int) -> None:
+    def advance(self, transition: Array | None, stop: int) -> None:
         """Move to timeline boundary ``stop`` after a propagation with the error state's
-        ``transition``: the offsets' cross-covariance and random walk with it."""
+        ``transition``: the offsets' cross-covariance and random walk with it (``None``:
+        not formed, there being no offsets)."""
         if self.offsets is not None:
             times = self.gyro.timeline.t
             self.offsets.propagate(transition, float(times[stop] - times[self.node]))

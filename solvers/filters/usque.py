@@ -216,12 +216,14 @@ def propagate(
     gyro: PreparedGyro,
     steps: slice,
     model: GyroModel,
-) -> tuple[Rotation, Array, Array, Array, bool]:
+    regress: bool = True,
+) -> tuple[Rotation, Array, Array, Array | None, bool]:
     """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in, and its
     statistical transition ``T(x^-) Phi``, ``Phi = P_{x'x} P^-1`` the regression of the
     propagated sigma points on the drawn ones (:func:`regression`; what carries the
-    offsets' cross-covariance, :mod:`attopt.solvers.filters.offsets`); the last item
-    says whether the covariance was repaired to draw the sigma points."""
+    offsets' cross-covariance, :mod:`attopt.solvers.filters.offsets`; ``None`` unless
+    ``regress``, nothing else needing it); the last item says whether the covariance was
+    repaired to draw the sigma points."""
     rates, dt = gyro.rates[steps], gyro.dt[steps]
     if rates.shape[0] == 0:
         return attitude, bias, covariance, np.eye(STATE_SIZE), False
@@ -239,7 +241,7 @@ def propagate(
     noise = interval_noise(rates - bias, gyro.hold_variance[steps], model, dt)
     covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + noise, mean)  # (U4)
     attitude = Rotation.from_quat(perturb_quaternion(mean[:3], propagated[0]))  # (U5)
-    transition = carry(mean) @ regression(spread, offsets)[0]
+    transition = carry(mean) @ regression(spread, offsets)[0] if regress else None
     return attitude, bias + mean[3:], covariance, transition, repaired
 
 
@@ -425,7 +427,13 @@ class UsqueFilter(GyroStateFilter):
     def predict(self, t: float) -> dict[str, float]:
         stop = self.gyro.node(t)
         self.attitude, self.bias, self.covariance, transition, repaired = propagate(
-            self.attitude, self.bias, self.covariance, self.gyro, slice(self.node, stop), self.model
+            self.attitude,
+            self.bias,
+            self.covariance,
+            self.gyro,
+            slice(self.node, stop),
+            self.model,
+            regress=self.offsets is not None,
         )
         self.advance(transition, stop)
         return {"gyro_gap_s": self.gyro.gap_at(stop), "covariance_repairs": float(repaired)}
