@@ -32,7 +32,6 @@ import cvxpy as cp
 import numpy as np
 from numpy.typing import NDArray
 
-
 _UPPER = np.triu_indices(4)
 """The ten upper-triangle entries ``(i, j)``, ``i <= j``, of a block, row by row."""
 _ENTRIES = _UPPER[0].size
