@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.gyro import MEMS_GYRO, SERIES_LIMIT
 from attopt.formulations.kernels import INTERPRETED, KERNELS_ENV, compiled_loops, first_call
-from attopt.solvers.filters import common, compiled
+from attopt.solvers.filters import common, compiled, usque
 
 # Rate scales (rad/s) over 0.1 s steps: angles below, at and far above the series limit.
 SCALES = st.sampled_from([0.0, 1e-7, 0.5 * SERIES_LIMIT / 0.1, SERIES_LIMIT / 0.1, 0.05, 2.0])
@@ -138,3 +138,46 @@ def test_the_propagation_benchmark_prints_both_paths_and_their_agreement(
     rows = [line for line in capsys.readouterr().out.splitlines() if "prediction |" in line]
     assert [row.split(" | ")[0] for row in rows] == ["| MEKF prediction", "| USQUE prediction"]
     assert all(float(row.split(" | ")[-1].rstrip(" |")) <= 1e-12 for row in rows)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), scale=SCALES, k=st.integers(1, 25))
+def test_compiled_unscented_prediction_equals_the_numpy_reference(
+    seed: int, scale: float, k: int
+) -> None:
+    """USQUE's whole prediction: sigma points of a random covariance (up to tens of
+    degrees), any rates and steps, the attitude, mean, covariance and deviations."""
+    rates, dt, covariance, noise = _draw(seed, scale, k)
+    rng = np.random.default_rng(seed)
+    offsets, _ = usque.sigma_offsets(covariance * rng.uniform(1e-8, 0.3))
+    arguments = (offsets, Rotation.random(rng=rng).as_quat(), 1e-3 * rng.normal(size=3))
+    arguments += (rates, dt, noise)
+    compiled_out = compiled.unscented_prediction(*arguments)
+    for out, reference in zip(compiled_out, usque.unscented_prediction(*arguments), strict=True):
+        np.testing.assert_allclose(out, reference, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_usque_propagate_takes_either_path(monkeypatch: pytest.MonkeyPatch, enabled: bool) -> None:
+    """``usque.propagate`` over ten steps from one state: the same prediction on the numpy
+    and the compiled path, and the statistical transition only when asked for."""
+    monkeypatch.setattr(usque, "compiled_loops", lambda: enabled)
+    rng = np.random.default_rng(11)
+    rates = np.radians([1.0, -2.0, 0.5]) + 1e-3 * rng.normal(size=(10, 3))
+    gyro = SimpleNamespace(rates=rates, dt=np.full(10, 0.1), hold_variance=np.zeros(10))
+    a = rng.normal(size=(6, 6))
+    covariance = 1e-4 * (a @ a.T + np.eye(6))
+    attitude, bias = Rotation.random(rng=rng), 1e-4 * rng.normal(size=3)
+    out = usque.propagate(attitude, bias, covariance, gyro, slice(0, 10), MEMS_GYRO)
+    noise = common.step_noise(MEMS_GYRO, gyro.dt, gyro.hold_variance)
+    offsets, _ = usque.sigma_offsets(covariance)
+    quaternion, mean, expected, _ = usque.unscented_prediction(
+        offsets, attitude.as_quat(), bias, rates, gyro.dt, noise
+    )
+    assert (out[0] * Rotation.from_quat(quaternion).inv()).magnitude() < 1e-14
+    np.testing.assert_allclose(out[1], bias + mean[3:], rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(out[2], expected, rtol=1e-12, atol=1e-20)
+    assert out[3].shape == (6, 6) and not out[4]
+    lean = usque.propagate(attitude, bias, covariance, gyro, slice(0, 10), MEMS_GYRO, False)
+    assert lean[3] is None
+    np.testing.assert_array_equal(lean[2], out[2])

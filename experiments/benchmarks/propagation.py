@@ -4,9 +4,11 @@
 2000]`` times one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a
 few deg/s) two ways in the same process and run: the numpy reference
 (:func:`~attopt.solvers.filters.common.covariance_steps`,
-:func:`~attopt.solvers.filters.common.quaternion_steps`) and the compiled loops.  Two
-cases: the MEKF's (the covariance and one attitude) and USQUE's (the process noise over
-the steps from a zero covariance, and the 13 sigma attitudes).  It prints the median,
+:func:`~attopt.solvers.filters.common.quaternion_steps`,
+:func:`~attopt.solvers.filters.usque.unscented_prediction`) and the compiled loops.  Two
+cases: the MEKF's (the covariance and one attitude) and USQUE's whole prediction (the 13
+sigma attitudes, their mean and covariance, the process noise over the steps from a
+zero covariance).  It prints the median,
 minimum and maximum over ``--runs`` of the mean time per prediction (``--calls`` calls
 each), the ratio of the medians, and the largest difference between the two paths'
 outputs.
@@ -23,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from attopt.formulations.gyro import MEMS_GYRO
-from attopt.solvers.filters import common, compiled
+from attopt.solvers.filters import common, compiled, usque
 
 
 def _inputs(steps: int) -> dict[str, np.ndarray]:
@@ -36,14 +38,14 @@ def _inputs(steps: int) -> dict[str, np.ndarray]:
         "covariance": 1e-4 * (a @ a.T + np.eye(6)),
         "noise": common.step_noise(MEMS_GYRO, dt, np.zeros(steps)),
         "attitude": Rotation.random(rng=rng).as_quat()[None],
-        "sigma": Rotation.random(13, rng=rng).as_quat(),
+        "bias": 1e-4 * rng.normal(size=3),
     }
 
 
 def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]]:
     """Per case, the numpy and compiled predictions (the same arguments)."""
-    sigma_rates = np.ascontiguousarray(np.broadcast_to(x["rates"], (13, *x["rates"].shape)))
-    zero = np.zeros((6, 6))
+    offsets, _ = usque.sigma_offsets(x["covariance"])
+    usque_arguments = (offsets, x["attitude"][0], x["bias"], x["rates"], x["dt"], x["noise"])
 
     def mekf(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
         return lambda: (
@@ -51,19 +53,16 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
             quaternion_steps(x["attitude"], x["rates"][None], x["dt"]),
         )
 
-    def usque(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
-        return lambda: (
-            covariance_steps(zero, x["rates"], x["dt"], x["noise"])[0],
-            quaternion_steps(x["sigma"], sigma_rates, x["dt"]),
-        )
-
     paths = {
         "numpy": (common.covariance_steps, common.quaternion_steps),
         "compiled": (compiled.covariance_steps, compiled.quaternion_steps),
     }
+    usque_paths = {"numpy": usque.unscented_prediction, "compiled": compiled.unscented_prediction}
     return {
         "MEKF prediction": {name: mekf(*f) for name, f in paths.items()},
-        "USQUE prediction": {name: usque(*f) for name, f in paths.items()},
+        "USQUE prediction": {
+            name: (lambda f=f: f(*usque_arguments)) for name, f in usque_paths.items()
+        },
     }
 
 

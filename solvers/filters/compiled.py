@@ -135,3 +135,115 @@ def _quaternion_steps(quaternions: Array, rates: Array, dt: Array) -> Array:
             )
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x, y, z, w
     return out
+
+
+def unscented_prediction(
+    offsets: Array, quaternion: Array, bias: Array, rates: Array, dt: Array, noise: Array
+) -> tuple[Array, Array, Array, Array]:
+    """USQUE's whole prediction (U1)-(U5) in one loop: the propagated attitude's quaternion,
+    the mean error state, the covariance and the sigma points' deviations
+    (:func:`attopt.solvers.filters.usque.unscented_prediction`, the numpy reference, which
+    takes the same arguments)."""
+    from attopt.solvers.filters.usque import COVARIANCE_WEIGHTS, WEIGHTS
+
+    return first_call(
+        _unscented_prediction,
+        "USQUE's prediction loop",
+        np.ascontiguousarray(offsets),
+        np.ascontiguousarray(quaternion, dtype=float),
+        np.ascontiguousarray(bias, dtype=float),
+        np.ascontiguousarray(rates),
+        np.ascontiguousarray(dt),
+        np.ascontiguousarray(noise),
+        WEIGHTS,
+        COVARIANCE_WEIGHTS,
+    )
+
+
+@_jit
+def _perturbed(delta: Array, q: Array, out: Array) -> None:
+    """``out`` = the quaternion of ``from_mrp(delta / 4)`` composed on the left of ``q``
+    (:func:`attopt.solvers.filters.common.perturb_quaternion`)."""
+    p0, p1, p2 = delta[0] / 4.0, delta[1] / 4.0, delta[2] / 4.0
+    norm2 = p0 * p0 + p1 * p1 + p2 * p2
+    a, b, c, d = (
+        2.0 * p0 / (1.0 + norm2),
+        2.0 * p1 / (1.0 + norm2),
+        2.0 * p2 / (1.0 + norm2),
+        (1.0 - norm2) / (1.0 + norm2),
+    )
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    out[0] = d * x - c * y + b * z + a * w
+    out[1] = c * x + d * y - a * z + b * w
+    out[2] = -b * x + a * y + d * z + c * w
+    out[3] = -a * x - b * y - c * z + d * w
+
+
+@_jit
+def _unscented_prediction(
+    offsets: Array,
+    quaternion: Array,
+    bias: Array,
+    rates: Array,
+    dt: Array,
+    noise: Array,
+    weights: Array,
+    covariance_weights: Array,
+) -> tuple[Array, Array, Array, Array]:
+    """:func:`unscented_prediction`'s loop."""
+    n, k = offsets.shape[0], rates.shape[0]
+    sigma = np.empty((n, 4))
+    sigma_rates = np.empty((n, k, 3))
+    for i in range(n):
+        _perturbed(offsets[i, :3], quaternion, sigma[i])  # (U1)
+        for j in range(k):
+            for a in range(3):
+                sigma_rates[i, j, a] = rates[j, a] - (bias[a] + offsets[i, 3 + a])
+    propagated = _quaternion_steps(sigma, sigma_rates, dt)  # (U2)
+    # error vectors 4 p of each point about the first (quaternion_error_vector)
+    x0, y0, z0, w0 = -propagated[0, 0], -propagated[0, 1], -propagated[0, 2], propagated[0, 3]
+    points = np.empty((n, 6))
+    for i in range(n):
+        x, y, z, w = propagated[i, 0], propagated[i, 1], propagated[i, 2], propagated[i, 3]
+        e = (
+            w * x0 - z * y0 + y * z0 + x * w0,
+            z * x0 + w * y0 - x * z0 + y * w0,
+            -y * x0 + x * y0 + w * z0 + z * w0,
+            -x * x0 - y * y0 - z * z0 + w * w0,
+        )
+        sign = math.copysign(1.0, e[3])
+        for a in range(3):
+            points[i, a] = 4.0 * (sign * e[a] / (1.0 + sign * e[3]))
+            points[i, 3 + a] = offsets[i, 3 + a]
+    mean = weights @ points  # (U3)
+    spread = points - mean
+    centred = np.empty((k, 3))
+    for j in range(k):
+        for a in range(3):
+            centred[j, a] = rates[j, a] - bias[a]
+    interval, _ = _covariance_steps(np.zeros((6, 6)), centred, dt, noise)
+    covariance = (covariance_weights * spread.T) @ spread + interval  # (U4)
+    # carried to the folded attitude: T P T^T, T = blockdiag(J(mean), I) (error_jacobian)
+    p0, p1, p2 = mean[0] / 4.0, mean[1] / 4.0, mean[2] / 4.0
+    norm2 = p0 * p0 + p1 * p1 + p2 * p2
+    s, d = 1.0 - norm2, (1.0 + norm2) ** 2
+    reset = np.eye(6)
+    reset[0, 0], reset[0, 1], reset[0, 2] = (
+        (s + 2 * p0 * p0) / d,
+        (-2 * p2 + 2 * p0 * p1) / d,
+        (2 * p1 + 2 * p0 * p2) / d,
+    )
+    reset[1, 0], reset[1, 1], reset[1, 2] = (
+        (2 * p2 + 2 * p0 * p1) / d,
+        (s + 2 * p1 * p1) / d,
+        (-2 * p0 + 2 * p1 * p2) / d,
+    )
+    reset[2, 0], reset[2, 1], reset[2, 2] = (
+        (-2 * p1 + 2 * p0 * p2) / d,
+        (2 * p0 + 2 * p1 * p2) / d,
+        (s + 2 * p2 * p2) / d,
+    )
+    covariance = reset @ covariance @ reset.T
+    folded = np.empty(4)
+    _perturbed(mean[:3], propagated[0], folded)  # (U5)
+    return folded, mean, covariance, spread

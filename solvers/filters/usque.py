@@ -103,7 +103,7 @@ Deviations from CM:
   per-step :meth:`~attopt.formulations.gyro.GyroModel.process_noise` plus the
   gyro-gap growth (:func:`~attopt.solvers.filters.common.step_noise`) and ``Phi_j``
   the closed-form :func:`~attopt.formulations.gyro.error_state_transition` at the
-  mean rate ``omega_measured - beta`` (:func:`interval_noise`): the noise
+  mean rate ``omega_measured - beta`` (:func:`unscented_prediction`): the noise
   part of the MEKF's covariance propagation.  Drawing fresh sigma points at
   every gyro step instead (CM propagate one gyro step per filter step)
   changed the estimates by less than 1e-6 of the filter sigma at 10 Hz over
@@ -133,6 +133,8 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel
+from attopt.formulations.kernels import compiled_loops
+from attopt.solvers.filters import compiled
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
@@ -141,6 +143,7 @@ from attopt.solvers.filters.common import (
     PreparedGyro,
     apply_error,
     count_blocks,
+    covariance_steps,
     error_jacobian,
     gate,
     huber_noise,
@@ -148,10 +151,10 @@ from attopt.solvers.filters.common import (
     linearised,
     noise_subset,
     perturb_quaternion,
-    propagate_covariance,
-    propagate_quaternion,
     quaternion_error_vector,
+    quaternion_steps,
     repair_covariance,
+    step_noise,
     usable_rows,
 )
 from attopt.solvers.filters.offsets import RowOffsets, shifted
@@ -201,14 +204,6 @@ def carried(covariance: Array, state: Array) -> Array:
     return reset @ covariance @ reset.T
 
 
-def interval_noise(rates: Array, hold_variance: Array, model: GyroModel, dt: Array) -> Array:
-    """Process noise (U4) accumulated over consecutive gyro steps of lengths ``dt`` at the
-    mean ``rates``, with the gap growth ``hold_variance``
-    (:func:`~attopt.solvers.filters.common.step_noise`)."""
-    zero = np.zeros((STATE_SIZE, STATE_SIZE))
-    return propagate_covariance(zero, rates, hold_variance, model, dt)[0]
-
-
 def propagate(
     attitude: Rotation,
     bias: Array,
@@ -218,31 +213,51 @@ def propagate(
     model: GyroModel,
     regress: bool = True,
 ) -> tuple[Rotation, Array, Array, Array | None, bool]:
-    """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in, and its
-    statistical transition ``T(x^-) Phi``, ``Phi = P_{x'x} P^-1`` the regression of the
-    propagated sigma points on the drawn ones (:func:`regression`; what carries the
-    offsets' cross-covariance, :mod:`attopt.solvers.filters.offsets`; ``None`` unless
-    ``regress``, nothing else needing it); the last item says whether the covariance was
-    repaired to draw the sigma points."""
+    """Unscented prediction (U1)-(U5) over gyro steps ``steps``, mean folded in
+    (:func:`unscented_prediction`, or its compiled loop), and its statistical transition
+    ``T(x^-) Phi``, ``Phi = P_{x'x} P^-1`` the regression of the propagated sigma points
+    on the drawn ones (:func:`regression`; what carries the offsets' cross-covariance,
+    :mod:`attopt.solvers.filters.offsets`; ``None`` unless ``regress``, nothing else
+    needing it); the last item says whether the covariance was repaired to draw the
+    sigma points."""
     rates, dt = gyro.rates[steps], gyro.dt[steps]
     if rates.shape[0] == 0:
         return attitude, bias, covariance, np.eye(STATE_SIZE), False
     offsets, repaired = sigma_offsets(covariance)
-    sigma_bias = bias + offsets[:, 3:]
-    propagated = propagate_quaternion(
-        perturb_quaternion(offsets[:, :3], attitude.as_quat()),
-        rates[None] - sigma_bias[:, None],
-        dt,
+    noise = step_noise(model, dt, gyro.hold_variance[steps])
+    prediction = compiled.unscented_prediction if compiled_loops() else unscented_prediction
+    quaternion, mean, covariance, spread = prediction(
+        offsets, attitude.as_quat(), bias, rates, dt, noise
     )
+    transition = carry(mean) @ regression(spread, offsets)[0] if regress else None
+    return Rotation.from_quat(quaternion), bias + mean[3:], covariance, transition, repaired
+
+
+def unscented_prediction(
+    offsets: Array, quaternion: Array, bias: Array, rates: Array, dt: Array, noise: Array
+) -> tuple[Array, Array, Array, Array]:
+    """(U1)-(U5) from the sigma points' ``offsets`` (:func:`sigma_offsets`) about the
+    attitude ``quaternion`` and ``bias``, over gyro steps at ``rates`` with lengths ``dt``
+    and noises ``noise`` (:func:`~attopt.solvers.filters.common.step_noise`): the
+    propagated attitude's quaternion (mean folded in), the mean error state, the
+    covariance about the propagated attitude, and the points' deviations from their
+    mean.
+
+    The interval noise (U4) is the steps' noise accumulated from zero at the mean rate
+    ``rates - bias`` (module docstring).  The numpy reference of
+    :func:`attopt.solvers.filters.compiled.unscented_prediction`.
+    """
+    sigma_rates = rates[None] - (bias + offsets[:, 3:])[:, None]
+    sigma_attitudes = perturb_quaternion(offsets[:, :3], quaternion)  # (U1)
+    propagated = quaternion_steps(sigma_attitudes, sigma_rates, dt)  # (U2)
     errors = quaternion_error_vector(propagated, propagated[0])
     points = np.concatenate([errors, offsets[:, 3:]], axis=1)
     mean = WEIGHTS @ points  # (U3)
     spread = points - mean
-    noise = interval_noise(rates - bias, gyro.hold_variance[steps], model, dt)
-    covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + noise, mean)  # (U4)
-    attitude = Rotation.from_quat(perturb_quaternion(mean[:3], propagated[0]))  # (U5)
-    transition = carry(mean) @ regression(spread, offsets)[0] if regress else None
-    return attitude, bias + mean[3:], covariance, transition, repaired
+    zero = np.zeros((STATE_SIZE, STATE_SIZE))
+    interval = covariance_steps(zero, rates - bias, dt, noise)[0]
+    covariance = carried((COVARIANCE_WEIGHTS * spread.T) @ spread + interval, mean)  # (U4)
+    return perturb_quaternion(mean[:3], propagated[0]), mean, covariance, spread  # (U5)
 
 
 def regression(deviation: Array, offsets: Array) -> tuple[Array, Array]:
