@@ -267,7 +267,8 @@ class TrackMonitor:
         if not (self.consistency_window and np.isfinite(nis) and dof > 0):
             return
         self.window = [*self.window[1 - self.consistency_window :], (nis, dof)]
-        total, rows = np.sum(self.window, axis=0)
+        # summed in order as np.sum(window, axis=0) does, without building an array
+        total, rows = sum(n for n, _ in self.window), sum(d for _, d in self.window)
         failed = chi_square_tail(total, rows) < self.consistency_false_alarm
         self.failing = self.failing + 1 if failed else 0
 
@@ -460,9 +461,9 @@ class EpochRecord:
             self.diagnostics[name][k] = value
         values, vector, covariance = filter.attitude_values(), filter.vector, filter.covariance
         if not (
-            np.all(np.isfinite(values))
-            and np.all(np.isfinite(vector))
-            and np.all(np.isfinite(covariance))
+            np.isfinite(values).all()
+            and np.isfinite(vector).all()
+            and np.isfinite(covariance).all()
         ):
             self.reason[k:] = NON_FINITE
             return False

@@ -195,7 +195,7 @@ def update(
         trial_step = gain @ relinearised - state
         state = state + trial_step
         counts["nis"], counts["nis_dof"] = nis, float(rows.size)
-        if not np.all(np.isfinite(state)):  # flagged by the caller
+        if not np.isfinite(state).all():  # flagged by the caller
             return attitude, np.full(3, np.nan), covariance, counts, state[STATE_SIZE:]
         if linearised(trial_step, posterior, options.relinearise_fraction):
             break

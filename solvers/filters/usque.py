@@ -173,7 +173,7 @@ COVARIANCE_WEIGHTS[0] += 1.0 - ALPHA**2 + BETA
 
 def finite(*arrays: Array) -> bool:
     """Whether every entry of ``arrays`` is finite."""
-    return all(np.all(np.isfinite(a)) for a in arrays)
+    return all(np.isfinite(a).all() for a in arrays)
 
 
 def sigma_offsets(covariance: Array) -> tuple[Array, bool]:

@@ -209,7 +209,7 @@ class EpochFactor:
         self.block_ids, self.block_index = block_labels(labels)
         if self.noise_diagonal is not None:
             d = self.noise_diagonal[rows]
-            if not np.all(d > 0):  # also False for NaN
+            if not (d > 0).all():  # also False for NaN
                 raise InvalidObservationError(
                     f"node {self.node}: noise covariance not positive definite"
                 )
