@@ -5,14 +5,18 @@ of 0.1 s between the 1 Hz vectors of ``wahba-mag-sun``): the covariance by ``P <
 P Phi_j^T + Q_j`` with the transitions' product, and the attitude (USQUE: its 13 sigma
 attitudes) by the increments ``exp(-[w_j x] dt_j)``.  In numpy each step is a few
 small-array calls, and the whole prediction costs about 0.3 ms an epoch, most of it
-numpy's per-call overhead; here a prediction is one loop of machine code.  Written by hand,
+numpy's per-call overhead; here a prediction is one loop of machine code: the MEKF's
+two loops (:func:`covariance_steps`, :func:`quaternion_steps`), and USQUE's whole
+unscented prediction with its sigma points' mean and covariance
+(:func:`unscented_prediction`, which calls the same two loops inside).  Written by hand,
 with numba, because no library propagates a Kalman filter's error state in compiled code
 and CasADi's generated kernels take fixed sizes, while the number of steps between epochs
 varies.
 
 The formulas are those of the numpy functions, which remain the reference
-(:func:`attopt.solvers.filters.common.propagate_covariance` and
-:func:`~attopt.solvers.filters.common.propagate_quaternion` with ``ATTOPT_KERNELS=
+(:func:`attopt.solvers.filters.common.propagate_covariance`,
+:func:`~attopt.solvers.filters.common.propagate_quaternion` and
+:func:`attopt.solvers.filters.usque.unscented_prediction` with ``ATTOPT_KERNELS=
 interpreted``, :data:`attopt.formulations.kernels.KERNELS_ENV`): the transition is
 :func:`attopt.formulations.gyro.error_state_transition` (Markley and Crassidis 2014, eqs.
 6.83-6.84, with the same Taylor series below the same angle), the increment the
