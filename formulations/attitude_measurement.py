@@ -441,8 +441,8 @@ class VectorMeasurement(AttitudeMeasurement):
         return super().predict(attitude)
 
     def innovation(self, predicted: Array) -> Array:
-        # the norms as ndarray sums, the special cases only when present: the filters and
-        # smoothers call this every epoch (same values as np.linalg.norm, bit for bit)
+        # the norms as ndarray sums (np.linalg.norm's values, bit for bit) and the division
+        # only where the sine is positive: the filters and smoothers call this every epoch
         h = predicted.reshape(*predicted.shape[:-1], -1, 3)
         unit = h / np.sqrt((h * h).sum(axis=-1, keepdims=True))
         z = self.z.reshape(-1, 3)
@@ -450,11 +450,10 @@ class VectorMeasurement(AttitudeMeasurement):
         perpendicular = z - cosine * unit
         sine = np.sqrt((perpendicular * perpendicular).sum(axis=-1, keepdims=True))
         positive = sine > 0
-        if positive.all():
-            return (np.arctan2(sine, cosine) * perpendicular / sine).reshape(predicted.shape)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            geodesic = np.arctan2(sine, cosine) * perpendicular / sine
-        geodesic = np.where(positive, geodesic, np.where(cosine > 0, 0.0, np.nan))
+        geodesic = np.arctan2(sine, cosine) * perpendicular
+        np.divide(geodesic, sine, out=geodesic, where=positive)
+        if not positive.all():  # along the prediction: 0; reversed or not finite: NaN
+            geodesic = np.where(positive, geodesic, np.where(cosine > 0, 0.0, np.nan))
         return geodesic.reshape(predicted.shape)
 
 

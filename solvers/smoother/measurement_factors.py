@@ -312,7 +312,7 @@ class EpochFactor:
             self.accept(self.innovation, self.jacobian, lost)
 
     def current_cost(self, threshold: float | None, lost: NDArray[np.intp] | None = None) -> float:
-        return self.cost(self.innovation, threshold, np.zeros(0, np.intp) if lost is None else lost)
+        return self.cost(self.innovation, threshold, NO_BLOCKS if lost is None else lost)
 
     def weights(self, threshold: float | None) -> Array:
         """IRLS weight of each used block at the current linearisation."""
@@ -449,5 +449,5 @@ def prepare_factor(
     factor.set_rows(rows)
     with np.errstate(invalid="ignore"):
         full = innovation_jacobian(measurement, predicted[0], jacobian[0], factor.members)
-    factor.accept(nu[accepted], full[rows], np.zeros(0, np.intp))
+    factor.accept(nu[accepted], full[rows], NO_BLOCKS)
     return factor, counts

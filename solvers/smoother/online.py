@@ -111,7 +111,12 @@ from attopt.solvers.smoother.gyro_factors import (
     gyro_graph,
     gyro_intervals,
 )
-from attopt.solvers.smoother.measurement_factors import COUNTS, EpochFactor, prepare_factor
+from attopt.solvers.smoother.measurement_factors import (
+    COUNTS,
+    NO_BLOCKS,
+    EpochFactor,
+    prepare_factor,
+)
 
 
 @dataclass(frozen=True)
@@ -204,7 +209,7 @@ class MeasurementCallback:
         if np.array_equal(rotation.matrix(), self.prepared):
             self.reused += 1
             f = self.factor
-            nu, jac, lost = f.innovation, f.jacobian, np.zeros(0, np.intp)
+            nu, jac, lost = f.innovation, f.jacobian, NO_BLOCKS
         else:
             self.evaluations += 1
             nu, jac, lost = self.factor.evaluate(attitude(rotation))
