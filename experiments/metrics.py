@@ -106,10 +106,21 @@ def status_columns(track: Track) -> dict[str, Array]:
 def in_orbit_frame(track: Track, eci_to_orbit: Rotation) -> Track:
     """``A_bo = A_bi A_oi^T`` of a gyro-aided estimator's track (covariance unchanged: body
     frame)."""
+    return _reframed(track, eci_to_orbit.inv())
+
+
+def in_inertial_frame(track: Track, eci_to_orbit: Rotation) -> Track:
+    """``A_bi = A_bo A_oi`` of a single-frame track in the orbit frame (covariance unchanged:
+    body frame), e.g. to start a gyro-aided estimator from it."""
+    return _reframed(track, eci_to_orbit)
+
+
+def _reframed(track: Track, frame: Rotation) -> Track:
+    """``track`` with each valid attitude ``A`` replaced by ``A F`` (``frame`` per epoch)."""
     quaternion = track.quaternion.copy()
     valid = track.valid
     if valid.any():
-        quaternion[valid] = (track.attitude() * eci_to_orbit[valid].inv()).as_quat()
+        quaternion[valid] = (track.attitude() * frame[valid]).as_quat()
     return replace(track, quaternion=quaternion)
 
 

@@ -181,6 +181,14 @@ class AttitudeMeasurement(ABC):
         """``dh / d offset`` ``(m,)`` of each row at one attitude (CasADi AD)."""
         raise InvalidObservationError(f"{type(self).__name__} has no offset parameters")
 
+    @classmethod
+    def offset_slope_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        """``[m.offset_slope(attitudes[i]) for ...]`` for measurements of this class with one
+        :meth:`batch_key` (types with offsets override it with a single evaluation)."""
+        return [m.offset_slope(attitudes[i]) for i, m in enumerate(measurements)]
+
     def with_offset_spread(self, spread: float) -> AttitudeMeasurement:
         """The measurement with its rows' offsets unknown, ``N(0, spread^2)`` each and
         independent: their noise widened accordingly."""
@@ -218,6 +226,14 @@ def noise_covariance_each(
     return _each(
         measurements, attitudes, "noise_covariance_batch", lambda m, a: m.noise_covariance_at(a)
     )
+
+
+def offset_slope_each(
+    measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+) -> list[Array]:
+    """``[m.offset_slope(attitudes[i]) for ...]``, grouped as :func:`predict_each`
+    (:meth:`~AttitudeMeasurement.offset_slope_batch`)."""
+    return _each(measurements, attitudes, "offset_slope_batch", lambda m, a: m.offset_slope(a))
 
 
 def _each(
@@ -532,6 +548,13 @@ class ReferencedMeasurement(AttitudeMeasurement):
             return [m.noise_covariance for m in measurements]  # no attitude to compose
         inner, composed = cls._inner_batch(measurements, attitudes)
         return inner_type.noise_covariance_batch(inner, composed)
+
+    @classmethod
+    def offset_slope_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        inner, composed = cls._inner_batch(measurements, attitudes)
+        return type(inner[0]).offset_slope_batch(inner, composed)
 
     @staticmethod
     def _inner_batch(

@@ -40,6 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import Array, AttitudeMeasurement
 from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.kernels import evaluate_mapped
 from attopt.formulations.measurement_model import SymbolicModel
 from attopt.formulations.snr_model import (
     Pattern,
@@ -66,8 +67,11 @@ def truncated_mean_model(pattern: Pattern, sigma_db: float, threshold_db: float)
 
 
 @lru_cache(maxsize=16)
+@lru_cache(maxsize=64)
 def truncated_mean_slope(sigma_db: float, threshold_db: float) -> ca.Function:
-    """``d E[y | y >= tau] / d f`` by CasADi AD (scalar function; maps over a row of ``f``).
+    """``d E[y | y >= tau] / d f`` by CasADi AD (scalar function; maps over a row of ``f``),
+    built once per ``(sigma_db, threshold_db)`` (its kernel is then compiled once,
+    :func:`~attopt.formulations.kernels.evaluate_mapped`).
 
     It equals :func:`~attopt.formulations.snr_truncation.truncated_information_factor`
     (the truncated variance over ``sigma^2``), an identity the tests check.
@@ -75,6 +79,20 @@ def truncated_mean_slope(sigma_db: float, threshold_db: float) -> ca.Function:
     f = ca.SX.sym("f")
     mean = f + sigma_db * inverse_mills_ratio((f - threshold_db) / sigma_db, CASADI)
     return ca.Function("truncated_mean_slope", [f], [ca.jacobian(mean, f)])
+
+
+def _truncated_slope(f: Array, noise: Array, group: NDArray[np.intp]) -> Array:
+    """:func:`truncated_mean_slope` at the untruncated SNRs ``f`` (NaN where ``f`` is), each
+    row with the ``(sigma, threshold)`` of ``noise`` ``(k, 2)`` that ``group`` ``(rows,)``
+    names: one kernel call per pair."""
+    out = np.full(f.shape, np.nan)
+    usable = np.isfinite(f)
+    for i, (sigma, threshold) in enumerate(noise):
+        rows = usable & (group == i)
+        if rows.any():
+            slope = truncated_mean_slope(float(sigma), float(threshold))
+            out[rows] = evaluate_mapped(slope, f[rows, None])[0].ravel()
+    return out
 
 
 class SnrMeasurement(AttitudeMeasurement):
@@ -113,8 +131,8 @@ class SnrMeasurement(AttitudeMeasurement):
             self._model = truncated_mean_model(epoch.pattern, self.sigma, epoch.threshold_db)
 
     def _snr(self, matrices: Array) -> Array:
-        """Untruncated ``f`` ``(N, m)`` (numpy), NaN for the observations not usable at
-        every attitude."""
+        """Untruncated ``f`` ``(N, m)`` (numpy) at the ``matrices`` of a ``Rotation``, NaN for
+        the observations not usable at every attitude."""
         epoch = self.epoch
         values = snr_db_or_nan(
             matrices,
@@ -124,6 +142,7 @@ class SnrMeasurement(AttitudeMeasurement):
             epoch.noise_dbw,
             epoch.pattern,
             epoch.pattern_antenna,
+            rotations=True,
         )
         values[:, np.isnan(values).any(axis=0)] = np.nan
         return values
@@ -214,15 +233,7 @@ class SnrMeasurement(AttitudeMeasurement):
         if not measurements[0].truncated:
             return [m.noise_covariance for m in measurements]
         rows = _StackedEpochs.of([m.epoch for m in measurements])
-        f = snr_db_or_nan(
-            attitudes.as_matrix().reshape(-1, 3, 3)[rows.epoch_of_row],
-            rows.los,
-            rows.boresight,
-            rows.p0,
-            rows.noise,
-            measurements[0].epoch.pattern,
-            rows.antenna,
-        )[:, 0]
+        f = rows.untruncated_snr(attitudes, measurements[0].epoch.pattern)
         return [
             m._truncated_noise(part) for m, part in zip(measurements, rows.split(f), strict=True)
         ]
@@ -245,13 +256,26 @@ class SnrMeasurement(AttitudeMeasurement):
         if not self.truncated:
             return np.ones(self.epoch.m)
         matrices = attitude.as_matrix().reshape(-1, 3, 3)[:1]
-        f = self._snr(matrices)[0]
-        slope = truncated_mean_slope(self.sigma, self.epoch.threshold_db)
-        out = np.full(f.shape, np.nan)
-        usable = np.isfinite(f)
-        if usable.any():
-            out[usable] = np.asarray(slope(f[usable][None, :])).ravel()
-        return out
+        return self._truncated_slope(self._snr(matrices)[0])
+
+    @classmethod
+    def offset_slope_batch(
+        cls, measurements: Sequence[AttitudeMeasurement], attitudes: Rotation
+    ) -> list[Array]:
+        """:meth:`offset_slope` of each epoch at its attitude; the truncated model's SNRs in
+        one evaluation, the epochs' observations one after another."""
+        if not measurements[0].truncated:
+            return [np.ones(m.epoch.m) for m in measurements]
+        rows = _StackedEpochs.of([m.epoch for m in measurements])
+        f = rows.untruncated_snr(attitudes, measurements[0].epoch.pattern)
+        pairs = [(m.sigma, m.epoch.threshold_db) for m in measurements]
+        noise, group = np.unique(np.array(pairs), axis=0, return_inverse=True)
+        sizes = [m.epoch.m for m in measurements]
+        return rows.split(_truncated_slope(f, noise, np.repeat(group.ravel(), sizes)))
+
+    def _truncated_slope(self, f: Array) -> Array:
+        noise = np.array([[self.sigma, self.epoch.threshold_db]])
+        return _truncated_slope(f, noise, np.zeros(f.shape, dtype=np.intp))
 
 
 @dataclass(frozen=True)
@@ -282,6 +306,21 @@ class _StackedEpochs:
             noise=np.repeat([e.noise_dbw for e in epochs], counts)[:, None],
             antenna=antenna,
         )
+
+    def untruncated_snr(self, attitudes: Rotation, pattern: Any) -> Array:
+        """The untruncated model SNR ``f`` ``(rows,)`` of every row at its epoch's attitude
+        (``attitudes``, one per epoch; NaN where unusable) with the epochs' ``pattern``
+        (:attr:`SnrEpoch.pattern`, shared by the epochs of a batch)."""
+        return snr_db_or_nan(
+            attitudes.as_matrix().reshape(-1, 3, 3)[self.epoch_of_row],
+            self.los,
+            self.boresight,
+            self.p0,
+            self.noise,
+            pattern,
+            self.antenna,
+            rotations=True,
+        )[:, 0]
 
     def split(self, values: Array) -> list[Array]:
         """``values`` over the rows, epoch by epoch."""

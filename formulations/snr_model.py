@@ -150,9 +150,12 @@ def snr_db_or_nan(
     noise_dbw: ArrayLike,
     pattern: Pattern,
     antenna: ArrayLike | None = None,
+    rotations: bool = False,
 ) -> Array:
     """:func:`snr_db` (numpy) with NaN, instead of the exception, for each observation
-    :func:`observation_mask` rejects; the geometry and the checks evaluated once.
+    :func:`observation_mask` rejects; the geometry and the checks evaluated once
+    (``rotations``: the matrices come from a ``scipy`` ``Rotation``, and only their
+    finiteness is checked).
 
     Example::
 
@@ -167,7 +170,7 @@ def snr_db_or_nan(
     a, los, bore = _numpy_inputs(attitude_matrix, los_orbit, boresight_body)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_alpha, versine = off_boresight(a, los, bore)
-        reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern, antenna)
+        reasons = _invalid_reasons(a, los, bore, cos_alpha, pattern, antenna, rotations)
         bad = np.logical_or.reduce([rejected for _, rejected in reasons])
         # rejected observations are evaluated on the boresight, inside every pattern's lobe
         cos_alpha, versine = np.where(bad, 1.0, cos_alpha), np.where(bad, 0.0, versine)
@@ -220,11 +223,24 @@ def _numpy_inputs(
 
 
 def _invalid_reasons(
-    a: Array, los: Array, bore: Array, cos_alpha: Array, pattern: Pattern, antenna: Any = None
+    a: Array,
+    los: Array,
+    bore: Array,
+    cos_alpha: Array,
+    pattern: Pattern,
+    antenna: Any = None,
+    rotations: bool = False,
 ) -> list[tuple[str, NDArray[np.bool_]]]:
+    """Each reason to reject an observation and where it applies.  ``rotations``: the
+    matrices ``a`` come from a ``scipy`` ``Rotation`` (orthonormal, determinant 1, by
+    construction), so only their finiteness is checked: the orthogonality test costs a
+    matrix product and a determinant per observation, most of a pass's check."""
     with np.errstate(invalid="ignore"):
-        orthogonality = np.abs(a @ np.swapaxes(a, -1, -2) - np.eye(3)).max(axis=(-2, -1))
-        is_rotation = (orthogonality < _ROTATION_TOLERANCE) & (np.linalg.det(a) > 0)
+        if rotations:
+            is_rotation = np.isfinite(a).all(axis=(-2, -1))
+        else:
+            orthogonality = np.abs(a @ np.swapaxes(a, -1, -2) - np.eye(3)).max(axis=(-2, -1))
+            is_rotation = (orthogonality < _ROTATION_TOLERANCE) & (np.linalg.det(a) > 0)
     shape = np.shape(cos_alpha)
     reasons = [
         ("line of sight is NaN/inf or zero", ~_finite_nonzero(los)),
@@ -375,7 +391,9 @@ def predict_snr(
     per_antenna = isinstance(pattern, AntennaPatterns)
     if per_antenna:
         antenna = np.broadcast_to(np.asarray(antenna, dtype=np.intp), shape)
-    reasons = _invalid_reasons(a, los, bore, np.broadcast_to(cos_alpha, shape), pattern, antenna)
+    reasons = _invalid_reasons(
+        a, los, bore, np.broadcast_to(cos_alpha, shape), pattern, antenna, rotations=True
+    )
     reasons.append(
         ("isotropic or noise power is NaN/inf", ~np.isfinite(np.broadcast_to(offset, shape)))
     )

@@ -1,5 +1,6 @@
-"""Measurements predicted together (``predict_each``, ``noise_covariance_each``): equal, bit for
-bit and in order, to one ``predict`` per measurement, for every type and for a mix of types."""
+"""Measurements predicted together (``predict_each``, ``noise_covariance_each``,
+``offset_slope_each``): equal, bit for bit and in order, to one ``predict`` per measurement,
+for every type and for a mix of types."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from attopt.formulations.attitude_measurement import (
     ReferencedMeasurement,
     VectorMeasurement,
     noise_covariance_each,
+    offset_slope_each,
     predict_each,
 )
 from attopt.formulations.passes import Pass
@@ -95,9 +97,14 @@ def test_referenced_snr_epochs_of_a_pass_with_the_truncated_model() -> None:
         noise = [m.noise_covariance_at(at[i]) for i, m in enumerate(group)]
         for r, r0 in zip(noise_covariance_each(group, at), noise, strict=True):
             assert r.shape == r0.shape and np.array_equal(r, r0, equal_nan=True)
+        slopes = [m.offset_slope(at[i]) for i, m in enumerate(group)]
+        for c, c0 in zip(offset_slope_each(group, at), slopes, strict=True):
+            assert c.shape == c0.shape and np.array_equal(c, c0, equal_nan=True)
     assert not np.array_equal(  # the truncated model's R depends on the attitude
         noise_covariance_each(truncated, attitudes * frame)[0], truncated[0].noise_covariance
     )
+    slope = np.concatenate(offset_slope_each(truncated, attitudes * frame))  # so does dh/do
+    assert np.nanmin(slope) < 0.99 and np.nanmax(slope) <= 1.0
 
 
 def test_the_noise_of_a_mix_of_types_is_each_ones(drawn) -> None:

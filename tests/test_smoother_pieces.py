@@ -26,10 +26,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.errors import InvalidObservationError, ModelMismatchError
 from attopt.formulations.gyro import GyroModel
 from attopt.formulations.passes import GyroRecord, Pass, Prior
 from attopt.formulations.snapshot import Snapshot
+from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.bounds import posterior_bound, posterior_bound_ekf, snapshot_information
 from attopt.solvers.doa.eks import posterior_bound_ekf as eks_bound
 from attopt.solvers.filters import FilterOptions, Rts
@@ -51,10 +52,10 @@ from attopt.solvers.smoother.conventions import (
     to_values,
 )
 from attopt.solvers.smoother.initial import Start, fixed_start, node_values
-from attopt.solvers.smoother.marginals import marginal_covariances
+from attopt.solvers.smoother.marginals import MarginalOptions, problem_marginals
 from attopt.solvers.smoother.optimiser import levenberg_marquardt
 from attopt.solvers.smoother.problem import build_problem, pass_nodes
-from tests.filter_passes import drawn_prior, prior_covariance, simulate_pass
+from tests.filter_passes import drawn_prior, prior_covariance, simulate_pass, solve_with
 from tests.filter_passes import gyro_pass as make_pass
 from tests.test_sequential import BIAS, MODEL, OFFSET, _constant_rate_pass, _exact_prior, _truth
 from tests.test_smoother_offsets import OFFSET_SIGMA, _offset_pass
@@ -133,11 +134,12 @@ def _gtsam_marginals(problem, values) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize("kind", ["vectors", "offsets"])
 def test_marginals_equal_gtsam_marginals(kind):
-    """The smoother's marginals (a METIS Bayes tree without offsets, the sequential
-    sweep in the time ordering with them) equal ``gtsam.Marginals`` (Cholesky of the
-    Hessian in COLAMD order) of the same linear system: to 1e-7 in units of the
-    standard deviations (measured 5e-9 with offsets, the Hessian squaring their
-    conditioning; 3e-11 without); without cross covariance the blocks are the same
+    """The smoother's marginals (a METIS Bayes tree without offsets, the normal
+    equations eliminated in time order and swept back with them) equal
+    ``gtsam.Marginals`` (Cholesky of the Hessian in COLAMD order) of the same linear
+    system: to 1e-7 in units of the standard deviations (measured 7e-9 with offsets,
+    the Hessian squaring their conditioning;
+    3e-11 without); without cross covariance the blocks are the same
     and the cross block zero."""
     rng = np.random.default_rng(21)
     if kind == "vectors":
@@ -149,19 +151,16 @@ def test_marginals_equal_gtsam_marginals(kind):
         offset_sigma = OFFSET_SIGMA
     pass_ = make_pass(run.gyro, run.t, run.measurements, prior)
     problem, _, values = _problem(pass_, run.truth_at_epochs, run.bias_at_epochs, offset_sigma)
-    assert (problem.ordering is None) == (kind == "vectors")
-    linear = problem.linearize(values)
-    nodes = range(problem.offset, problem.n)
     expected, expected_variances = _gtsam_marginals(problem, values)
-    args = (problem.n_offsets, problem.ordering)
-    covariance, variances = marginal_covariances(linear, nodes, True, *args)
+    marginals = problem_marginals(problem, values, MarginalOptions())
+    covariance, variances = marginals.covariance, marginals.offset_variances
     scale = np.sqrt(np.einsum("kii->ki", expected))
     scale = scale[:, :, None] * scale[:, None, :]
     assert np.abs((covariance - expected) / scale).max() < 1e-7
     if kind == "offsets":
         assert variances.size == 12
         np.testing.assert_allclose(variances, expected_variances, rtol=1e-7)
-    blocks, _ = marginal_covariances(linear, nodes, False, *args)
+    blocks = problem_marginals(problem, values, MarginalOptions(cross_covariance=False)).covariance
     np.testing.assert_allclose(blocks[:, :3, :3], expected[:, :3, :3], rtol=1e-7)
     np.testing.assert_allclose(blocks[:, 3:, 3:], expected[:, 3:, 3:], rtol=1e-7)
     assert np.all(blocks[:, :3, 3:] == 0.0) and np.abs(expected[:, :3, 3:]).max() > 0.0
@@ -245,6 +244,33 @@ def test_optimiser_from_the_truth_of_a_noise_free_pass_takes_no_step():
     )
     assert result.converged and result.iterations == 0 and result.history == []
     assert result.message == "predicted decrease within tolerance"
+
+
+def test_a_stretch_of_snrs_the_solution_cannot_predict_is_flagged():
+    """Twelve epochs in a row whose SNRs come from behind the antennas (finite values that no
+    attitude near the truth can predict: left out as unpredictable), then epochs without
+    measurements: the smoother bridges them with the gyro, and its residual test sees
+    nothing there; the rejected-stretch rule flags them with the measurement-free epochs
+    after them (``batch.rejected_stretches``), and no other epoch."""
+    run, prior, _ = _offset_pass(4, epochs=40)
+    measurements = list(run.measurements)
+    behind = range(20, 32)
+    for k in behind:
+        epoch = measurements[k].epoch
+        measurements[k] = SnrMeasurement(dataclasses.replace(epoch, los_orbit=-epoch.los_orbit))
+    for k in range(32, 35):
+        measurements[k] = None
+    smoother = OffsetBatchSmoother(offset_sigma=OFFSET_SIGMA)  # the pass's 2 dB offsets
+    start = fixed_start(run.truth_at_epochs, run.bias_at_epochs)  # a start that is not lost
+    result = solve_with(smoother, run.gyro, run.t, measurements, prior, initial=start)
+    flagged = np.flatnonzero(~result.valid)
+    assert flagged.tolist() == list(range(20, 35))
+    assert all(
+        r.startswith("inconsistent: at least as many received blocks")
+        for r in result.reason[flagged]
+    )
+    assert all(e is ModelMismatchError for e in result.error[flagged])
+    assert result.diagnostics["n_unpredictable"][20] == measurements[20].size
 
 
 # --- registry estimators in the pipeline ----------------------------------------------------

@@ -18,11 +18,14 @@ run once per *sky* (``skies``), each a setting of the sweep:
   level flight, the single-frame methods the model's uncertainty, and the filters
   with offsets the random walk of what that antenna model leaves out.
 
-The quick variant (300 s) also runs ``mekf_offsets_snr`` and ``usque_offsets_snr``,
-the MEKF and USQUE with each aircraft's power offset as a state (docs/filters.md);
-the full hour does not by default: their cost grows with the cube of the aircraft
-heard at once (3.9 s for the first 300 s of the pass, 652 s for the first 1,200 s),
-so over the hour they would take hours.  Ask for them with ``filters``.
+The quick variant (300 s) also runs the estimators with one power offset per
+aircraft: the batch smoother ``fg_batch_offsets`` (started from the single-frame NLP,
+docs/smoother.md) and ``mekf_offsets_snr`` and ``usque_offsets_snr``, the MEKF and
+USQUE with each aircraft's offset as a state (docs/filters.md).  The full hour does not
+by default; ask for them with ``filters``.  The filters' cost grows with the cube of
+the aircraft heard at once (3.9 s for the first 300 s of the pass, 652 s for the first
+1,200 s), so over the hour they would take hours; the smoother's is linear in the pass
+(``python -m attopt.experiments.benchmarks.offsets``, docs/benchmarks.md).
 
 Each part takes its numbers from this experiment's own tables where a config gives them
 (``[traffic.transmitters]``, ``[receiver.chain]``, ``[receiver.collisions]``), else
@@ -60,8 +63,8 @@ from attopt.experiments.adsb_snr import experiment as adsb
 from attopt.experiments.adsb_snr.filters import DEFAULT_FILTERS
 from attopt.experiments.experiment import Experiment, Setting
 
-QUICK_FILTERS = [*DEFAULT_FILTERS, "mekf_offsets_snr", "usque_offsets_snr"]
-"""The quick variant's filters: ``adsb-snr``'s and the two with offsets (module docstring)."""
+QUICK_FILTERS = [*DEFAULT_FILTERS, "fg_batch_offsets", "mekf_offsets_snr", "usque_offsets_snr"]
+"""The quick variant's filters: ``adsb-snr``'s and the three with offsets (module docstring)."""
 
 Sky = Literal["ideal", "power", "antennas", "chain", "collisions", "real", "modelled"]
 SKIES: tuple[str, ...] = (

@@ -28,8 +28,10 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
   not asked for; ``runtime_s`` includes that start); ``fg_batch_offsets``:
   ``fg_batch`` with one power-offset variable per aircraft (prior
   ``offset_prior_sigma_db``), for data simulated with
-  ``traffic.power_offset_sigma_db > 0``.  Not in the default list: its cost
-  grows with the number of aircraft in view at once (``docs/smoother.md``).
+  ``traffic.power_offset_sigma_db > 0``, started from the single-frame NLP
+  with that prior as its power allowance
+  (:func:`attopt.experiments.adsb_snr.experiment.offsets_start`; its ``runtime_s``
+  includes it); not in the default list (``docs/smoother.md``).
 * ``mekf_offsets_snr``, ``usque_offsets_snr``: the MEKF and USQUE with each
   aircraft's power offset as an augmented state (prior ``offset_prior_sigma_db``;
   docs/filters.md, Transmitter power offsets); not in the default list either.
@@ -77,6 +79,7 @@ from attopt.experiments.metrics import (
     attitude_columns,
     error_columns,
     gyro_columns,
+    in_inertial_frame,
     in_orbit_frame,
     posterior_bound_columns,
     status_columns,
@@ -96,6 +99,7 @@ from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.pipeline import Run, run_estimators
 from attopt.solvers.results import Track
+from attopt.solvers.smoother import single_frame_initial
 
 if TYPE_CHECKING:
     from attopt.experiments.adsb_snr.experiment import AdsbSnrParameters
@@ -269,9 +273,11 @@ def filter_rows(
     nlse: Track | None,
     common: Mapping[str, np.ndarray],
     true_attitude_orbit: Rotation,
+    single_frames: Run | None = None,
 ) -> list[pd.DataFrame]:
     """Rows of every requested filter for every gyro (module docstring; the parameters'
-    gyros are validated to share one rate)."""
+    gyros are validated to share one rate); ``single_frames``: the start of
+    ``fg_batch_offsets`` (:func:`~attopt.experiments.adsb_snr.experiment.offsets_start`)."""
     methods = filter_estimators(parameters)
     if not methods:
         return []
@@ -291,7 +297,12 @@ def filter_rows(
             run = run_estimators(paper_pass, {PAPER_FILTER: paper_filter})[PAPER_FILTER]
             track = considered_input_error(run.track, nlse)
             runs[PAPER_FILTER] = replace(run, track=track)
-        runs |= run_estimators(simulated.pass_, methods)
+        starts = {}
+        if single_frames is not None:
+            inertial = in_inertial_frame(single_frames.track, simulated.frames)
+            first = Run(single_frame_initial(inertial, inputs.prior), single_frames.seconds)
+            starts = {k: first for k, e in methods.items() if e.name == "fg_batch_offsets"}
+        runs |= run_estimators(simulated.pass_, methods, starts=starts)
         wanted = {e.name for e in methods.values()}
         bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
         with_offsets = (

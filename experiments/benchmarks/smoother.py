@@ -47,12 +47,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from attopt.experiments.adsb_snr.experiment import noise_free_pass, simulate_pass
+from attopt.experiments.adsb_snr.experiment import noise_free_pass, power_offsets, simulate_pass
 from attopt.experiments.adsb_snr.filters import adsb_gyro_truth, snr_measurements
 from attopt.experiments.adsb_snr.parameters import AdsbScenario
-from attopt.experiments.simulation import child_rng, simulate_filter_inputs
+from attopt.experiments.simulation import GyroPass, child_rng, simulate_filter_inputs
 from attopt.formulations.conventions import attitude_error
 from attopt.formulations.gyro import GYRO_MODELS
+from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.bounds import posterior_bound
 from attopt.solvers.registry import estimator
 from attopt.solvers.smoother import OnlineReport
@@ -96,8 +97,22 @@ def _rms(solution, truth, late: np.ndarray) -> tuple[float, float]:
     )
 
 
-def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
-    """One pass of ``duration_s`` (module docstring)."""
+@dataclass(frozen=True)
+class BenchmarkPass:
+    """A simulated ``adsb-snr`` pass for the benchmarks: the gyro-aided pass (ECI), the
+    epochs' SNRs (orbit frame, for the single-frame methods) and the scenario's build time."""
+
+    simulated: GyroPass
+    epochs: list[SnrEpoch]
+    build_s: float
+
+
+def adsb_pass(
+    duration_s: float, seed: int, gyro: str, offset_sigma_db: float = 0.0
+) -> BenchmarkPass:
+    """The scenario's pass of ``duration_s`` with seed ``seed``'s SNR noise (and its power
+    offsets, ``offset_sigma_db`` per aircraft), the truncated SNR model and the ``gyro``
+    preset at 10 Hz (module docstring)."""
     start = time.perf_counter()
     parameters = AdsbScenario(duration_s=duration_s)
     scenario = noise_free_pass(parameters)
@@ -109,10 +124,17 @@ def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
         np.random.default_rng(root),
         parameters.receiver.snr_sigma_db,
         parameters.receiver.threshold_db,
+        power_offsets(scenario, root, offset_sigma_db),
     )
-    model = GYRO_MODELS[gyro]
-    inputs = simulate_filter_inputs(truth, model, child_rng(root, 1))
+    inputs = simulate_filter_inputs(truth, GYRO_MODELS[gyro], child_rng(root, 1))
     simulated = inputs.gyro_pass(truth, snr_measurements(noisy.epochs, "truncated"))
+    return BenchmarkPass(simulated, noisy.epochs, build)
+
+
+def run(duration_s: float, seed: int, gyro: str, online: bool = False) -> Row:
+    """One pass of ``duration_s`` (module docstring)."""
+    benchmark = adsb_pass(duration_s, seed, gyro)
+    simulated, build = benchmark.simulated, benchmark.build_s
     pass_, true_attitude = simulated.pass_, simulated.attitude
     measurements = pass_.measurements()
     t = pass_.t

@@ -20,13 +20,23 @@ and the AHRS factor's covariance grows by the filters' hold variance; a gap long
 than ``filter.max_gyro_gap_s`` splits the pass
 (:class:`~attopt.solvers.smoother.gyro_factors.GyroIntervals`) instead of flagging
 its epochs, whose marginal covariance then says how well each is determined.  The
-filters' "lost track" rule does not apply (the smoother bridges gated epochs with
-the gyro); ``filter.max_attitude_sigma`` does, and so does the filters' consistency
-test (:func:`~attopt.solvers.sequential.inconsistent_epochs`) on the residuals at the
-solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed over the last
-``filter.consistency_window`` epochs with measurements and tested against chi-square
-with their rows (conservative: the smoothed estimate absorbs part of each epoch's
-noise, so the residuals' expected sum is below the rows) when the optimiser
+filters' "lost track" rule does not apply as such (the smoother bridges a few gated
+epochs with the gyro), but its test does, at the solution: a run of
+``filter.max_rejected_epochs`` epochs with measurements in a row that each gated, or
+cannot predict at the solution, at least as many received blocks as they use
+(:func:`~attopt.solvers.sequential.rejected_epoch`; :func:`unpredictable_at_solution`:
+SNRs that the solved attitude puts outside every main lobe, where the model says
+they could not have been received) is flagged ``inconsistent``
+(:class:`~attopt.formulations.errors.ModelMismatchError`), with the epochs without
+measurements after it (:func:`rejected_stretches`).  Without it, the last 30 s of a
+300 s ``adsb-snr`` pass with unmodelled transmitter powers were reported valid 40-50
+deg off: at the solution they used 1-2 of about 120 received SNRs each, which the
+residual test below passed.  ``filter.max_attitude_sigma`` applies, and so does the
+filters' consistency test (:func:`~attopt.solvers.sequential.inconsistent_epochs`) on
+the residuals at the solution: each epoch's ``nu^T R^-1 nu`` over its used rows, summed
+over the last ``filter.consistency_window`` epochs with measurements and tested against
+chi-square with their rows (conservative: the smoothed estimate absorbs part of each
+epoch's noise, so the residuals' expected sum is below the rows) when the optimiser
 converged.  So is each gyro interval (:func:`gyro_faults`): the worst AHRS factor whose
 residual at the solution fails chi-square(3) is removed, with the rest of its stretch
 between measured nodes, the pass split there as at a long gyro gap and the problem
@@ -57,12 +67,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
+from attopt.formulations.attitude_measurement import predict_each
 from attopt.formulations.errors import ModelMismatchError
 from attopt.solvers.chi_square import chi_square_tail
-from attopt.solvers.filters.common import FilterOptions, GyroPass, repair_covariance
+from attopt.solvers.filters.common import FilterOptions, GyroPass, repair_covariance, usable_rows
 from attopt.solvers.results import Track
-from attopt.solvers.sequential import EpochRecord, filter_result
+from attopt.solvers.sequential import EpochRecord, filter_result, rejected_epoch
 from attopt.solvers.smoother.conventions import Array
 from attopt.solvers.smoother.marginals import PassMarginals
 from attopt.solvers.smoother.measurement_factors import COUNTS
@@ -199,6 +211,47 @@ def gyro_faults(
     return stretch[~problem.intervals.broken[stretch]]
 
 
+def unpredictable_at_solution(inputs: GyroPass, attitudes: Rotation) -> Array:
+    """``(N,)`` each epoch's received observation blocks (finite values) that the model
+    cannot predict at the solution's attitude ``attitudes`` ``(N,)`` (an SNR from an
+    aircraft outside every main lobe there), all measurements evaluated together."""
+    out = np.zeros(len(inputs.measurements))
+    epochs = [k for k, m in enumerate(inputs.measurements) if m is not None and m.size]
+    measurements = [inputs.measurements[k] for k in epochs]
+    for k, m, (h, _) in zip(
+        epochs, measurements, predict_each(measurements, attitudes[epochs]), strict=True
+    ):
+        with np.errstate(invalid="ignore"):
+            innovation = m.innovation(h[0])
+        out[k] = usable_rows(m, h, innovation[None])[2]
+    return out
+
+
+def rejected_stretches(
+    rejected: NDArray[np.bool_], measured: NDArray[np.bool_], length: int
+) -> NDArray[np.bool_]:
+    """The epochs of each run of at least ``length`` consecutive ``measured`` epochs that
+    are all ``rejected``, with the epochs without measurements after each of them up to
+    the next measured epoch (bridged by the gyro from a rejected one).
+
+    Example::
+
+        >>> import numpy as np
+        >>> from attopt.solvers.smoother.batch import rejected_stretches
+        >>> rejected = np.array([0, 1, 1, 0, 1, 0, 0, 1], dtype=bool)
+        >>> measured = np.array([1, 1, 1, 0, 1, 1, 0, 1], dtype=bool)
+        >>> rejected_stretches(rejected, measured, 3).astype(int).tolist()
+        [0, 1, 1, 1, 1, 0, 0, 0]
+    """
+    index = np.flatnonzero(measured)
+    edges = np.diff(np.concatenate([[0], rejected[index].astype(np.int8), [0]]))
+    out = np.zeros(rejected.size, dtype=bool)
+    for begin, end in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+        if end - begin >= length:
+            out[index[begin] : index[end] if end < index.size else rejected.size] = True
+    return out
+
+
 def variance_factor(
     chi_square: float, dof: int, p: float, false_alarm: float, max_factor: float
 ) -> float:
@@ -295,6 +348,19 @@ def batch_track(
         f"inconsistent: the gyro up to this epoch contradicts the measurements around it "
         f"(chi-square test at {rules.consistency_false_alarm:g}); the pass is split there"
     )
+    counts = record.diagnostics
+    unpredictable = unpredictable_at_solution(inputs, outcome.attitudes[offset:])
+    gated, used = counts["n_gated"], counts["n_used"]
+    rejected = np.array(
+        [rejected_epoch(*c) for c in zip(gated, used, unpredictable, strict=True)], dtype=bool
+    )
+    measured = (counts["n_used"] + counts["n_gated"] + unpredictable) > 0
+    stretch = rejected_stretches(rejected, measured, rules.max_rejected_epochs)
+    stretch &= record.reason == ""
+    record.reason[stretch] = (
+        f"inconsistent: at least as many received blocks gated or unpredictable at the "
+        f"solution as used, {rules.max_rejected_epochs} epochs with measurements in a row"
+    )
     # no lost-track rule, and a long gyro gap splits the pass instead of being flagged
     result = filter_result(
         method,
@@ -309,6 +375,7 @@ def batch_track(
         tested="residuals at the solution of the last {window} epochs with measurements",
     )
     result.error[excluded] = ModelMismatchError
+    result.error[stretch] = ModelMismatchError
     message = outcome.message
     if not outcome.converged:
         message = (

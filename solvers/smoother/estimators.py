@@ -217,6 +217,8 @@ class BatchSmoother(PassEstimator):
             )
         with clock.stage("optimisation"):
             offsets = np.zeros(problem.n_offsets)
+            if problem.n_offsets and initial is not None:  # OffsetBatchSmoother's given start
+                problem.linearise_offsets(values.attitudes, offsets)
             outcome = levenberg_marquardt(
                 problem, values.attitudes, values.bias, offsets, self.optimiser
             )
@@ -259,6 +261,20 @@ class OffsetBatchSmoother(BatchSmoother):
     for another frame (:class:`~attopt.formulations.attitude_measurement.ReferencedMeasurement`);
     a pass in which none has sources raises ``InvalidObservationError``.
 
+    Its start.  A start that ignores the offsets is biased by them: its covariance
+    gates, or its attitudes leave outside the antennas' main lobes, much of what the
+    smoother could use.  So it starts from no other estimator's track on its own
+    (``starts_from`` is empty), and a track given as ``initial`` is taken to allow for
+    the offsets, for example single-frame solutions whose SNRs are widened by the
+    offsets' spread (:func:`~attopt.solvers.smoother.initial.single_frame_initial`;
+    ``adsb-snr`` gives the NLP's): the factors are linearised with the offsets'
+    columns from the first step.  Without ``initial`` it starts from its own MEKF and
+    RTS pass, which ignore the offsets, and the factors gain the columns at the first
+    accepted step (with them from the start it was measured not to converge from that
+    start).  Measured on 300 s of ``adsb-snr`` with 2 dB offsets (MEMS gyro, seed 0):
+    from the NLP, 5 iterations, valid at every epoch, 0.31 deg RMS, mean NEES 2.3;
+    from its own start, 22 iterations, valid at 76 %, 0.88 deg (docs/smoother.md).
+
     Attributes:
         offset_sigma: prior standard deviation of each offset (dB).
     """
@@ -266,6 +282,7 @@ class OffsetBatchSmoother(BatchSmoother):
     offset_sigma: float = OFFSET_PRIOR_SIGMA_DB
 
     name: ClassVar[str] = "fg_batch_offsets"
+    starts_from: ClassVar[tuple[str, ...]] = ()
     description: ClassVar[str] = (
         "whole-pass factor-graph smoother with one power offset per transmitter "
         "(Liu et al. 2023 eq. 13's 10 lg P0 per aircraft)"

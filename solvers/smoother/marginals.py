@@ -19,11 +19,10 @@ Two eliminations, both measured faster than ``gtsam.Marginals`` itself:
   6-state joints of 14,400 epochs, against 4 s here; same values to rounding);
   gtsam 4.3.0's METIS ordering crashes on a graph with an isolated variable (a
   node in a long gyro gap without measurements), which is then ordered by COLAMD;
-* with offsets (the problem's time ordering), the Bayes-tree queries recompute
-  separator marginals of hundreds of offsets clique by clique (47 s for 300 s of
-  ``adsb-snr``); a backward sweep over the sequential Bayes net gives the same
-  values (to 1e-11) in about 1 s
-  (:func:`~attopt.solvers.smoother.chain_marginals.sequential_marginals`).
+* with offsets, the normal equations eliminated in time order and swept back in
+  numpy (:meth:`~attopt.solvers.smoother.offset_elimination.NormalEquations.marginals`):
+  GTSAM's Bayes-tree queries recompute separator marginals of hundreds of offsets
+  clique by clique (47 s for 300 s of ``adsb-snr``).
 """
 
 from __future__ import annotations
@@ -34,14 +33,10 @@ import gtsam
 import numpy as np
 
 from attopt.solvers.filters.common import STATE_SIZE
-from attopt.solvers.smoother.chain_marginals import sequential_marginals
 from attopt.solvers.smoother.conventions import (
     Array,
-    attitude_key,
-    bias_key,
     error_state_covariance,
     node_marginal,
-    offset_key,
 )
 from attopt.solvers.smoother.problem import SmootherProblem
 
@@ -72,13 +67,21 @@ def problem_marginals(
     problem: SmootherProblem, values: gtsam.Values, options: MarginalOptions
 ) -> PassMarginals:
     """The marginals of ``problem`` linearised at ``values`` at its output epochs."""
-    linear = problem.linearize(values)
     nodes = range(problem.offset, problem.n)
     try:
-        covariance, variances = marginal_covariances(
-            linear, nodes, options.cross_covariance, problem.n_offsets, problem.ordering
-        )
-    except RuntimeError as exc:  # an indefinite system (should not happen: prior + gyro chain)
+        if problem.n_offsets:
+            joint, variances = problem.normal_equations(values).marginals()
+            covariance = error_state_covariance(joint[problem.offset :])
+            if not options.cross_covariance:  # per-key blocks only, as the Bayes-tree path
+                covariance[:, :3, 3:] = 0.0
+                covariance[:, 3:, :3] = 0.0
+        else:
+            covariance = marginal_covariances(
+                problem.linearize(values), nodes, options.cross_covariance
+            )
+            variances = np.zeros(0)
+    except (RuntimeError, np.linalg.LinAlgError) as exc:  # an indefinite system (should not
+        # happen: prior + gyro chain)
         return PassMarginals(
             np.full((len(nodes), STATE_SIZE, STATE_SIZE), np.nan),
             np.full(problem.n_offsets, np.nan),
@@ -87,28 +90,9 @@ def problem_marginals(
     return PassMarginals(covariance, variances)
 
 
-def marginal_covariances(
-    linear: gtsam.GaussianFactorGraph,
-    nodes: range,
-    cross: bool,
-    n_offsets: int = 0,
-    ordering: gtsam.Ordering | None = None,
-) -> tuple[Array, Array]:
-    """Error-state covariances ``(len(nodes), 6, 6)`` and the transmitter offsets'
-    variances ``(n_offsets,)`` of ``linear`` (module docstring); ``ordering``: the
-    time ordering of a problem with offsets (sequential sweep), else ``None``
-    (Bayes tree)."""
-    if ordering is not None:
-        covariance, variances = sequential_marginals(
-            linear,
-            ordering,
-            [(attitude_key(k), bias_key(k)) for k in nodes],
-            [offset_key(j) for j in range(n_offsets)],
-        )
-        if not cross:  # per-key blocks only, as the Bayes-tree path
-            covariance[:, :3, 3:] = 0.0
-            covariance[:, 3:, :3] = 0.0
-        return error_state_covariance(covariance), variances
+def marginal_covariances(linear: gtsam.GaussianFactorGraph, nodes: range, cross: bool) -> Array:
+    """Error-state covariances ``(len(nodes), 6, 6)`` of ``linear`` (a problem without
+    offsets; module docstring)."""
     ordering = (
         gtsam.Ordering.ColamdGaussianFactorGraph(linear)
         if has_isolated_keys(linear)
@@ -118,8 +102,7 @@ def marginal_covariances(
     out = np.zeros((len(nodes), STATE_SIZE, STATE_SIZE))
     for i, k in enumerate(nodes):
         out[i] = node_marginal(tree, k, cross)
-    variances = np.array([tree.marginalCovariance(offset_key(j))[0, 0] for j in range(n_offsets)])
-    return error_state_covariance(out), variances
+    return error_state_covariance(out)
 
 
 def has_isolated_keys(linear: gtsam.GaussianFactorGraph) -> bool:

@@ -64,7 +64,11 @@ from numpy.typing import NDArray
 from scipy.linalg import solve_triangular
 from scipy.spatial.transform import Rotation
 
-from attopt.formulations.attitude_measurement import AttitudeMeasurement, predict_each
+from attopt.formulations.attitude_measurement import (
+    AttitudeMeasurement,
+    offset_slope_each,
+    predict_each,
+)
 from attopt.formulations.errors import InvalidObservationError
 from attopt.solvers.filters.common import (
     block_labels,
@@ -318,27 +322,37 @@ class EpochFactor:
         """IRLS weight of each used block at the current linearisation."""
         return huber_weights(self.block_norms(self.innovation), threshold)
 
-    def linear_factors(self, threshold: float | None) -> list[gtsam.JacobianFactor]:
-        """``|| -W K xi - W nu ||^2`` (IRLS-weighted) as ``JacobianFactor`` s; none once
-        every block has been dropped.
-
-        Without offsets: one factor on the attitude key, compressed by QR to
-        at most three rows.  With offsets: one single-row factor per used row
-        on the attitude key and the row's offset key, ``+W (dh / d o)`` on the
-        latter (``e = -W nu``, ``nu = z - h``); rows cannot be compressed
-        without coupling every offset seen at the epoch.
-        """
-        if self.rows.size == 0:
-            return []
+    def whitened_rows(self, threshold: float | None) -> tuple[Array, Array | None]:
+        """``[A | b] = [-W K | W nu]`` ``(m, 4)`` over the used rows (IRLS-weighted), the
+        linearisation ``|| A xi - b ||^2``, and with the offsets' column each row's
+        coefficient ``+W (dh / d o)`` of its own offset (else ``None``)."""
         root = np.sqrt(self.weights(threshold))[self.block_index]
         system = np.column_stack([-self.whiten(self.jacobian[:, :3]), self.whiten(self.innovation)])
         system *= root[:, None]
+        column = None
         if self.jacobian.shape[1] > 3:
-            offset_column = self.whiten(self.jacobian[:, 3]) * root
+            column = self.whiten(self.jacobian[:, 3]) * root
+        return system, column
+
+    def linear_factors(self, threshold: float | None) -> list[gtsam.JacobianFactor]:
+        """:meth:`whitened_rows` as ``JacobianFactor`` s; none once every block has been
+        dropped.
+
+        Without offsets: one factor on the attitude key, compressed by QR to
+        at most three rows.  With offsets: one single-row factor per used row
+        on the attitude key and the row's offset key (the reference the
+        smoother's own elimination,
+        :mod:`attopt.solvers.smoother.offset_elimination`, is tested against);
+        rows cannot be compressed without coupling every offset seen at the epoch.
+        """
+        if self.rows.size == 0:
+            return []
+        system, column = self.whitened_rows(threshold)
+        if column is not None:
             keys = [offset_key(j) for j in self.offset_index[self.rows]]
             return [
                 gtsam.JacobianFactor(self.key, row[None, :3], key, np.array([[c]]), row[3:], UNIT1)
-                for row, key, c in zip(system, keys, offset_column, strict=True)
+                for row, key, c in zip(system, keys, column, strict=True)
             ]
         if system.shape[0] > 3:
             system = np.linalg.qr(system, mode="r")[:3]
@@ -375,17 +389,25 @@ def evaluate_factors(
 ) -> list[tuple[Array, Array, NDArray[np.intp]]]:
     """:meth:`EpochFactor.evaluate` of every factor at its node's attitude in ``attitudes``
     (all nodes), the measurements predicted together
-    (:func:`~attopt.formulations.attitude_measurement.predict_each`)."""
+    (:func:`~attopt.formulations.attitude_measurement.predict_each`), and so are the offsets'
+    slopes (:func:`~attopt.formulations.attitude_measurement.offset_slope_each`)."""
     measurements = [f.shifted(offsets) for f in factors]
     nodes = np.array([f.node for f in factors], dtype=np.intp)
     predictions = predict_each(measurements, attitudes[nodes])
-    results = []
-    for f, measurement, prediction in zip(factors, measurements, predictions, strict=True):
-        slope = None
-        if f.offset_index is not None and offsets is not None:
-            slope = measurement.offset_slope(attitudes[f.node])
-        results.append(f.evaluated(measurement, prediction, slope))
-    return results
+    slopes: list[Array | None] = [None] * len(factors)
+    if offsets is not None:
+        with_offsets = [i for i, f in enumerate(factors) if f.offset_index is not None]
+        each = offset_slope_each(
+            [measurements[i] for i in with_offsets], attitudes[nodes[with_offsets]]
+        )
+        for i, slope in zip(with_offsets, each, strict=True):
+            slopes[i] = slope
+    return [
+        f.evaluated(measurement, prediction, slope)
+        for f, measurement, prediction, slope in zip(
+            factors, measurements, predictions, slopes, strict=True
+        )
+    ]
 
 
 def prepare_factor(

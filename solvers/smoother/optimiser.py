@@ -10,8 +10,9 @@ and GTSAM never calls back.  Each iteration of :func:`levenberg_marquardt` on a
    in numpy at the current estimate) and add the damping ``sqrt(lambda) I`` on
    every variable;
 2. solve (``GaussianFactorGraph.optimize``, multifrontal elimination in COLAMD
-   order, linear in the pass for this chain-structured graph, or in the problem's
-   time ordering with transmitter offsets), retract (``A <- exp(-xi) A``, ``b <- b
+   order, linear in the pass for this chain-structured graph; with transmitter
+   offsets the normal equations eliminated in time order in numpy,
+   :mod:`attopt.solvers.smoother.offset_elimination`), retract (``A <- exp(-xi) A``, ``b <- b
    + d``, ``o <- o + step``);
 3. evaluate every epoch at the trial point (one ``predict`` per epoch: the
    dominant cost, and the next linearisation) and accept the step if the total
@@ -45,7 +46,6 @@ from attopt.solvers.smoother.conventions import (
     Array,
     attitude_key,
     bias_key,
-    offset_key,
     retract,
     step_arrays,
     to_values,
@@ -100,11 +100,8 @@ class LevenbergMarquardtResult:
         )
 
 
-def damped(
-    linear: gtsam.GaussianFactorGraph, n: int, n_offsets: int, lam: float
-) -> gtsam.GaussianFactorGraph:
-    """``linear`` with ``sqrt(lam) I`` on the attitudes and biases of ``n`` nodes and on
-    ``n_offsets`` transmitter offsets."""
+def damped(linear: gtsam.GaussianFactorGraph, n: int, lam: float) -> gtsam.GaussianFactorGraph:
+    """``linear`` with ``sqrt(lam) I`` on the attitudes and biases of ``n`` nodes."""
     out = linear.clone()
     root = np.sqrt(lam) * np.eye(3)
     zero = np.zeros(3)
@@ -112,10 +109,23 @@ def damped(
     for k in range(n):
         out.add(gtsam.JacobianFactor(attitude_key(k), root, zero, unit))
         out.add(gtsam.JacobianFactor(bias_key(k), root, zero, unit))
-    unit1 = gtsam.noiseModel.Unit.Create(1)
-    for j in range(n_offsets):
-        out.add(gtsam.JacobianFactor(offset_key(j), np.sqrt(lam) * np.eye(1), np.zeros(1), unit1))
     return out
+
+
+def damped_step(
+    problem: SmootherProblem, values: gtsam.Values, lam: float
+) -> tuple[Array, Array, Array, float]:
+    """The step ``(xi, d, offsets)`` of the system damped by ``lam`` and the decrease the
+    undamped linear model predicts for it (module docstring, 1-2)."""
+    if problem.n_offsets:
+        equations = problem.normal_equations(values)
+        step = equations.solve(lam)
+        xi, d = step.nodes[:, :3], step.nodes[:, 3:]
+        return xi, d, step.offsets, equations.predicted_decrease(step, lam)
+    linear = problem.linearize(values)
+    step = damped(linear, problem.n, lam).optimize()
+    xi, d = step_arrays(step, problem.n)
+    return xi, d, np.zeros(0), linear.error(step.scale(0.0)) - linear.error(step)
 
 
 def levenberg_marquardt(
@@ -130,7 +140,7 @@ def levenberg_marquardt(
     Changes ``problem``'s epoch factors (their linearisation and dropped blocks)
     and its gyro factors (re-preintegrated about the bias).
     """
-    n, k_huber = problem.n, problem.huber_threshold
+    k_huber = problem.huber_threshold
     values = to_values(attitudes, bias, offsets)
     cost = initial_cost = problem.cost(values)
     lam = params.initial_lambda
@@ -138,19 +148,15 @@ def levenberg_marquardt(
     history: list[Step] = []
     converged, message = False, f"maximum iterations ({params.max_iterations}) reached"
     while params.max_iterations > 0:  # none asked for: the start evaluated, not linearised
-        linear = problem.linearize(values)
         tolerance = params.absolute_tolerance + params.relative_tolerance * abs(cost)
-        system = damped(linear, n, problem.n_offsets, lam)
-        step = system.optimize(problem.ordering) if problem.ordering else system.optimize()
-        predicted = linear.error(step.scale(0.0)) - linear.error(step)
+        xi, d, offset_step, predicted = damped_step(problem, values, lam)
         if predicted <= tolerance and lam <= params.initial_lambda:
             converged, message = True, "predicted decrease within tolerance"
             break
         if iterations >= params.max_iterations:
             break
         iterations += 1
-        xi, d = step_arrays(step, n)
-        trial_offsets = offsets + np.array([step.at(offset_key(j))[0] for j in range(offsets.size)])
+        trial_offsets = offsets + offset_step
         trial_attitudes, trial_bias = retract(attitudes, xi), bias + d
         modelled = problem.modelled(trial_offsets)
         evaluations += 1

@@ -58,7 +58,6 @@ from attopt.solvers.sequential import rejected_epoch
 from attopt.solvers.smoother.conventions import (
     Array,
     attitude_key,
-    bias_key,
     offset_key,
     rot3,
 )
@@ -74,6 +73,7 @@ from attopt.solvers.smoother.measurement_factors import (
     evaluate_factors,
     prepare_factor,
 )
+from attopt.solvers.smoother.offset_elimination import NormalEquations, structure_keys
 
 UNDETERMINED_SIGMA = np.pi
 """Attitude standard deviation (rad) of a node the initial values leave undetermined
@@ -141,8 +141,6 @@ class SmootherProblem:
     fixed: gtsam.NonlinearFactorGraph
     counts: dict[str, Array]
     offset_ids: NDArray[np.intp]
-    ordering: gtsam.Ordering | None
-    """Elimination ordering (with offsets: :func:`time_ordering`; else GTSAM's default)."""
     excluded: NDArray[np.bool_]
     """``(n - 1,)`` intervals whose AHRS factor :meth:`exclude_intervals` removed."""
     graph: gtsam.NonlinearFactorGraph | None = None
@@ -231,6 +229,20 @@ class SmootherProblem:
                 linear.add(factor)
         return linear
 
+    def normal_equations(self, values: gtsam.Values) -> NormalEquations:
+        """The undamped normal equations at ``values`` by blocks (the factors' current
+        linearisation), for a problem with offsets: the built-in factors and the prior
+        linearised by GTSAM, the epochs' rows added from numpy."""
+        linear = self.graph.linearize(values)
+        linear.add(self.prior.linearize(values))
+        equations = NormalEquations.empty(self.n, self.n_offsets)
+        equations.add_linear(linear, structure_keys(self.n, self.n_offsets))
+        for f in self.factors:
+            if f.rows.size:
+                system, column = f.whitened_rows(self.huber_threshold)
+                equations.add_rows(f.node, system, column, f.offset_index[f.rows])
+        return equations
+
     def update_noise(self, attitudes: Rotation, offsets: Array) -> None:
         """Re-evaluate every epoch's ``R`` at ``attitudes`` (and ``offsets``), keeping its rows
         (attitude-dependent ``R``: truncated SNRs)."""
@@ -297,7 +309,6 @@ def build_problem(
         fixed=fixed,
         counts=counts,
         offset_ids=offset_ids,
-        ordering=time_ordering(nodes.size, factors, offset_ids.size) if offset_ids.size else None,
         excluded=np.zeros(nodes.size - 1, dtype=bool),
     )
     problem.relinearise_bias(start.bias)
@@ -338,27 +349,3 @@ def transmitter_offsets(
         for m in measurements
     ]
     return ids, index
-
-
-def time_ordering(n: int, factors: list[EpochFactor], n_offsets: int) -> gtsam.Ordering:
-    """Nodes in time order, each transmitter offset right after the last node that sees it.
-
-    The separators are then the offsets of the transmitters in view across
-    the current time, so elimination cost grows linearly with the pass (GTSAM's
-    COLAMD and METIS orderings of this graph were measured to be far slower,
-    and METIS aborted in gtsam 4.3.0).
-    """
-    last = np.zeros(n_offsets, dtype=np.intp)
-    for f in factors:
-        if f.offset_index is not None:
-            seen = f.offset_index[f.rows]
-            last[seen] = np.maximum(last[seen], f.node)
-    after = np.argsort(last, kind="stable")
-    bounds = np.searchsorted(last[after], np.arange(n + 1))
-    ordering = gtsam.Ordering()
-    for k in range(n):
-        ordering.push_back(attitude_key(k))
-        ordering.push_back(bias_key(k))
-        for j in after[bounds[k] : bounds[k + 1]]:
-            ordering.push_back(offset_key(int(j)))
-    return ordering
