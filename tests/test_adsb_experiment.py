@@ -294,11 +294,11 @@ def test_factor_graph_rows_beat_the_filters_and_carry_the_posterior_bound(sweep,
 
 def test_power_offsets_modelled_by_the_smoother():
     """Aircraft power offsets of 2 dB on a short pass: the smoother that estimates one
-    offset per aircraft is far better than the one that does not (measured on 300 s:
-    RMS 0.20 deg against 2.3 deg), the latter's residual test off to see its errors (it
+    offset per aircraft is far better than the one that does not (300 s: docs/results.md),
+    the latter's residual test off to see its errors (it
     flags every epoch: test_unmodelled_power_offsets_are_flagged).  The one that models
-    them is valid throughout and consistent, its covariances scaled by the pass's
-    variance factor (1.3, measured; docs/smoother.md)."""
+    them is valid throughout and consistent, and its rows carry the posterior bound with
+    the powers unknown, looser than the plain smoother's."""
     setting = {
         **PARAMETERS,
         "duration_s": 90.0,
@@ -315,6 +315,8 @@ def test_power_offsets_modelled_by_the_smoother():
     plain = _filter_rms(rows, "fg_batch", "mems", 30.0)
     modelled = _filter_rms(rows, "fg_batch_offsets", "mems", 30.0)
     assert modelled < 0.5 * plain
+    bound = rows.groupby("method")[["pbound_x_deg", "pbound_y_deg", "pbound_z_deg"]].mean()
+    assert (bound.loc["fg_batch_offsets"] > bound.loc["fg_batch"]).all()  # the powers unknown
 
 
 @pytest.mark.parametrize(

@@ -39,10 +39,10 @@ SNRs (:func:`filter_labels`), run by :func:`attopt.solvers.pipeline.run_estimato
 Rows of the gyro-aided methods carry ``pbound_{x,y,z}_deg`` when a factor-graph
 smoother is asked for: the posterior Cramer-Rao bound of the pass
 (:func:`attopt.experiments.metrics.posterior_bound_columns`, offsets not
-modelled), the same for every method of that gyro; the rows of the filters with
-offsets carry the bound of the pass with every aircraft's power unknown (prior
-``offset_prior_sigma_db``, constant offsets: the smoother with offsets at the truth),
-whether or not a smoother is asked for.
+modelled), the same for every method of that gyro; the rows of the estimators with
+offsets (``fg_batch_offsets`` and the filters with offsets) carry the bound of the pass
+with every aircraft's power unknown (prior ``offset_prior_sigma_db``, constant offsets:
+the smoother with offsets at the truth), whether or not a smoother is asked for.
 
 Every filter starts from the prior of
 :func:`attopt.experiments.simulation.simulate_filter_inputs` (attitude error drawn
@@ -114,10 +114,11 @@ DEFAULT_FILTERS = ["mekf_paper", "mekf_snr", "usque_snr", "rts_snr", "fg_online"
 power-offset option: module docstring)."""
 SNR_MODELS = ("truncated", "gaussian")
 OFFSET_ESTIMATORS = ("fg_batch_offsets", "mekf_offsets", "usque_offsets")
-"""The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``)."""
+"""The registry estimators with a power offset per aircraft (prior ``offset_prior_sigma_db``;
+their rows' bound has the powers unknown)."""
 FILTERS_WITH_OFFSETS = ("mekf_offsets", "usque_offsets")
 """The filters that carry each aircraft's offset as a state (random walk from the
-aircraft model's ``antenna_walk_db``; their rows' bound has the powers unknown)."""
+aircraft model's ``antenna_walk_db``)."""
 
 
 def filter_label(name: str) -> str:
@@ -307,13 +308,13 @@ def filter_rows(
         bound = posterior_bound_columns(simulated) if FACTOR_GRAPH & wanted else {}
         with_offsets = (
             posterior_bound_columns(simulated, parameters.offset_prior_sigma_db)
-            if set(FILTERS_WITH_OFFSETS) & wanted
+            if set(OFFSET_ESTIMATORS) & wanted
             else {}
         )
         for label in parameters.filters:
             frame = _rows(
                 label, gyro_label(gyro), runs[label], simulated, common, true_attitude_orbit
             )
-            offsets = label in methods and methods[label].name in FILTERS_WITH_OFFSETS
+            offsets = label in methods and methods[label].name in OFFSET_ESTIMATORS
             frames.append(frame.assign(**(with_offsets if offsets else bound)))
     return frames

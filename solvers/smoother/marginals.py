@@ -80,8 +80,8 @@ def problem_marginals(
                 problem.linearize(values), nodes, options.cross_covariance
             )
             variances = np.zeros(0)
-    except (RuntimeError, np.linalg.LinAlgError) as exc:  # an indefinite system (should not
-        # happen: prior + gyro chain)
+    except (RuntimeError, np.linalg.LinAlgError) as exc:
+        # an indefinite system (should not happen: prior + gyro chain)
         return PassMarginals(
             np.full((len(nodes), STATE_SIZE, STATE_SIZE), np.nan),
             np.full(problem.n_offsets, np.nan),
