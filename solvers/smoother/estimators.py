@@ -180,6 +180,11 @@ class BatchSmoother(PassEstimator):
         """Prior sigma of the transmitter offsets the problem models (``None``: none)."""
         return None
 
+    def offsets_from_start(self, given: bool) -> bool:
+        """Whether the factors get the offsets' columns at the start (``given``: the start
+        is a track passed as ``initial``); without offsets, never."""
+        return False
+
     def _resolved(
         self, problem: SmootherProblem, outcome: LevenbergMarquardtResult
     ) -> LevenbergMarquardtResult:
@@ -217,7 +222,7 @@ class BatchSmoother(PassEstimator):
             )
         with clock.stage("optimisation"):
             offsets = np.zeros(problem.n_offsets)
-            if problem.n_offsets and initial is not None:  # OffsetBatchSmoother's given start
+            if self.offsets_from_start(given=initial is not None):
                 problem.linearise_offsets(values.attitudes, offsets)
             outcome = levenberg_marquardt(
                 problem, values.attitudes, values.bias, offsets, self.optimiser
@@ -299,3 +304,7 @@ class OffsetBatchSmoother(BatchSmoother):
 
     def modelled_offsets(self) -> float | None:
         return self.offset_sigma
+
+    def offsets_from_start(self, given: bool) -> bool:
+        """A given start is taken to allow for the offsets (class docstring)."""
+        return given
