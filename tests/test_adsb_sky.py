@@ -30,6 +30,7 @@ from attopt.experiments.adsb_snr.sky import (
     calibrated,
     message_counts,
     model_allowance_db,
+    model_common_sigma_db,
     modelled_eirp,
     transmitter_offsets,
 )
@@ -238,7 +239,8 @@ def test_a_paper_method_flags_the_whole_sky_as_model_mismatch(tmp_path) -> None:
 def test_the_aircraft_model_raises_p0_by_the_expected_eirp_and_tells_the_single_frames() -> None:
     """Every estimator reads the expected EIRP in ``10 lg P0``; the stated SNR sigmas are
     the receiver's; the single-frame methods (and the NLSE that Liu et al. 2023's MEKF
-    reads) are told the model's allowance as their power prior."""
+    reads) are told the model's allowance as their power prior, and the part of it an
+    antenna's aircraft share."""
     parameters, scenario, noisy = _trial("modelled")
     rows = _rows(scenario)
     expected = modelled_eirp(parameters, rows, scenario.aircraft_ecef_km)
@@ -250,11 +252,14 @@ def test_the_aircraft_model_raises_p0_by_the_expected_eirp_and_tells_the_single_
     np.testing.assert_array_equal(epoch.p0_dbw, scenario.p0_dbw[taken] + expected[taken])
     assert modelled_eirp(_parameters(WHOLE_SKY), rows, scenario.aircraft_ecef_km) is None
     assert model_allowance_db(_parameters(WHOLE_SKY)) == 0.0
+    assert model_common_sigma_db(parameters) == 0.25
+    assert model_common_sigma_db(_parameters(WHOLE_SKY)) == 0.0
     gain = expected - mean
     assert gain.min() > -20.0 and gain.max() < 6.0
     defaults = snapshot_defaults(parameters)
     for name in ("deterministic", "nlse", "nlp", "nlp_truncated"):
         assert defaults[name]["power_offset_sigma_db"] == model_allowance_db(parameters)
+        assert defaults[name]["power_offset_common_sigma_db"] == 0.25
     assert defaults["deterministic"]["min_per_antenna"] == parameters.deterministic_min_per_antenna
 
 

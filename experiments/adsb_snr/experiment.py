@@ -136,6 +136,7 @@ from attopt.experiments.adsb_snr.sky import (
     Reception,
     gaussian_measurements,
     model_allowance_db,
+    model_common_sigma_db,
     modelled_eirp,
     reception,
     transmitter_offsets,
@@ -615,14 +616,20 @@ def snapshot_defaults(parameters: AdsbSnrParameters) -> dict[str, dict[str, Any]
     every method's (and the NLSE's that Liu et al. 2023's MEKF reads) power prior
     ``power_offset_sigma_db``, the model's allowance
     (:func:`~attopt.experiments.adsb_snr.sky.model_allowance_db`; the expected offset
-    itself is in each message's ``10 lg P0``)."""
+    itself is in each message's ``10 lg P0``), and ``power_offset_common_sigma_db``, the
+    part of it an antenna's aircraft share
+    (:func:`~attopt.experiments.adsb_snr.sky.model_common_sigma_db`)."""
     defaults: dict[str, dict[str, Any]] = {
         "deterministic": {"min_per_antenna": parameters.deterministic_min_per_antenna}
     }
     allowance = model_allowance_db(parameters)
     if allowance:
+        prior = {
+            "power_offset_sigma_db": allowance,
+            "power_offset_common_sigma_db": model_common_sigma_db(parameters),
+        }
         for name in dict.fromkeys([*parameters.methods, PAPER_SOURCE]):
-            defaults[name] = {**defaults.get(name, {}), "power_offset_sigma_db": allowance}
+            defaults[name] = {**defaults.get(name, {}), **prior}
     return defaults
 
 

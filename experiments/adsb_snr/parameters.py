@@ -278,7 +278,8 @@ class AircraftModel(Parameters):
     ``10 lg P0`` raised by the transponder classes' mean power offset and by the gain of
     the better placed aircraft antenna in level flight toward the satellite (for every
     estimator), the single-frame methods' power prior set to the classes' power
-    spread and ``antenna_sigma_db`` in quadrature, and, with ``antennas``, the
+    spread and ``antenna_sigma_db`` in quadrature, with ``common_sigma_db`` as the part
+    every aircraft an antenna hears in an epoch shares, and, with ``antennas``, the
     offsets' random walk of the filters that carry each aircraft's offset set to
     ``antenna_walk_db``.  Its numbers are those of ``[traffic.transmitters]`` (the
     defaults without that table)."""
@@ -293,6 +294,16 @@ class AircraftModel(Parameters):
         description=(
             "Allowance for what the level-flight antenna model leaves out (bank, the other "
             "antenna): measured 0.77 dB over the received messages (docs/adsb_sky.md)."
+        ),
+    )
+    common_sigma_db: float = Field(
+        0.25,
+        ge=0.0,
+        description=(
+            "Part of the model's error shared by every aircraft an antenna hears in an "
+            "epoch (dB), which the single-frame methods' covariances allow for: measured "
+            "0.14-0.29 dB over three hours of each of the power and modelled skies "
+            "(docs/adsb_sky.md)."
         ),
     )
     antenna_walk_db: float = Field(

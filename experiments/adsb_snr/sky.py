@@ -33,7 +33,8 @@ scenario without them is the paper's, draw for draw.
   what the receiver assumes about the transmitters it cannot know one by one: each
   message's ``10 lg P0`` is raised by the offset it expects, for every estimator
   (:func:`modelled_eirp`), and the single-frame methods are told the model's
-  uncertainty as their power prior (:func:`model_allowance_db`).
+  uncertainty as their power prior (:func:`model_allowance_db`, and the part of it an
+  antenna's aircraft share, :func:`model_common_sigma_db`).
 
 SNRs.  The link budget's SNR is the signal over the noise in ``receiver.bandwidth_hz``
 (Liu et al. 2023 eq. 2); the chain's table is indexed by the SNR per complex sample at
@@ -182,6 +183,20 @@ def model_allowance_db(scenario: AdsbScenario) -> float:
     installation = scenario.traffic.transmitters or AircraftTransmitterParameters()
     spread = installation.power_offset_moments()[1] if model.power else 0.0
     return math.hypot(spread, model.antenna_sigma_db if model.antennas else 0.0)
+
+
+def model_common_sigma_db(scenario: AdsbScenario) -> float:
+    """The part of the model's error (:func:`model_allowance_db`) that every aircraft an
+    antenna hears in an epoch shares, ``[receiver.aircraft_model]``'s
+    ``common_sigma_db``; 0 without the table or without an allowance.  The received
+    messages are those whose offsets the model underrates less (the receiver hears the
+    louder aircraft near its threshold), and aircraft in the same part of the sky share
+    much of the level-flight antenna model's error, so it does not average out over the
+    epoch's SNRs; it is the single-frame methods' ``power_offset_common_sigma_db``."""
+    model = scenario.receiver.aircraft_model
+    if model is None or not model_allowance_db(scenario):
+        return 0.0
+    return model.common_sigma_db
 
 
 def message_counts(

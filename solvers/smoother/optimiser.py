@@ -7,8 +7,8 @@ and GTSAM never calls back.  Each iteration of :func:`levenberg_marquardt` on a
 
 1. linearise (:meth:`~attopt.solvers.smoother.problem.SmootherProblem.linearize`:
    the built-in factors in C++, the prior's and every epoch's ``JacobianFactor``
-   in numpy at the current estimate) and add the damping ``sqrt(lambda) I`` on
-   every variable;
+   in numpy at the current estimate; after a rejected step the same linearisation,
+   :func:`linear_system`) and add the damping ``sqrt(lambda) I`` on every variable;
 2. solve (``GaussianFactorGraph.optimize``, multifrontal elimination in COLAMD
    order, linear in the pass for this chain-structured graph; with transmitter
    offsets the normal equations eliminated in time order in numpy,
@@ -51,6 +51,7 @@ from attopt.solvers.smoother.conventions import (
     to_values,
 )
 from attopt.solvers.smoother.measurement_factors import evaluate_factors
+from attopt.solvers.smoother.offset_elimination import NormalEquations
 from attopt.solvers.smoother.optimiser_params import LevenbergMarquardtParams
 from attopt.solvers.smoother.problem import SmootherProblem
 
@@ -112,20 +113,30 @@ def damped(linear: gtsam.GaussianFactorGraph, n: int, lam: float) -> gtsam.Gauss
     return out
 
 
-def damped_step(
-    problem: SmootherProblem, values: gtsam.Values, lam: float
-) -> tuple[Array, Array, Array, float]:
-    """The step ``(xi, d, offsets)`` of the system damped by ``lam`` and the decrease the
-    undamped linear model predicts for it (module docstring, 1-2)."""
+LinearSystem = gtsam.GaussianFactorGraph | NormalEquations
+"""A problem linearised at an estimate: GTSAM's graph, or with transmitter offsets its
+normal equations by blocks (module docstring, 1-2)."""
+
+
+def linear_system(problem: SmootherProblem, values: gtsam.Values) -> LinearSystem:
+    """``problem`` linearised at ``values`` (module docstring, 1)."""
     if problem.n_offsets:
-        equations = problem.normal_equations(values)
-        step = equations.solve(lam)
+        return problem.normal_equations(values)
+    return problem.linearize(values)
+
+
+def damped_step(
+    problem: SmootherProblem, system: LinearSystem, lam: float
+) -> tuple[Array, Array, Array, float]:
+    """The step ``(xi, d, offsets)`` of ``system`` damped by ``lam`` and the decrease the
+    undamped linear model predicts for it (module docstring, 1-2)."""
+    if isinstance(system, NormalEquations):
+        step = system.solve(lam)
         xi, d = step.nodes[:, :3], step.nodes[:, 3:]
-        return xi, d, step.offsets, equations.predicted_decrease(step, lam)
-    linear = problem.linearize(values)
-    step = damped(linear, problem.n, lam).optimize()
-    xi, d = step_arrays(step, problem.n)
-    return xi, d, np.zeros(0), linear.error(step.scale(0.0)) - linear.error(step)
+        return xi, d, step.offsets, system.predicted_decrease(step, lam)
+    solution = damped(system, problem.n, lam).optimize()
+    xi, d = step_arrays(solution, problem.n)
+    return xi, d, np.zeros(0), system.error(solution.scale(0.0)) - system.error(solution)
 
 
 def levenberg_marquardt(
@@ -147,9 +158,12 @@ def levenberg_marquardt(
     iterations = evaluations = rebuilds = 0
     history: list[Step] = []
     converged, message = False, f"maximum iterations ({params.max_iterations}) reached"
+    system = None  # the linearisation at values; kept while steps are rejected
     while params.max_iterations > 0:  # none asked for: the start evaluated, not linearised
         tolerance = params.absolute_tolerance + params.relative_tolerance * abs(cost)
-        xi, d, offset_step, predicted = damped_step(problem, values, lam)
+        if system is None:
+            system = linear_system(problem, values)
+        xi, d, offset_step, predicted = damped_step(problem, system, lam)
         if predicted <= tolerance and lam <= params.initial_lambda:
             converged, message = True, "predicted decrease within tolerance"
             break
@@ -173,6 +187,8 @@ def levenberg_marquardt(
                     current += f.current_cost(k_huber, lost) - f.current_cost(k_huber)
         accepted = bool(np.isfinite(trial) and trial < current)
         history.append((float(current), float(trial), float(predicted), float(lam), accepted))
+        if accepted or any(lost.size for _, _, lost in evaluated):
+            system = None
         if accepted:
             attitudes, bias, values = trial_attitudes, trial_bias, trial_values
             offsets = trial_offsets

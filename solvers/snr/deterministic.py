@@ -64,7 +64,7 @@ from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.boresight import BoresightEstimate, estimate_boresight
 from attopt.solvers.snr.driver import SnrSolver
 from attopt.solvers.snr.exclusion import EXCLUSION_DIAGNOSTICS
-from attopt.solvers.snr.fit import SELECTION_BIAS_DIAGNOSTICS, fit_at, model_at, threshold_bias
+from attopt.solvers.snr.fit import SELECTION_BIAS_DIAGNOSTICS, fit_at
 from attopt.solvers.snr.pattern_inverse import cos_from_gain
 from attopt.solvers.wahba import QUEST
 
@@ -200,23 +200,27 @@ class DeterministicSolver(SnrSolver):
         """The two-step rule: two non-parallel antennas with ``min_per_antenna`` observations."""
         return epoch_issue(problem, min_per_antenna=self.min_per_antenna)
 
-    def attitude_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> Array:
-        """The selection bias through the two-step method's own gain: the attitude
-        error ``d`` of the estimate against :func:`two_step` on the SNRs less their
-        threshold bias (:func:`~attopt.solvers.snr.fit.threshold_bias` at the estimate),
-        its two-fold choices made at the estimate.  The pattern inverse, the boresight
-        cones and QUEST respond to an SNR bias otherwise than the least squares' eq. 22
-        gain, which under-covers this method's bias (``docs/integrity.md``); where the
-        estimate does not predict every SNR or the re-solve fails, that gain is used."""
-        predicted, _ = model_at(problem, estimate.attitude)
-        bias = threshold_bias(problem, predicted)
-        if not np.all(np.isfinite(bias)):  # a message the estimate does not predict
-            return super().attitude_bias(problem, estimate)
-        debiased = replace(problem, snr_db=problem.snr_db - bias)
-        result = two_step(debiased, estimate.attitude, self.min_per_antenna)
-        if not result.valid:
-            return super().attitude_bias(problem, estimate)
-        return attitude_error(estimate.attitude, result.attitude)
+    def attitude_shifts(
+        self, problem: SnrEpoch, estimate: EpochEstimate, errors: Array, jacobian: Array
+    ) -> Array:
+        """The attitude errors that SNR errors cause through the two-step method's own
+        gain: for each row ``e`` of ``errors``, the attitude error of the estimate against
+        :func:`two_step` on the SNRs less ``e``, its two-fold choices made at the estimate.
+        The pattern inverse, the boresight cones and QUEST respond to an SNR bias otherwise
+        than the least squares' eq. 22 gain, which under-covers this method's bias
+        (``docs/integrity.md``); where ``e`` is not finite (a message the estimate does
+        not predict) or the re-solve fails, that gain is used."""
+        shifts = []
+        for e in np.atleast_2d(errors):
+            result = None
+            if np.all(np.isfinite(e)):
+                shifted = replace(problem, snr_db=problem.snr_db - e)
+                result = two_step(shifted, estimate.attitude, self.min_per_antenna)
+            if result is not None and result.valid:
+                shifts.append(attitude_error(estimate.attitude, result.attitude))
+            else:
+                shifts.append(super().attitude_shifts(problem, estimate, e, jacobian)[0])
+        return np.array(shifts)
 
     def estimate_epoch(self, problem: SnrEpoch, prior: Rotation | None) -> EpochEstimate:
         result = two_step(problem, prior, self.min_per_antenna)

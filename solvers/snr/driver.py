@@ -56,8 +56,11 @@ from attopt.solvers.snr.exclusion import Tested, exclude_one_transmitter
 from attopt.solvers.snr.fit import (
     SELECTION_BIAS_DIAGNOSTICS,
     Residuals,
-    least_squares_bias,
+    common_offsets,
+    least_squares_shifts,
+    model_at,
     standardised_residuals,
+    threshold_bias,
     widened,
 )
 
@@ -129,6 +132,16 @@ class SnrSolver(SnapshotEstimator):
             SNR per transmitter and epoch: the offset is then another independent
             Gaussian error of the SNR (Liu et al. 2023 eq. 13's ``10 lg P0`` known only in
             distribution).  Both 0 (default): the powers are known.
+        power_offset_common_sigma_db: the part of the power offsets that every
+            transmitter an antenna hears in an epoch shares (dB, standard deviation; 0,
+            the default: none).  Offsets independent from row to row average out over an
+            epoch's ``m`` SNRs; a shared part does not, so the estimate's covariance is
+            widened by it through the method's own gain: ``P + sum_a u_a u_a^T``, ``u_a``
+            the attitude error an offset of ``s_c`` on antenna ``a``'s SNRs causes
+            (:meth:`SnrSolver.attitude_shifts`, :func:`~attopt.solvers.snr.fit.common_offsets`),
+            the covariance of the estimate when the SNR errors' covariance is
+            ``diag(sigma_k^2) + s_c^2 sum_a 1_a 1_a^T`` (to first order).  The estimate
+            itself is unchanged.
     """
 
     warm_start: WarmStart = field(default_factory=WarmStart)
@@ -137,13 +150,19 @@ class SnrSolver(SnapshotEstimator):
     selection_bias: bool = True
     power_offset_mean_db: float = 0.0
     power_offset_sigma_db: float = 0.0
+    power_offset_common_sigma_db: float = 0.0
     accepts: ClassVar[tuple[type[AttitudeMeasurement], ...]] = (SnrMeasurement,)
     diagnostic_names: ClassVar[tuple[str, ...]]
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.power_offset_mean_db) and self.power_offset_sigma_db >= 0.0):
+        if not (
+            np.isfinite(self.power_offset_mean_db)
+            and self.power_offset_sigma_db >= 0.0
+            and self.power_offset_common_sigma_db >= 0.0
+        ):
             raise ValueError(
-                "power_offset_mean_db must be finite and power_offset_sigma_db non-negative"
+                "power_offset_mean_db must be finite, power_offset_sigma_db and "
+                "power_offset_common_sigma_db non-negative"
             )
 
     def with_power_prior(self, problem: SnrEpoch) -> SnrEpoch:
@@ -180,12 +199,34 @@ class SnrSolver(SnapshotEstimator):
         covariance is not widened by :attr:`selection_bias`)."""
         return False
 
-    def attitude_bias(self, problem: SnrEpoch, estimate: EpochEstimate) -> NDArray[np.float64]:
+    def attitude_shifts(
+        self,
+        problem: SnrEpoch,
+        estimate: EpochEstimate,
+        errors: NDArray[np.float64],
+        jacobian: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
+        """``(k, 3)``: the attitude error that each row of the SNR errors ``errors``
+        (``(k, m)`` or ``(m,)``, dB) causes in this method's estimate: through the
+        least-squares gain (:func:`~attopt.solvers.snr.fit.least_squares_shifts`;
+        ``jacobian`` the SNRs' at the estimate, :func:`~attopt.solvers.snr.fit.model_at`),
+        for the least-squares methods."""
+        return least_squares_shifts(jacobian, problem.sigma_db, estimate.covariance, errors)
+
+    def attitude_bias(
+        self,
+        problem: SnrEpoch,
+        estimate: EpochEstimate,
+        predicted: NDArray[np.float64],
+        jacobian: NDArray[np.float64],
+    ) -> NDArray[np.float64]:
         """The attitude bias ``d`` that the reception threshold's selection of the SNRs
-        causes in this method's estimate: through the least-squares gain
-        (:func:`~attopt.solvers.snr.fit.least_squares_bias`), for the least-squares
-        methods."""
-        return least_squares_bias(problem, estimate.attitude, estimate.covariance)
+        (:func:`~attopt.solvers.snr.fit.threshold_bias` at the predicted SNRs) causes in
+        this method's estimate (:meth:`attitude_shifts`); 0 without a selection."""
+        bias = threshold_bias(problem, predicted)
+        if not np.any(bias):
+            return np.zeros(3)
+        return self.attitude_shifts(problem, estimate, bias, jacobian)[0]
 
     def residual_chi_square(self, problem: SnrEpoch, estimate: EpochEstimate) -> float:
         """The residuals' chi-square at ``estimate`` (``m - 3`` degrees of freedom):
@@ -204,13 +245,20 @@ class SnrSolver(SnapshotEstimator):
         estimate = self.estimate_epoch(problem, prior)
         if estimate.failure is not None or estimate.attitude is None:
             return estimate, None
-        estimate = replace(estimate, diagnostics={**estimate.diagnostics, "n_excluded": 0.0})
-        if self.selection_bias and not self.models_the_threshold:
-            bias = self.attitude_bias(problem, estimate)
-            shown = dict(zip(SELECTION_BIAS_DIAGNOSTICS, bias, strict=True))
-            diagnostics = {**estimate.diagnostics, **shown}
-            covariance = widened(estimate.covariance, bias)
-            estimate = replace(estimate, covariance=covariance, diagnostics=diagnostics)
+        diagnostics = {**estimate.diagnostics, "n_excluded": 0.0}
+        covariance = estimate.covariance
+        selection = self.selection_bias and not self.models_the_threshold
+        if selection or self.power_offset_common_sigma_db:
+            predicted, jacobian = model_at(problem, estimate.attitude)
+        if selection:
+            bias = self.attitude_bias(problem, estimate, predicted, jacobian)
+            diagnostics.update(zip(SELECTION_BIAS_DIAGNOSTICS, bias, strict=True))
+            covariance = widened(covariance, bias)
+        if self.power_offset_common_sigma_db:
+            offsets = common_offsets(problem, self.power_offset_common_sigma_db)
+            shifts = self.attitude_shifts(problem, estimate, offsets, jacobian)
+            covariance = widened(covariance, shifts)
+        estimate = replace(estimate, covariance=covariance, diagnostics=diagnostics)
         chi_square = self.residual_chi_square(problem, estimate)
         return estimate, residual_test(chi_square, problem.m - 3, self.mismatch_false_alarm)
 

@@ -229,26 +229,49 @@ def threshold_bias(problem: SnrEpoch, predicted: Array) -> Array:
 
 def least_squares_bias(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
     """The attitude bias ``d = P J^T C b`` that the SNR errors ``b``
-    (:func:`threshold_bias`) cause through the least-squares gain (``P = (J^T C J)^-1``,
-    eq. 22; ``J`` the SNRs' Jacobian at ``attitude``, ``C = diag(1 / sigma_k^2)``),
-    evaluated at the estimate.  Without a selection (every ``b_k`` 0, e.g. no threshold)
-    ``d = 0``; with an unobservable rotation (infinite entries of ``P``) ``d`` is not
-    finite, and :func:`widened` leaves ``P`` as it is."""
+    (:func:`threshold_bias`) cause through the least-squares gain
+    (:func:`least_squares_shifts`), evaluated at the estimate.  Without a selection
+    (every ``b_k`` 0, e.g. no threshold) ``d = 0``; with an unobservable rotation
+    (infinite entries of ``P``) ``d`` is not finite, and :func:`widened` leaves ``P`` as
+    it is."""
     predicted, jac = model_at(problem, attitude)
-    sigma = np.asarray(problem.sigma_db, dtype=float)
     bias = threshold_bias(problem, predicted)
     if not np.any(bias):
         return np.zeros(3)
+    return least_squares_shifts(jac, problem.sigma_db, covariance, bias)[0]
+
+
+def least_squares_shifts(
+    jacobian: Array, sigma_db: Array | float, covariance: Array, errors: Array
+) -> Array:
+    """``(k, 3)``: the attitude error ``P J^T C e`` that each row ``e`` of the SNR errors
+    ``errors`` (``(k, m)`` or ``(m,)``, dB) causes through the least-squares gain
+    (Liu et al. 2023 eq. 22: ``P = (J^T C J)^-1``, ``C = diag(1 / sigma_k^2)``; ``J`` the
+    ``(m, 3)`` SNRs' Jacobian at the estimate, :func:`model_at`); not finite along an
+    unobservable rotation."""
+    weighted = np.atleast_2d(errors) / np.asarray(sigma_db, dtype=float) ** 2
     with np.errstate(invalid="ignore"):
-        return np.asarray(covariance, dtype=float) @ (jac.T @ (bias / sigma**2))
+        return (np.asarray(covariance, dtype=float) @ (jacobian.T @ weighted.T)).T
 
 
-def widened(covariance: Array, bias: Array) -> Array:
-    """``P + d d^T``, the mean squared error matrix of an estimate of bias ``d``
-    (``P`` itself when ``d`` is not finite)."""
-    if not np.all(np.isfinite(bias)):
+def common_offsets(problem: SnrEpoch, sigma_db: float) -> Array:
+    """``(a, m)``: one row per antenna heard in the epoch, ``sigma_db`` on that
+    antenna's SNRs and 0 elsewhere: the SNR errors of an offset of one standard
+    deviation shared by every transmitter the antenna hears
+    (:attr:`~attopt.solvers.snr.driver.SnrSolver.power_offset_common_sigma_db`)."""
+    heard = np.unique(problem.antenna)
+    return sigma_db * (problem.antenna[None, :] == heard[:, None]).astype(float)
+
+
+def widened(covariance: Array, shifts: Array) -> Array:
+    """``P + sum_i d_i d_i^T`` over the attitude errors ``d_i`` (rows of ``shifts``, or
+    one ``(3,)`` bias): the mean squared error matrix of an estimate of bias ``d``, or
+    its covariance under independent zero-mean errors of those shapes (``P`` itself
+    when a ``d_i`` is not finite)."""
+    d = np.atleast_2d(shifts)
+    if not np.all(np.isfinite(d)):
         return covariance
-    return covariance + np.outer(bias, bias)
+    return covariance + d.T @ d
 
 
 def selection_bias_covariance(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
