@@ -72,6 +72,7 @@ from attopt.formulations.quaternion_algebra import (
     left_matrices,
     to_mrp,
 )
+from attopt.solvers.blocks import block_structure, count_blocks
 from attopt.solvers.estimator import Estimator
 from attopt.solvers.filters import compiled
 from attopt.solvers.gyro_timeline import (
@@ -594,50 +595,6 @@ def kalman_gain(
     return posterior @ r_inv_h.T, nis, posterior
 
 
-def block_labels(labels: NDArray[np.intp]) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """The distinct block labels of ``labels`` and each row's index among them
-    (``np.unique(labels, return_inverse=True)``), found once per layout.
-
-    Cached: the filters and smoothers ask it at every epoch, and a pass's epochs repeat a
-    few layouts.  The arrays are shared, not to be modified.
-    """
-    return _block_labels(np.ascontiguousarray(labels, dtype=np.intp).tobytes())
-
-
-@lru_cache(maxsize=1024)
-def _block_labels(labels: bytes) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    ids, index = np.unique(np.frombuffer(labels, dtype=np.intp), return_inverse=True)
-    ids.flags.writeable = index.flags.writeable = False
-    return ids, index
-
-
-def count_blocks(labels: NDArray[np.intp]) -> int:
-    """The number of distinct block labels in ``labels`` (:func:`block_labels`)."""
-    return 0 if labels.size == 0 else int(block_labels(labels)[0].size)
-
-
-@lru_cache(maxsize=1024)
-def block_layout(blocks: bytes) -> tuple[tuple[int, NDArray[np.intp]], ...]:
-    """The rows of each block of the labels ``blocks`` (an ``intp`` array's bytes), by
-    block size: ``(size, rows)`` with ``rows`` ``(blocks of that size, size)``.
-
-    Cached: a pass's epochs repeat a few layouts.  The arrays are shared, not to be
-    modified.
-    """
-    labels = np.frombuffer(blocks, dtype=np.intp)
-    unique, first, sizes = np.unique(labels, return_index=True, return_counts=True)
-    layout = []
-    for size in np.unique(sizes):
-        members = unique[sizes == size]
-        rows = (
-            np.stack([np.flatnonzero(labels == b) for b in members])
-            if size > 1
-            else first[sizes == size][:, None]
-        )
-        layout.append((int(size), rows))
-    return tuple(layout)
-
-
 def block_nis(
     innovation: Array,
     factor: Array,
@@ -656,7 +613,7 @@ def block_nis(
     """
     nis_rows = np.full(innovation.shape[0], np.nan)
     size_rows = np.zeros(innovation.shape[0], dtype=np.intp)
-    for size, rows in block_layout(np.ascontiguousarray(blocks, dtype=np.intp).tobytes()):
+    for size, rows in block_structure(blocks).layout:
         nu = innovation[rows]
         columns = factor[:, rows]  # (k, blocks, size)
         weighted = (weight @ columns.reshape(columns.shape[0], -1)).reshape(columns.shape)

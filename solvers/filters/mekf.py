@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel
+from attopt.solvers.blocks import count_blocks
 from attopt.solvers.filters.common import (
     STATE_SIZE,
     Array,
@@ -34,7 +35,6 @@ from attopt.solvers.filters.common import (
     GyroStateFilter,
     PreparedGyro,
     apply_error,
-    count_blocks,
     error_jacobian,
     gate,
     huber_noise,

@@ -134,6 +134,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_measurement import AttitudeMeasurement
 from attopt.formulations.gyro import GyroModel
 from attopt.formulations.kernels import compiled_loops
+from attopt.solvers.blocks import count_blocks
 from attopt.solvers.filters import compiled
 from attopt.solvers.filters.common import (
     STATE_SIZE,
@@ -142,7 +143,6 @@ from attopt.solvers.filters.common import (
     GyroStateFilter,
     PreparedGyro,
     apply_error,
-    count_blocks,
     covariance_steps,
     error_jacobian,
     gate,

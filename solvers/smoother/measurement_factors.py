@@ -55,8 +55,6 @@ are counted.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
-from functools import lru_cache
 
 import gtsam
 import numpy as np
@@ -70,9 +68,8 @@ from attopt.formulations.attitude_measurement import (
     predict_each,
 )
 from attopt.formulations.errors import InvalidObservationError
+from attopt.solvers.blocks import BlockMembers, block_structure, count_blocks
 from attopt.solvers.filters.common import (
-    block_labels,
-    count_blocks,
     gate,
     noise_subset,
     usable_rows,
@@ -89,46 +86,6 @@ NO_BLOCKS.flags.writeable = False
 
 FD_STEP = 1e-6
 """Relative central-difference step of the innovation's derivative."""
-
-
-@dataclass(frozen=True)
-class BlockMembers:
-    """Where each row of a measurement sits in its block (:func:`block_members`).
-
-    Attributes:
-        members: ``(m, s)``, for each row the rows of its block in order (``-1``
-            padding), ``s`` the largest block size.
-        position: ``(m,)`` each row's position in its block.
-        valid: ``(m, s)`` where ``members`` is a row.
-        source: ``(m, s)`` ``members`` with the padding at row 0 (safe to index with).
-    """
-
-    members: NDArray[np.intp]
-    position: NDArray[np.intp]
-    valid: NDArray[np.bool_]
-    source: NDArray[np.intp]
-
-
-def block_members(blocks: NDArray[np.intp]) -> BlockMembers:
-    """The :class:`BlockMembers` of the block labels ``blocks`` ``(m,)``, computed once per
-    layout (a pass's epochs repeat a few; the arrays are shared, not to be modified)."""
-    return _block_members(np.ascontiguousarray(blocks, dtype=np.intp).tobytes())
-
-
-@lru_cache(maxsize=1024)
-def _block_members(blocks: bytes) -> BlockMembers:
-    labels = np.frombuffer(blocks, dtype=np.intp)
-    unique, inverse, sizes = np.unique(labels, return_inverse=True, return_counts=True)
-    order = np.argsort(inverse, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    members = np.full((unique.size, int(sizes.max()) if sizes.size else 0), -1, dtype=np.intp)
-    position = np.arange(labels.size) - np.repeat(starts, sizes)
-    members[np.repeat(np.arange(unique.size), sizes), position] = order
-    members = members[inverse]
-    positions = np.zeros(labels.size, dtype=np.intp)
-    positions[order] = position
-    valid = members >= 0
-    return BlockMembers(members, positions, valid, np.where(valid, members, 0))
 
 
 def innovation_jacobian(
@@ -187,7 +144,7 @@ class EpochFactor:
                 f"node {node}: offsets are modelled row by row and need independent rows"
             )
         self.counts = counts
-        self.members = block_members(measurement.blocks)
+        self.members = block_structure(measurement.blocks).members
         self.set_rows(rows)
         self.innovation = np.zeros(rows.size)
         self.jacobian = np.zeros((rows.size, 3))
@@ -210,7 +167,8 @@ class EpochFactor:
         """Use ``rows`` from now on (whitener, block labels)."""
         self.rows = rows
         labels = self.measurement.blocks[rows]
-        self.block_ids, self.block_index = block_labels(labels)
+        blocks = block_structure(labels)
+        self.block_ids, self.block_index = blocks.ids, blocks.index
         if self.noise_diagonal is not None:
             d = self.noise_diagonal[rows]
             if not (d > 0).all():  # also False for NaN
