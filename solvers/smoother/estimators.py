@@ -222,7 +222,8 @@ class BatchSmoother(PassEstimator):
             )
         with clock.stage("optimisation"):
             offsets = np.zeros(problem.n_offsets)
-            if self.offsets_from_start(given=initial is not None):
+            from_start = self.offsets_from_start(given=initial is not None)
+            if from_start:
                 problem.linearise_offsets(values.attitudes, offsets)
             outcome = levenberg_marquardt(
                 problem, values.attitudes, values.bias, offsets, self.optimiser
@@ -237,7 +238,8 @@ class BatchSmoother(PassEstimator):
                 problem.exclude_intervals(faults, outcome.attitudes)
                 outcome = outcome.then(self._resolved(problem, outcome))
         with clock.stage("marginals"):
-            if problem.n_offsets and outcome.iterations == 0:
+            stepped = any(accepted for *_, accepted in outcome.history)
+            if problem.n_offsets and not (from_start or stepped):  # no offsets' columns yet
                 problem.linearise_offsets(outcome.attitudes, outcome.offsets)
             marginals = problem_marginals(problem, outcome.values, self.marginals)
         return batch_track(

@@ -157,8 +157,8 @@ class SmootherProblem:
     def linearise_offsets(self, attitudes: Rotation, offsets: Array) -> None:
         """Linearise the epoch factors at ``attitudes`` and ``offsets`` with the offsets'
         column.  The factors are prepared without it and gain it at the first accepted
-        optimiser step; a solve without steps (the posterior bound at the truth) needs
-        it set here, else its marginals are those of known powers."""
+        optimiser step; a solve without an accepted step (the posterior bound at the
+        truth) needs it set here, else its marginals are those of known powers."""
         evaluated = evaluate_factors(self.factors, attitudes, offsets)
         for f, (nu, jacobian, lost) in zip(self.factors, evaluated, strict=True):
             f.accept(nu, jacobian, lost)
