@@ -6,7 +6,8 @@
 * the marginals (``solvers/smoother/marginals.py``) against ``gtsam.Marginals`` on
   small problems, with and without transmitter offsets;
 * the optimiser's parameters validate (hypothesis); the loop's damping and
-  bias-relinearisation rules, read from its history;
+  bias-relinearisation rules, read from its history; a rejected step reuses the
+  linearisation;
 * ``fg_batch`` and ``fg_batch_offsets`` in the pipeline: started from ``fg_online``
   when that is run, else from an unreported RTS pass, which is what it starts from
   when given none;
@@ -42,6 +43,7 @@ from attopt.solvers.smoother import (
     LevenbergMarquardtParams,
     OffsetBatchSmoother,
     OnlineSmoother,
+    optimiser,
 )
 from attopt.solvers.smoother.conventions import (
     SIGN,
@@ -232,6 +234,34 @@ def test_damping_and_bias_relinearisation_follow_their_rules():
     assert report.final_cost < report.initial_cost
     problem = report.problem
     assert problem.offset == 0 and not problem.bias_drifted(report.bias)
+
+
+def test_a_rejected_step_damps_the_same_linearisation(monkeypatch):
+    """After a rejected step the loop damps the linear system it has more and solves it
+    again; it linearises only at the start and after accepted steps.  The first trial
+    point is made to look worse (its innovations scaled up), so that step is rejected."""
+    linearised, evaluated = [], []
+    linear_system, evaluate_factors = optimiser.linear_system, optimiser.evaluate_factors
+
+    def counted(problem, values):
+        linearised.append(values)
+        return linear_system(problem, values)
+
+    def first_worse(factors, attitudes, offsets):
+        out = evaluate_factors(factors, attitudes, offsets)
+        evaluated.append(attitudes)
+        return [(1e3 * nu, j, lost) for nu, j, lost in out] if len(evaluated) == 1 else out
+
+    monkeypatch.setattr(optimiser, "linear_system", counted)
+    monkeypatch.setattr(optimiser, "evaluate_factors", first_worse)
+    rng = np.random.default_rng(29)
+    run = simulate_pass(rng, duration=30.0)
+    prior = drawn_prior(rng, run, prior_covariance(np.radians(3.0)))
+    pass_ = make_pass(run.gyro, run.t, run.measurements, prior)
+    history = BatchSmoother(initialisation="gyro").solve(pass_).report.history
+    assert not history[0][4] and history[1][4]  # rejected, then accepted
+    accepted = sum(step[4] for step in history)
+    assert len(linearised) <= accepted + 1 < len(history) + 1
 
 
 def test_optimiser_from_the_truth_of_a_noise_free_pass_takes_no_step():
