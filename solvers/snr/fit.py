@@ -227,20 +227,6 @@ def threshold_bias(problem: SnrEpoch, predicted: Array) -> Array:
     return sigma * np.exp(norm.logpdf(a) - norm.logsf(a))
 
 
-def least_squares_bias(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
-    """The attitude bias ``d = P J^T C b`` that the SNR errors ``b``
-    (:func:`threshold_bias`) cause through the least-squares gain
-    (:func:`least_squares_shifts`), evaluated at the estimate.  Without a selection
-    (every ``b_k`` 0, e.g. no threshold) ``d = 0``; with an unobservable rotation
-    (infinite entries of ``P``) ``d`` is not finite, and :func:`widened` leaves ``P`` as
-    it is."""
-    predicted, jac = model_at(problem, attitude)
-    bias = threshold_bias(problem, predicted)
-    if not np.any(bias):
-        return np.zeros(3)
-    return least_squares_shifts(jac, problem.sigma_db, covariance, bias)[0]
-
-
 def least_squares_shifts(
     jacobian: Array, sigma_db: Array | float, covariance: Array, errors: Array
 ) -> Array:
@@ -272,17 +258,3 @@ def widened(covariance: Array, shifts: Array) -> Array:
     if not np.all(np.isfinite(d)):
         return covariance
     return covariance + d.T @ d
-
-
-def selection_bias_covariance(problem: SnrEpoch, attitude: Rotation, covariance: Array) -> Array:
-    """The least-squares covariance widened by the reception threshold's selection bias:
-    ``P + d d^T`` (:func:`widened`), ``d`` the bias the threshold causes through the
-    least-squares gain (:func:`least_squares_bias`).
-
-    A message is received only when its measured SNR passes the threshold ``tau``, so a
-    received SNR whose prediction lies near it carries a positive error
-    (:func:`threshold_bias`).  The widened covariance covers the attitude bias that
-    follows; the estimate is unchanged (the truncated likelihood, ``nlp_truncated``,
-    removes the bias instead).
-    """
-    return widened(covariance, least_squares_bias(problem, attitude, covariance))
