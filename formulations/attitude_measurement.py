@@ -49,6 +49,8 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.attitude_model import evaluate_at_attitudes
 from attopt.formulations.conventions import euler321_from_attitude
 from attopt.formulations.errors import InvalidObservationError, UnsupportedMeasurementError
+from attopt.formulations.geodesic import geodesic_reference, geodesic_rows
+from attopt.formulations.kernels import compiled_loops
 from attopt.formulations.measurement_model import (
     SymbolicModel,
     difference,
@@ -457,20 +459,12 @@ class VectorMeasurement(AttitudeMeasurement):
         return super().predict(attitude)
 
     def innovation(self, predicted: Array) -> Array:
-        # the norms as ndarray sums (np.linalg.norm's values, bit for bit) and the division
-        # only where the sine is positive: the filters and smoothers call this every epoch
-        h = predicted.reshape(*predicted.shape[:-1], -1, 3)
-        unit = h / np.sqrt((h * h).sum(axis=-1, keepdims=True))
-        z = self.z.reshape(-1, 3)
-        cosine = (z * unit).sum(axis=-1, keepdims=True)
-        perpendicular = z - cosine * unit
-        sine = np.sqrt((perpendicular * perpendicular).sum(axis=-1, keepdims=True))
-        positive = sine > 0
-        geodesic = np.arctan2(sine, cosine) * perpendicular
-        np.divide(geodesic, sine, out=geodesic, where=positive)
-        if not positive.all():  # along the prediction: 0; reversed or not finite: NaN
-            geodesic = np.where(positive, geodesic, np.where(cosine > 0, 0.0, np.nan))
-        return geodesic.reshape(predicted.shape)
+        """The geodesic difference of each measured vector from its prediction, compiled
+        (:func:`attopt.formulations.geodesic.geodesic_rows`) unless kernels are
+        interpreted (:func:`~attopt.formulations.kernels.compiled_loops`; then its numpy
+        reference, :func:`~attopt.formulations.geodesic.geodesic_reference`)."""
+        geodesic = geodesic_rows if compiled_loops() else geodesic_reference
+        return geodesic(predicted.reshape(-1, predicted.shape[-1]), self.z).reshape(predicted.shape)
 
 
 @lru_cache(maxsize=32)

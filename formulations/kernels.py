@@ -53,12 +53,13 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, lru_cache
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -168,12 +169,16 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
     block = bucket(n) if n <= BLOCK else BLOCK
     size = -(-n // block) * block
     pad, shared = _point_indices(size, n)
-    stacked = [  # (size, nnz), C-contiguous: one fancy index copies and pads
-        a[pad if a.shape[0] == n else shared, rows, columns]
-        for a, (rows, columns) in zip(arrays, layout.entries_in, strict=True)
+    stacked = [  # (size, nnz), C-contiguous: one copy (a fancy index where it pads)
+        _column_major(a)
+        if dense and a.shape[0] == size
+        else a[pad if a.shape[0] == n else shared, rows, columns]
+        for a, (rows, columns), dense in zip(
+            arrays, layout.entries_in, layout.dense_in, strict=True
+        )
     ]
     outputs = [np.empty((size, rows.size)) for rows, _ in layout.entries_out]
-    buffer, evaluate = mapped(function, block).buffer()
+    buffer, evaluate = _buffer(function, block, compiled_kernels(), threading.get_ident())
     for start in range(0, size, block):
         for i, values in enumerate(stacked):
             buffer.set_arg(i, memoryview(values[start : start + block]))
@@ -181,13 +186,31 @@ def evaluate_mapped(function: ca.Function, *inputs: ArrayLike) -> list[Array]:
             buffer.set_res(i, memoryview(out[start : start + block]))
         evaluate()
     result = []
-    for out, shape, (rows, columns) in zip(
-        outputs, layout.shapes_out, layout.entries_out, strict=True
+    for out, shape, (rows, columns), dense in zip(
+        outputs, layout.shapes_out, layout.entries_out, layout.dense_out, strict=True
     ):
-        dense = np.zeros((n, *shape))
-        dense[:, rows[0], columns[0]] = out[:n]
-        result.append(dense)
+        if dense:  # the nonzeros are every entry, column by column
+            result.append(np.ascontiguousarray(out[:n].reshape(n, *shape[::-1]).swapaxes(1, 2)))
+            continue
+        full = np.zeros((n, *shape))
+        full[:, rows[0], columns[0]] = out[:n]
+        result.append(full)
     return result
+
+
+def _column_major(points: Array) -> Array:
+    """``(N, rows, columns)`` as ``(N, rows columns)``, each point's entries column by
+    column (a dense input's nonzeros in CasADi's order), C-contiguous."""
+    return np.ascontiguousarray(points.swapaxes(1, 2)).reshape(points.shape[0], -1)
+
+
+@lru_cache(maxsize=1024)
+def _buffer(function: ca.Function, n: int, compiled: bool, thread: int) -> tuple[Any, Any]:
+    """``Function.buffer()`` of :func:`mapped` ``(function, n)``, one per thread (a buffer
+    holds the pointers of one evaluation; :func:`evaluate_mapped` sets every argument and
+    result before each): building one costs about 20 us, as much as evaluating a map of a
+    few points."""
+    return _mapped(function, n, compiled).buffer()
 
 
 @lru_cache(maxsize=256)
@@ -209,6 +232,8 @@ class _Layout:
     shapes_out: tuple[tuple[int, int], ...]
     entries_in: tuple[tuple[NDArray[np.intp], NDArray[np.intp]], ...]
     entries_out: tuple[tuple[NDArray[np.intp], NDArray[np.intp]], ...]
+    dense_in: tuple[bool, ...]
+    dense_out: tuple[bool, ...]
 
 
 @lru_cache(maxsize=512)
@@ -222,6 +247,8 @@ def _layout(function: ca.Function) -> _Layout:
         tuple(function.size_out(i) for i in range(function.n_out())),
         tuple(entries(function.sparsity_in(i)) for i in range(function.n_in())),
         tuple(entries(function.sparsity_out(i)) for i in range(function.n_out())),
+        tuple(function.sparsity_in(i).is_dense() for i in range(function.n_in())),
+        tuple(function.sparsity_out(i).is_dense() for i in range(function.n_out())),
     )
 
 

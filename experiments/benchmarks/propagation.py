@@ -1,14 +1,19 @@
-"""Benchmark of the filters' compiled gyro propagation (:mod:`attopt.solvers.filters.compiled`).
+"""Benchmark of the filters' compiled loops (:mod:`attopt.solvers.filters.compiled`,
+:mod:`attopt.formulations.geodesic`).
 
 ``python -m attopt.experiments.benchmarks.propagation [--runs 5] [--steps 10] [--calls
-2000]`` times one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a
-few deg/s) two ways in the same process and run: the numpy reference
+2000]`` times each loop two ways in the same process and run: the numpy reference
 (:func:`~attopt.solvers.filters.common.covariance_steps`,
 :func:`~attopt.solvers.filters.common.quaternion_steps`,
-:func:`~attopt.solvers.filters.usque.unscented_prediction`) and the compiled loops.  Two
-cases: the MEKF's (the covariance and one attitude) and USQUE's whole prediction (the 13
-sigma attitudes, their mean and covariance, the process noise over the steps from a
-zero covariance).  It prints the median,
+:func:`~attopt.solvers.filters.usque.unscented_prediction`,
+:func:`~attopt.solvers.filters.common.block_nis_reference`,
+:func:`~attopt.formulations.geodesic.geodesic_reference`) and the compiled loop.  Four
+cases: one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a few
+deg/s), the MEKF's (the covariance and one attitude) and USQUE's whole prediction (the
+13 sigma attitudes, their mean and covariance, the process noise over the steps from a
+zero covariance); and two pieces of every update with a Sun and a magnetometer vector,
+the gate's normalised innovations of the two vectors (MEKF: ``F = H^T``, ``W = P``) and
+the unit vectors' innovation at USQUE's 13 sigma points.  It prints the median,
 minimum and maximum over ``--runs`` of the mean time per prediction (``--calls`` calls
 each), the ratio of the medians, and the largest difference between the two paths'
 outputs.
@@ -24,13 +29,17 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.geodesic import geodesic_reference, geodesic_rows
 from attopt.formulations.gyro import MEMS_GYRO
-from attopt.solvers.filters import common, compiled, usque
+from attopt.solvers.blocks import block_structure
+from attopt.solvers.filters import common, compiled, update_kernels, usque
 
 
 def _inputs(steps: int) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(0)
     dt = np.full(steps, 0.1)
+    measured = rng.normal(size=(2, 3))
+    measured /= np.linalg.norm(measured, axis=1, keepdims=True)
     a = rng.normal(size=(6, 6))
     return {
         "rates": np.radians([1.0, -2.0, 0.5]) + 1e-3 * rng.normal(size=(steps, 3)),
@@ -39,11 +48,16 @@ def _inputs(steps: int) -> dict[str, np.ndarray]:
         "noise": common.step_noise(MEMS_GYRO, dt, np.zeros(steps)),
         "attitude": Rotation.random(rng=rng).as_quat()[None],
         "bias": 1e-4 * rng.normal(size=3),
+        "innovation": 1e-3 * rng.normal(size=6),
+        "jacobian": rng.normal(size=(6, 6)),
+        "variances": np.full(6, 1e-6),
+        "measured": measured.ravel(),
+        "sigma_predictions": (measured + 0.02 * rng.normal(size=(13, 2, 3))).reshape(13, 6),
     }
 
 
 def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]]:
-    """Per case, the numpy and compiled predictions (the same arguments)."""
+    """Per case, the numpy and compiled loops (the same arguments)."""
     offsets, _ = usque.sigma_offsets(x["covariance"])
     usque_arguments = (offsets, x["attitude"][0], x["bias"], x["rates"], x["dt"], x["noise"])
 
@@ -58,10 +72,24 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
         "compiled": (compiled.covariance_steps, compiled.quaternion_steps),
     }
     usque_paths = {"numpy": usque.unscented_prediction, "compiled": compiled.unscented_prediction}
+    blocks = np.repeat([0, 1], 3)
+    gate_arguments = (x["innovation"], x["jacobian"].T, x["covariance"], x["variances"])
+    gate_paths = {
+        "numpy": lambda: common.block_nis_reference(*gate_arguments, blocks),
+        "compiled": lambda: update_kernels.block_nis(
+            *gate_arguments, block_structure(blocks).members.members
+        ),
+    }
+    vector_paths = {"numpy": geodesic_reference, "compiled": geodesic_rows}
     return {
         "MEKF prediction": {name: mekf(*f) for name, f in paths.items()},
         "USQUE prediction": {
             name: (lambda f=f: f(*usque_arguments)) for name, f in usque_paths.items()
+        },
+        "gate, two vectors": {name: (lambda f=f: f()) for name, f in gate_paths.items()},
+        "vector innovation, 13 sigma points": {
+            name: (lambda f=f: (f(x["sigma_predictions"], x["measured"]),))
+            for name, f in vector_paths.items()
         },
     }
 
@@ -83,7 +111,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--calls", type=int, default=2000)
     args = parser.parse_args(argv)
-    print(f"{args.steps} gyro steps per prediction; us per prediction, median (min-max)")
+    print(f"{args.steps} gyro steps per prediction; us per call, median (min-max)")
     print("| case | numpy | compiled | numpy / compiled | largest difference |")
     print("|---|---|---|---|---|")
     for case, paths in _cases(_inputs(args.steps)).items():

@@ -74,7 +74,7 @@ from attopt.formulations.quaternion_algebra import (
 )
 from attopt.solvers.blocks import block_structure, count_blocks
 from attopt.solvers.estimator import Estimator
-from attopt.solvers.filters import compiled
+from attopt.solvers.filters import compiled, update_kernels
 from attopt.solvers.gyro_timeline import (
     COINCIDENCE,
     GyroTimeline,
@@ -121,8 +121,20 @@ def quaternion_error_vector(estimate: ArrayLike, reference: ArrayLike) -> Array:
 
 def perturb_quaternion(delta: ArrayLike, reference: ArrayLike) -> Array:
     """:func:`apply_error` on scalar-last quaternions (``(..., 4)``; the quaternion
-    returned), as :func:`quaternion_error_vector`."""
-    return compose(from_mrp(np.asarray(delta, dtype=float) / 4.0), reference)
+    returned), as :func:`quaternion_error_vector`; compiled
+    (:func:`attopt.solvers.filters.update_kernels.perturbed_quaternions`) for one reference or
+    as many as errors, unless kernels are interpreted."""
+    delta, reference = np.asarray(delta, dtype=float), np.asarray(reference, dtype=float)
+    lead = delta.shape[:-1]
+    if compiled_loops() and reference.shape[:-1] in (lead, ()):
+        flat = update_kernels.perturbed_quaternions(delta.reshape(-1, 3), reference.reshape(-1, 4))
+        return flat.reshape(*lead, 4)
+    return perturbation_reference(delta, reference)
+
+
+def perturbation_reference(delta: Array, reference: Array) -> Array:
+    """The numpy reference of :func:`perturb_quaternion` (any broadcast shapes)."""
+    return compose(from_mrp(delta / 4.0), reference)
 
 
 def error_jacobian(delta: ArrayLike) -> Array:
@@ -584,11 +596,25 @@ def kalman_gain(
     inverses and work linear in the number of rows when ``R`` is given as
     variances (SNRs, unit vectors), however many rows an epoch has.
     ``information``: ``P^-1`` when the caller has it (an iterated update's prior).
+    Compiled (:func:`attopt.solvers.filters.update_kernels.information_gain`) for
+    variances unless kernels are interpreted; :func:`gain_reference` is the numpy
+    reference.
     """
-    weighted = solve_noise(noise, np.column_stack([h, innovation]))
-    r_inv_h, r_inv_nu = weighted[:, :-1], weighted[:, -1]
     if information is None:
         information = np.linalg.inv(covariance)
+    if noise.ndim == 1 and compiled_loops():
+        gain, nis, posterior = update_kernels.information_gain(information, h, noise, innovation)
+        return gain, float(nis), posterior
+    return gain_reference(information, h, noise, innovation)
+
+
+def gain_reference(
+    information: Array, h: Array, noise: Array, innovation: Array
+) -> tuple[Array, float, Array]:
+    """The numpy reference of :func:`kalman_gain` from the prior information ``P^-1``
+    (any ``R``)."""
+    weighted = solve_noise(noise, np.column_stack([h, innovation]))
+    r_inv_h, r_inv_nu = weighted[:, :-1], weighted[:, -1]
     posterior = np.linalg.inv(information + h.T @ r_inv_h)
     projected = h.T @ r_inv_nu
     nis = float(innovation @ r_inv_nu - projected @ posterior @ projected)
@@ -609,8 +635,26 @@ def block_nis(
     MEKF ``H^T`` with ``W = P``; for USQUE the sigma deviations with ``W`` the
     covariance weights); only its diagonal blocks are formed, blocks of equal
     size tested together, so the cost is linear in the number of blocks.  NaN where
-    ``S`` or the innovation is not finite.
+    ``S`` or the innovation is not finite.  Compiled
+    (:func:`attopt.solvers.filters.update_kernels.block_nis`) unless kernels are interpreted
+    (:func:`~attopt.formulations.kernels.compiled_loops`); :func:`block_nis_reference` is the
+    numpy reference.
     """
+    if compiled_loops():
+        members = block_structure(blocks).members.members
+        return update_kernels.block_nis(innovation, factor, weight, noise, members)
+    return block_nis_reference(innovation, factor, weight, noise, blocks)
+
+
+def block_nis_reference(
+    innovation: Array,
+    factor: Array,
+    weight: Array,
+    noise: Array,
+    blocks: NDArray[np.intp],
+) -> tuple[Array, NDArray[np.intp]]:
+    """The numpy reference of :func:`block_nis` (same arguments and results): the blocks
+    of each size in one set of array calls."""
     nis_rows = np.full(innovation.shape[0], np.nan)
     size_rows = np.zeros(innovation.shape[0], dtype=np.intp)
     for size, rows in block_structure(blocks).layout:
@@ -724,20 +768,33 @@ def linearised(step: Array, posterior: Array, fraction: float) -> bool:
     """Whether an iterated update's step's second-order term ``|s|^2 / 2`` is within
     ``fraction`` of the smallest posterior attitude standard deviation (no need
     to relinearise; ``FilterOptions.relinearise_fraction``)."""
-    smallest = np.sqrt(max(np.linalg.eigvalsh(posterior[:3, :3])[0], 0.0))
+    variance = (
+        update_kernels.smallest_attitude_variance(posterior)
+        if compiled_loops()
+        else np.linalg.eigvalsh(posterior[:3, :3])[0]
+    )
+    smallest = np.sqrt(max(variance, 0.0))
     return 0.5 * float(step[:3] @ step[:3]) <= fraction * smallest
 
 
 def repair_covariance(p: Array) -> tuple[Array, bool]:
-    """Symmetrise ``p``; floor its eigenvalues if it is not positive definite."""
-    p = 0.5 * (p + p.T)
-    try:
-        np.linalg.cholesky(p)
+    """Symmetrise ``p``; floor its eigenvalues if it is not positive definite (tested by a
+    Cholesky factorisation, compiled unless kernels are interpreted:
+    :func:`attopt.solvers.filters.update_kernels.symmetric_positive`)."""
+    if compiled_loops():
+        p, positive = update_kernels.symmetric_positive(p)
+    else:
+        p = 0.5 * (p + p.T)
+        try:
+            np.linalg.cholesky(p)
+            positive = True
+        except np.linalg.LinAlgError:
+            positive = False
+    if positive:
         return p, False
-    except np.linalg.LinAlgError:
-        values, vectors = np.linalg.eigh(p)
-        floor = max(values.max(), 0.0) * 1e-12 + 1e-300
-        return (vectors * np.maximum(values, floor)) @ vectors.T, True
+    values, vectors = np.linalg.eigh(p)
+    floor = max(values.max(), 0.0) * 1e-12 + 1e-300
+    return (vectors * np.maximum(values, floor)) @ vectors.T, True
 
 
 def propagate_attitude(attitude: Rotation, rates: Array, dt: ArrayLike) -> Rotation:

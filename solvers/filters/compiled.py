@@ -165,7 +165,7 @@ def unscented_prediction(
 
 
 @_jit
-def _perturbed(delta: Array, q: Array, out: Array) -> None:
+def perturbed_into(delta: Array, q: Array, out: Array) -> None:
     """``out`` = the quaternion of ``from_mrp(delta / 4)`` composed on the left of ``q``
     (:func:`attopt.solvers.filters.common.perturb_quaternion`)."""
     p0, p1, p2 = delta[0] / 4.0, delta[1] / 4.0, delta[2] / 4.0
@@ -199,7 +199,7 @@ def _unscented_prediction(
     sigma = np.empty((n, 4))
     sigma_rates = np.empty((n, k, 3))
     for i in range(n):
-        _perturbed(offsets[i, :3], quaternion, sigma[i])  # (U1)
+        perturbed_into(offsets[i, :3], quaternion, sigma[i])  # (U1)
         for j in range(k):
             for a in range(3):
                 sigma_rates[i, j, a] = rates[j, a] - (bias[a] + offsets[i, 3 + a])
@@ -249,5 +249,5 @@ def _unscented_prediction(
     )
     covariance = reset @ covariance @ reset.T
     folded = np.empty(4)
-    _perturbed(mean[:3], propagated[0], folded)  # (U5)
+    perturbed_into(mean[:3], propagated[0], folded)  # (U5)
     return folded, mean, covariance, spread
