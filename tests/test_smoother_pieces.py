@@ -56,7 +56,7 @@ from attopt.solvers.smoother.conventions import (
 from attopt.solvers.smoother.initial import Start, fixed_start, node_values
 from attopt.solvers.smoother.marginals import MarginalOptions, problem_marginals
 from attopt.solvers.smoother.optimiser import levenberg_marquardt
-from attopt.solvers.smoother.problem import build_problem, pass_nodes
+from attopt.solvers.smoother.problem import SmootherProblem, build_problem, pass_nodes
 from tests.filter_passes import drawn_prior, prior_covariance, simulate_pass, solve_with
 from tests.filter_passes import gyro_pass as make_pass
 from tests.test_sequential import BIAS, MODEL, OFFSET, _constant_rate_pass, _exact_prior, _truth
@@ -262,6 +262,31 @@ def test_a_rejected_step_damps_the_same_linearisation(monkeypatch):
     assert not history[0][4] and history[1][4]  # rejected, then accepted
     accepted = sum(step[4] for step in history)
     assert len(linearised) <= accepted + 1 < len(history) + 1
+
+
+def test_the_marginals_use_the_optimisers_last_linearisation(monkeypatch):
+    """A run that stops on the decrease its last linearisation predicts hands that
+    linearisation on: the marginals do not linearise the problem again, and their
+    covariances are those of a fresh linearisation at the solution."""
+    calls = []
+    linearize = SmootherProblem.linearize
+
+    def counted(problem, values):
+        calls.append(values)
+        return linearize(problem, values)
+
+    monkeypatch.setattr(SmootherProblem, "linearize", counted)
+    rng = np.random.default_rng(29)
+    run = simulate_pass(rng, duration=30.0)
+    prior = drawn_prior(rng, run, prior_covariance(np.radians(3.0)))
+    pass_ = make_pass(run.gyro, run.t, run.measurements, prior)
+    track = BatchSmoother(initialisation="gyro").solve(pass_)
+    report = track.report
+    assert report.history and report.history[-1][4]  # it stepped, then converged
+    accepted = sum(step[4] for step in report.history)
+    assert len(calls) == accepted + 1  # at the start and after each accepted step, no more
+    fresh = problem_marginals(report.problem, calls[-1], MarginalOptions()).covariance
+    np.testing.assert_array_equal(track.state_covariance, fresh)
 
 
 def test_optimiser_from_the_truth_of_a_noise_free_pass_takes_no_step():

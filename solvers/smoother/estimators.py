@@ -241,7 +241,8 @@ class BatchSmoother(PassEstimator):
             stepped = any(accepted for *_, accepted in outcome.history)
             if problem.n_offsets and not (from_start or stepped):  # no offsets' columns yet
                 problem.linearise_offsets(outcome.attitudes, outcome.offsets)
-            marginals = problem_marginals(problem, outcome.values, self.marginals)
+            held = outcome.system if problem.n_offsets == 0 else None
+            marginals = problem_marginals(problem, outcome.values, self.marginals, held)
         return batch_track(
             self.name,
             inputs,

@@ -64,9 +64,15 @@ class PassMarginals:
 
 
 def problem_marginals(
-    problem: SmootherProblem, values: gtsam.Values, options: MarginalOptions
+    problem: SmootherProblem,
+    values: gtsam.Values,
+    options: MarginalOptions,
+    linear: gtsam.GaussianFactorGraph | None = None,
 ) -> PassMarginals:
-    """The marginals of ``problem`` linearised at ``values`` at its output epochs."""
+    """The marginals of ``problem`` linearised at ``values`` at its output epochs;
+    ``linear``: that linearisation when the caller holds it (a problem without offsets;
+    the optimiser's last,
+    :attr:`~attopt.solvers.smoother.optimiser.LevenbergMarquardtResult.system`)."""
     nodes = range(problem.offset, problem.n)
     try:
         if problem.n_offsets:
@@ -76,9 +82,9 @@ def problem_marginals(
                 covariance[:, :3, 3:] = 0.0
                 covariance[:, 3:, :3] = 0.0
         else:
-            covariance = marginal_covariances(
-                problem.linearize(values), nodes, options.cross_covariance
-            )
+            if linear is None:
+                linear = problem.linearize(values)
+            covariance = marginal_covariances(linear, nodes, options.cross_covariance)
             variances = np.zeros(0)
     except (RuntimeError, np.linalg.LinAlgError) as exc:
         # an indefinite system (should not happen: prior + gyro chain)

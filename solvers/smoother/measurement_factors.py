@@ -68,6 +68,7 @@ from attopt.formulations.attitude_measurement import (
     predict_each,
 )
 from attopt.formulations.errors import InvalidObservationError
+from attopt.formulations.kernels import compiled_loops
 from attopt.solvers.blocks import BlockMembers, block_structure, count_blocks
 from attopt.solvers.filters.common import (
     gate,
@@ -76,6 +77,7 @@ from attopt.solvers.filters.common import (
 )
 from attopt.solvers.robust import huber_cost, huber_weights
 from attopt.solvers.smoother.conventions import Array, attitude_key, offset_key
+from attopt.solvers.smoother.difference_kernels import chain_rule, perturbed_predictions
 
 COUNTS = ("n_used", "n_gated", "n_nan", "n_unpredictable")
 UNIT1 = gtsam.noiseModel.Unit.Create(1)
@@ -104,9 +106,15 @@ def innovation_jacobian(
     ``J``; for unit vectors the tangent-plane projection adds terms of the
     order of the residual, which a Gauss-Newton step with ``J`` alone would
     leave out, moving its fixed point off the minimum of the cost by
-    ``O(sigma^2)``.
+    ``O(sigma^2)``.  The arithmetic around the ``innovation`` call is compiled
+    (:mod:`attopt.solvers.smoother.difference_kernels`) unless kernels are interpreted.
     """
     m, size = blocks.members.shape
+    if compiled_loops():  # the same arithmetic in two compiled calls
+        perturbed, step = perturbed_predictions(predicted, blocks.position, size, FD_STEP)
+        with np.errstate(invalid="ignore"):
+            nu = measurement.innovation(perturbed)
+        return chain_rule(nu, step, blocks.valid, blocks.source, jacobian)
     step = FD_STEP * np.maximum(1.0, np.abs(predicted))
     signed = np.zeros((size, 2, m))
     signed[blocks.position, :, np.arange(m)] = step[:, None] * np.array([1.0, -1.0])
@@ -115,7 +123,9 @@ def innovation_jacobian(
     # d nu_i / d h_j for the j at position r of row i's block: (nu[r, +] - nu[r, -])_i / 2 step_j
     difference = (nu[:, 0] - nu[:, 1]).T
     derivative = np.where(blocks.valid, difference / (2.0 * step[blocks.source]), 0.0)
-    return -np.einsum("ir,irk->ik", derivative, jacobian[blocks.source])
+    # the padding's rows left out (a NaN Jacobian there must not reach a smaller block)
+    chained = np.where(blocks.valid[..., None], jacobian[blocks.source], 0.0)
+    return -np.einsum("ir,irk->ik", derivative, chained)
 
 
 class EpochFactor:
@@ -284,42 +294,18 @@ class EpochFactor:
         """``[A | b] = [-W K | W nu]`` ``(m, 4)`` over the used rows (IRLS-weighted), the
         linearisation ``|| A xi - b ||^2``, and with the offsets' column each row's
         coefficient ``+W (dh / d o)`` of its own offset (else ``None``)."""
-        root = np.sqrt(self.weights(threshold))[self.block_index]
         system = np.column_stack([-self.whiten(self.jacobian[:, :3]), self.whiten(self.innovation)])
+        column = None if self.jacobian.shape[1] == 3 else self.whiten(self.jacobian[:, 3])
+        if threshold is None:  # every weight 1
+            return system, column
+        root = np.sqrt(self.weights(threshold))[self.block_index]
         system *= root[:, None]
-        column = None
-        if self.jacobian.shape[1] > 3:
-            column = self.whiten(self.jacobian[:, 3]) * root
-        return system, column
+        return system, None if column is None else column * root
 
     def linear_factors(self, threshold: float | None) -> list[gtsam.JacobianFactor]:
-        """:meth:`whitened_rows` as ``JacobianFactor`` s; none once every block has been
-        dropped.
-
-        Without offsets: one factor on the attitude key, compressed by QR to
-        at most three rows.  With offsets: one single-row factor per used row
-        on the attitude key and the row's offset key (the reference the
-        smoother's own elimination,
-        :mod:`attopt.solvers.smoother.offset_elimination`, is tested against);
-        rows cannot be compressed without coupling every offset seen at the epoch.
-        """
-        if self.rows.size == 0:
-            return []
-        system, column = self.whitened_rows(threshold)
-        if column is not None:
-            keys = [offset_key(j) for j in self.offset_index[self.rows]]
-            return [
-                gtsam.JacobianFactor(self.key, row[None, :3], key, np.array([[c]]), row[3:], UNIT1)
-                for row, key, c in zip(system, keys, column, strict=True)
-            ]
-        if system.shape[0] > 3:
-            system = np.linalg.qr(system, mode="r")[:3]
-        m = system.shape[0]
-        return [
-            gtsam.JacobianFactor(
-                self.key, system[:, :3], system[:, 3], gtsam.noiseModel.Unit.Create(m)
-            )
-        ]
+        """:meth:`whitened_rows` as ``JacobianFactor`` s (:func:`linear_factors` of this
+        factor alone); none once every block has been dropped."""
+        return linear_factors([self], threshold)
 
     def whitened_system(self, nu: Array, jac: Array, lost: NDArray[np.intp]) -> tuple[Array, Array]:
         """``e = -W nu`` and ``de/dxi = -W K`` over the used rows from an :meth:`evaluate`
@@ -340,6 +326,51 @@ class EpochFactor:
 
     def n_downweighted(self, threshold: float | None) -> int:
         return int(np.count_nonzero(self.weights(threshold) < 1.0))
+
+
+def linear_factors(
+    factors: Sequence[EpochFactor], threshold: float | None
+) -> list[gtsam.JacobianFactor]:
+    """The ``JacobianFactor`` s of ``factors``' :meth:`~EpochFactor.whitened_rows`, in their
+    order; none for a factor whose every block has been dropped.
+
+    Without offsets: one factor on the epoch's attitude key, compressed by QR to at
+    most three rows; the factors with as many rows are compressed together, one
+    batched ``numpy.linalg.qr`` per row count (the same LAPACK routine on each matrix,
+    so the same factors as one call each, in a twentieth of the time over a pass).
+    With offsets: one single-row factor per used row on the attitude key and the row's
+    offset key (the reference the smoother's own elimination,
+    :mod:`attopt.solvers.smoother.offset_elimination`, is tested against); rows cannot
+    be compressed without coupling every offset seen at the epoch.
+    """
+    out: list[gtsam.JacobianFactor | None] = []
+    compress: dict[int, list[tuple[int, int, Array]]] = {}  # rows -> (slot, key, system)
+    for f in factors:
+        if f.rows.size == 0:
+            continue
+        system, column = f.whitened_rows(threshold)
+        if column is not None:
+            keys = [offset_key(j) for j in f.offset_index[f.rows]]
+            out += [
+                gtsam.JacobianFactor(f.key, row[None, :3], key, np.array([[c]]), row[3:], UNIT1)
+                for row, key, c in zip(system, keys, column, strict=True)
+            ]
+        elif system.shape[0] > 3:
+            compress.setdefault(system.shape[0], []).append((len(out), f.key, system))
+            out.append(None)
+        else:
+            out.append(_attitude_factor(f.key, system))
+    for group in compress.values():
+        triangles = np.linalg.qr(np.stack([system for *_, system in group]), mode="r")
+        for (slot, key, _), triangle in zip(group, triangles, strict=True):
+            out[slot] = _attitude_factor(key, triangle[:3])
+    return out  # every slot filled
+
+
+def _attitude_factor(key: int, system: Array) -> gtsam.JacobianFactor:
+    """``|| A xi - b ||^2`` of ``system = [A | b]`` on the attitude ``key``."""
+    m = system.shape[0]
+    return gtsam.JacobianFactor(key, system[:, :3], system[:, 3], gtsam.noiseModel.Unit.Create(m))
 
 
 def evaluate_factors(
@@ -422,11 +453,12 @@ def prepare_factor(
         measurement.blocks[rows],
         gate_probability,
     )
-    counts["n_gated"] = float(count_blocks(measurement.blocks[rows[~accepted]]))
-    rows = rows[accepted]
-    if rows.size == 0:
-        return None, counts
-    factor.set_rows(rows)
+    if not accepted.all():
+        counts["n_gated"] = float(count_blocks(measurement.blocks[rows[~accepted]]))
+        rows = rows[accepted]
+        if rows.size == 0:
+            return None, counts
+        factor.set_rows(rows)
     with np.errstate(invalid="ignore"):
         full = innovation_jacobian(measurement, predicted[0], jacobian[0], factor.members)
     factor.accept(nu[accepted], full[rows], NO_BLOCKS)

@@ -71,7 +71,9 @@ class LevenbergMarquardtResult:
     ``gtsam.Values``) are the final estimate, ``cost`` its cost and
     ``initial_cost`` the cost at the start; ``evaluations`` counts passes over all
     measurements, ``rebuilds`` the gyro factors' re-preintegrations, ``history``
-    every trial :data:`Step`.
+    every trial :data:`Step`; ``system`` the problem linearised at ``values`` when the
+    loop stopped holding it (it usually stops on the decrease that linearisation
+    predicts), else ``None``: the marginals need the same linearisation.
     """
 
     attitudes: Rotation
@@ -87,6 +89,7 @@ class LevenbergMarquardtResult:
     final_lambda: float
     rebuilds: int
     history: list[Step]
+    system: LinearSystem | None = None
 
     def then(self, later: LevenbergMarquardtResult) -> LevenbergMarquardtResult:
         """``later`` (a run started where this one stopped) with both runs' counts and
@@ -231,4 +234,5 @@ def levenberg_marquardt(
         final_lambda=lam,
         rebuilds=rebuilds,
         history=history,
+        system=system,
     )

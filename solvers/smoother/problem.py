@@ -71,6 +71,7 @@ from attopt.solvers.smoother.measurement_factors import (
     COUNTS,
     EpochFactor,
     evaluate_factors,
+    linear_factors,
     prepare_factor,
 )
 from attopt.solvers.smoother.offset_elimination import NormalEquations, structure_keys
@@ -224,9 +225,8 @@ class SmootherProblem:
         """Undamped whitened linear system at ``values`` (the factors' current linearisation)."""
         linear = self.graph.linearize(values)
         linear.add(self.prior.linearize(values))
-        for f in self.factors:
-            for factor in f.linear_factors(self.huber_threshold):
-                linear.add(factor)
+        for factor in linear_factors(self.factors, self.huber_threshold):
+            linear.add(factor)
         return linear
 
     def normal_equations(self, values: gtsam.Values) -> NormalEquations:
