@@ -116,14 +116,10 @@ def kernel(function: ca.Function) -> ca.Function:
     return _compiled(function) if compiled_kernels() else function
 
 
-def mapped(function: ca.Function, n: int) -> ca.Function:
-    """:func:`kernel` ``(function)`` mapped over ``n`` points (serially)."""
-    return _mapped(function, n, compiled_kernels())
-
-
 @lru_cache(maxsize=1024)
 def _mapped(function: ca.Function, n: int, compiled: bool) -> ca.Function:
-    """:func:`mapped` once per function, size and mode (one cache lookup per call)."""
+    """:func:`kernel` ``(function)`` mapped over ``n`` points (serially), once per function,
+    size and mode."""
     return _map(_compiled(function) if compiled else function, n)
 
 
@@ -206,7 +202,7 @@ def _column_major(points: Array) -> Array:
 
 @lru_cache(maxsize=1024)
 def _buffer(function: ca.Function, n: int, compiled: bool, thread: int) -> tuple[Any, Any]:
-    """``Function.buffer()`` of :func:`mapped` ``(function, n)``, one per thread (a buffer
+    """``Function.buffer()`` of ``function`` mapped over ``n`` points, one per thread (a buffer
     holds the pointers of one evaluation; :func:`evaluate_mapped` sets every argument and
     result before each): building one costs about 20 us, as much as evaluating a map of a
     few points."""

@@ -80,9 +80,10 @@ def block_nis(
     members: NDArray[np.intp],
 ) -> tuple[Array, NDArray[np.intp]]:
     """Each row's block's ``nu_b^T S_b^-1 nu_b`` and the block's size, ``S = F^T W F + R``
-    (:func:`attopt.solvers.filters.common.block_nis`, the numpy reference, whose
-    arguments these are but ``members``, the rows of each row's block,
-    :attr:`attopt.solvers.blocks.BlockStructure.members`).
+    (:func:`attopt.solvers.filters.common.block_nis`; its numpy reference
+    :func:`~attopt.solvers.filters.common.block_nis_reference` takes the same arguments
+    but the block labels for ``members``, the rows of each row's block,
+    :attr:`attopt.solvers.blocks.BlockMembers.members`).
 
     One loop over the blocks: each forms its ``S_b`` and solves it by Gaussian
     elimination with partial pivoting (LAPACK's ``gesv``, numpy's, pivots the same way).
