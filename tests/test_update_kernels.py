@@ -183,3 +183,16 @@ def test_a_covariance_that_is_not_finite_is_passed_on_unrepaired_on_both_paths(
         monkeypatch.setattr(common, "compiled_loops", lambda enabled=enabled: enabled)
         out, repaired = common.repair_covariance(np.full((6, 6), np.nan))
         assert np.isnan(out).all() and not repaired
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_an_attitude_block_that_is_not_finite_asks_for_another_iteration(bad: float) -> None:
+    """The compiled smallest variance of a block with a NaN or infinite entry is NaN (no
+    exception), so the iteration test is not met and the filter's own finiteness checks
+    report the update."""
+    covariance = np.eye(6)
+    covariance[1, 1] = bad
+    assert np.isnan(update_kernels.smallest_attitude_variance(covariance))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(common, "compiled_loops", lambda: True)
+        assert not common.linearised(np.zeros(6), covariance, 0.1)

@@ -234,7 +234,8 @@ def _information_gain(
 
 def smallest_attitude_variance(covariance: Array) -> float:
     """The smallest eigenvalue of the attitude block ``covariance[:3, :3]``
-    (:func:`attopt.solvers.filters.common.linearised`)."""
+    (:func:`attopt.solvers.filters.common.linearised`); NaN if the block is not finite
+    (numpy's ``eigvalsh`` gives NaN for an infinite entry and raises for a NaN one)."""
     return first_call(
         _smallest_attitude_variance,
         "the attitude block's smallest variance",
@@ -245,6 +246,8 @@ def smallest_attitude_variance(covariance: Array) -> float:
 @_jit
 def _smallest_attitude_variance(block: Array) -> float:
     """:func:`smallest_attitude_variance`' call (LAPACK's symmetric eigenvalues)."""
+    if not np.isfinite(block).all():
+        return np.nan
     return np.linalg.eigvalsh(block)[0]
 
 
