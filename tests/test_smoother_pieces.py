@@ -45,6 +45,7 @@ from attopt.solvers.smoother import (
     OnlineSmoother,
     optimiser,
 )
+from attopt.solvers.smoother import estimators as smoother_estimators
 from attopt.solvers.smoother.conventions import (
     SIGN,
     attitude_key,
@@ -287,6 +288,35 @@ def test_the_marginals_use_the_optimisers_last_linearisation(monkeypatch):
     assert len(calls) == accepted + 1  # at the start and after each accepted step, no more
     fresh = problem_marginals(report.problem, calls[-1], MarginalOptions()).covariance
     np.testing.assert_array_equal(track.state_covariance, fresh)
+
+
+def test_with_offsets_the_marginals_use_the_optimisers_last_normal_equations(monkeypatch):
+    """The same with transmitter offsets: the normal equations the optimiser stopped on
+    give the marginals, without building them again."""
+    calls = []
+    normal_equations = SmootherProblem.normal_equations
+
+    def counted(problem, values):
+        calls.append(values)
+        return normal_equations(problem, values)
+
+    given = []
+
+    def recorded(*args):
+        given.append(problem_marginals(*args))
+        return given[-1]
+
+    monkeypatch.setattr(SmootherProblem, "normal_equations", counted)
+    monkeypatch.setattr(smoother_estimators, "problem_marginals", recorded)
+    run, prior, _ = _offset_pass(5)
+    smoother = OffsetBatchSmoother(offset_sigma=OFFSET_SIGMA)
+    report = solve_with(smoother, run.gyro, run.t, run.measurements, prior).report
+    assert report.converged and report.history[-1][4]
+    accepted = sum(step[4] for step in report.history)
+    assert len(calls) == accepted + 1
+    fresh = problem_marginals(report.problem, calls[-1], MarginalOptions())
+    np.testing.assert_array_equal(given[0].covariance, fresh.covariance)
+    np.testing.assert_array_equal(given[0].offset_variances, fresh.offset_variances)
 
 
 def test_optimiser_from_the_truth_of_a_noise_free_pass_takes_no_step():

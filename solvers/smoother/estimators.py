@@ -239,9 +239,10 @@ class BatchSmoother(PassEstimator):
                 outcome = outcome.then(self._resolved(problem, outcome))
         with clock.stage("marginals"):
             stepped = any(accepted for *_, accepted in outcome.history)
+            held = outcome.system
             if problem.n_offsets and not (from_start or stepped):  # no offsets' columns yet
                 problem.linearise_offsets(outcome.attitudes, outcome.offsets)
-            held = outcome.system if problem.n_offsets == 0 else None
+                held = None  # the factors changed since the optimiser linearised them
             marginals = problem_marginals(problem, outcome.values, self.marginals, held)
         return batch_track(
             self.name,

@@ -38,6 +38,7 @@ from attopt.solvers.smoother.conventions import (
     error_state_covariance,
     node_marginal,
 )
+from attopt.solvers.smoother.offset_elimination import NormalEquations
 from attopt.solvers.smoother.problem import SmootherProblem
 
 
@@ -67,24 +68,26 @@ def problem_marginals(
     problem: SmootherProblem,
     values: gtsam.Values,
     options: MarginalOptions,
-    linear: gtsam.GaussianFactorGraph | None = None,
+    system: gtsam.GaussianFactorGraph | NormalEquations | None = None,
 ) -> PassMarginals:
     """The marginals of ``problem`` linearised at ``values`` at its output epochs;
-    ``linear``: that linearisation when the caller holds it (a problem without offsets;
-    the optimiser's last,
-    :attr:`~attopt.solvers.smoother.optimiser.LevenbergMarquardtResult.system`)."""
+    ``system``: that linearisation when the caller holds it (the optimiser's last,
+    :attr:`~attopt.solvers.smoother.optimiser.LevenbergMarquardtResult.system`: a graph,
+    or with offsets the normal equations), else it is built here."""
     nodes = range(problem.offset, problem.n)
     try:
         if problem.n_offsets:
-            joint, variances = problem.normal_equations(values).marginals()
+            if system is None:
+                system = problem.normal_equations(values)
+            joint, variances = system.marginals()
             covariance = error_state_covariance(joint[problem.offset :])
             if not options.cross_covariance:  # per-key blocks only, as the Bayes-tree path
                 covariance[:, :3, 3:] = 0.0
                 covariance[:, 3:, :3] = 0.0
         else:
-            if linear is None:
-                linear = problem.linearize(values)
-            covariance = marginal_covariances(linear, nodes, options.cross_covariance)
+            if system is None:
+                system = problem.linearize(values)
+            covariance = marginal_covariances(system, nodes, options.cross_covariance)
             variances = np.zeros(0)
     except (RuntimeError, np.linalg.LinAlgError) as exc:
         # an indefinite system (should not happen: prior + gyro chain)
