@@ -251,6 +251,51 @@ def list_command() -> None:
         typer.echo(f"{name:<{width}}  {summary}")
 
 
+@app.command("compile")
+def compile_command(
+    loops: Annotated[
+        list[str] | None,
+        typer.Argument(
+            help="Loop names or their prefixes, e.g. wahba filters.gate (default: all)."
+        ),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(min=1, help="Processes compiling (default: one per CPU).")
+    ] = None,
+) -> None:
+    """Compile attopt's numba loops once for this machine, each loop in one process.
+
+    A sweep does this for the loops its experiment uses before its first trial; this
+    command does it ahead, for example when building an image.  Loops already compiled
+    are loaded from numba's cache in a fraction of a second.
+    """
+    import multiprocessing
+    import time
+    from concurrent.futures import ProcessPoolExecutor
+
+    from attopt.solvers.compilation import compile_loops, loop_names
+
+    try:
+        names = loop_names(loops or [""])
+    except KeyError as error:
+        typer.echo(f"error: {error.args[0]}", err=True)
+        raise typer.Exit(EXIT_USAGE) from None
+    count = min(workers or os.cpu_count() or 1, len(names))
+    start = time.perf_counter()
+    if count == 1:
+        seconds = compile_loops(names)
+    else:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=count, mp_context=context) as pool:
+            seconds = compile_loops(names, pool)
+    width = max(len(name) for name in names)
+    for name, value in seconds.items():
+        typer.echo(f"{name:<{width}}  {value:6.2f} s")
+    typer.echo(
+        f"{len(names)} loops ready in {time.perf_counter() - start:.1f} s on {count} processes"
+    )
+
+
 class EstimatorKind(StrEnum):
     """Which estimators to list."""
 

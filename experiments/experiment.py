@@ -63,6 +63,10 @@ class Experiment:
     ``quick_parameters`` a (nested) document of overrides for ``--quick``.  ``grid``
     receives the validated parameters as a plain document
     (``model_dump(mode="json")``: nested tables are dicts, arrays lists).
+    ``compiled_loops`` names the numba loops its estimators call (entries of
+    :func:`attopt.solvers.compilation.loop_names`): the sweep's workers compile them, each
+    loop in one worker, before the first trial (a loop not named is compiled where it is
+    first called, by every worker that reaches it first).
     """
 
     name: str
@@ -76,6 +80,7 @@ class Experiment:
     group_by: tuple[str, ...] = ("method",)
     report: Callable[[ReportContext], str] | None = None
     summary_columns: Callable[[pd.DataFrame, list[str]], pd.DataFrame] | None = None
+    compiled_loops: tuple[str, ...] = ()
 
     @property
     def parameters(self) -> dict[str, Any]:

@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import first_call
+from attopt.formulations.kernels import first_call, register_warm_up
 
 Array = NDArray[np.float64]
 
@@ -91,3 +91,6 @@ def _geodesic_rows(predicted: Array, z: Array) -> Array:
                 along = 0.0 if cosine > 0.0 else math.nan
                 out[i, j], out[i, j + 1], out[i, j + 2] = along, along, along
     return out
+
+
+register_warm_up("vectors.geodesic", lambda: geodesic_rows(np.array([[1.0, 0.0, 0.0]]), np.ones(3)))

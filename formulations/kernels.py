@@ -330,6 +330,26 @@ def report_compilation(label: str, seconds: float, stats: object) -> bool:
     return True
 
 
+WARM_UPS: dict[str, Callable[[], object]] = {}
+"""Per numba loop, by name (``"wahba.quest"``, ``"filters.gate"``...), a call of it on a
+small input of the types its callers pass: running it compiles the loop, or loads it from
+numba's cache (:mod:`attopt.solvers.compilation` runs them ahead of a sweep, split
+across its workers).  Filled by :func:`register_warm_up` where each loop is defined."""
+
+
+def register_warm_up(name: str, call: Callable[[], object]) -> None:
+    """Register ``call`` as the warm-up of the numba loop ``name`` (:data:`WARM_UPS`).
+
+    Example::
+
+        >>> register_warm_up("examples.square", lambda: None)
+        >>> "examples.square" in WARM_UPS
+        True
+        >>> del WARM_UPS["examples.square"]
+    """
+    WARM_UPS[name] = call
+
+
 _CALLED: set[str] = set()
 """The labels of the numba loops this process has called (compiled or loaded)."""
 

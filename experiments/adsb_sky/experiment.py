@@ -159,4 +159,5 @@ EXPERIMENT = Experiment(
     group_by=("method", "gyro"),
     report=report,
     summary_columns=adsb.summary_columns,
+    compiled_loops=("wahba.quest", "filters", "smoother"),
 )

@@ -757,4 +757,5 @@ EXPERIMENT = Experiment(
     group_by=("method", "gyro"),
     report=report,
     summary_columns=summary_columns,
+    compiled_loops=("wahba.quest", "filters", "smoother"),
 )

@@ -906,4 +906,5 @@ EXPERIMENT = Experiment(
     },
     group_by=("method", "phase"),
     report=report,
+    compiled_loops=("wahba.svd", "filters", "vectors", "smoother"),
 )

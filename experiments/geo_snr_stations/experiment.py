@@ -563,5 +563,6 @@ EXPERIMENT = Experiment(
     quick_parameters={"duration_s": 3600.0, "step_s": 60.0},
     report=report,
     summary_columns=summary_columns,
+    compiled_loops=("filters", "smoother"),
 )
 """The experiment (:mod:`attopt.experiments.registry` name ``geo-snr-stations``)."""

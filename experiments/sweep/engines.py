@@ -21,11 +21,12 @@ import pkgutil
 import signal
 import threading
 from collections.abc import Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed, wait
 from types import TracebackType
 from typing import Any
 
 from attopt.experiments.sweep.tasks import ChunkResult, ChunkSpec, run_chunk
+from attopt.solvers.compilation import compile_loop
 
 ENGINES = ("local", "dask")
 THREAD_VARIABLES = (
@@ -62,8 +63,9 @@ class Engine:
     ) -> None:
         """Release the engine's workers (nothing to release in process)."""
 
-    def run(self, specs: Sequence[ChunkSpec]) -> Iterator[Outcome]:
-        """Run the chunks one after another in this process."""
+    def run(self, specs: Sequence[ChunkSpec], loops: Sequence[str] = ()) -> Iterator[Outcome]:
+        """Run the chunks one after another in this process (``loops``, the numba loops
+        the other engines compile first, are compiled here on first use: the same cost)."""
         for spec in specs:
             try:
                 outcome: ChunkResult | BaseException = run_chunk(spec)
@@ -80,14 +82,20 @@ class LocalEngine(Engine):
         self._executor: ProcessPoolExecutor | None = None
         self._processes: list[multiprocessing.process.BaseProcess] = []
 
-    def run(self, specs: Sequence[ChunkSpec]) -> Iterator[Outcome]:
-        """Submit every chunk to the pool and yield outcomes in completion order."""
+    def run(self, specs: Sequence[ChunkSpec], loops: Sequence[str] = ()) -> Iterator[Outcome]:
+        """Compile the numba ``loops``, each in one worker
+        (:func:`~attopt.solvers.compilation.compile_loops`), then submit every chunk to the
+        pool and yield outcomes in completion order."""
         before = set(multiprocessing.active_children())
         # The pool spawns its workers on submit, before they import numpy.
         with _spawning_workers():
             self._executor = ProcessPoolExecutor(
                 max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")
             )
+            warm_ups = [self._executor.submit(compile_loop, name) for name in loops]
+        self._processes = [p for p in multiprocessing.active_children() if p not in before]
+        wait(warm_ups)  # a loop that failed to compile fails again in the trials that use it
+        with _spawning_workers():  # the pool may start more workers on these submits
             futures: dict[Future[ChunkResult], ChunkSpec] = {
                 self._executor.submit(run_chunk, spec): spec for spec in specs
             }
@@ -157,12 +165,16 @@ class DaskEngine(Engine):
             self.workers = len(self._client.scheduler_info()["workers"])
         return self
 
-    def run(self, specs: Sequence[ChunkSpec]) -> Iterator[Outcome]:
-        """Submit every chunk to the cluster and yield outcomes in completion order."""
+    def run(self, specs: Sequence[ChunkSpec], loops: Sequence[str] = ()) -> Iterator[Outcome]:
+        """Compile the numba ``loops``, each in one worker (workers on one machine share
+        numba's cache), then submit every chunk to the cluster and yield outcomes in
+        completion order."""
         from distributed import as_completed as dask_as_completed
+        from distributed import wait as dask_wait
 
         if specs:
             self._check_workers_import(specs[0].experiment)
+        dask_wait([self._client.submit(compile_loop, name, pure=False) for name in loops])
         futures = {self._client.submit(run_chunk, spec, pure=False): spec for spec in specs}
         self._pending = list(futures)
         for future in dask_as_completed(self._pending):

@@ -28,6 +28,7 @@ from attopt.experiments.sweep.tasks import (
     plan_chunks,
     setting_columns,
 )
+from attopt.solvers.compilation import loop_names
 
 CONFIG_FILE = "config.toml"
 """The effective parameters of a sweep, written into its output directory."""
@@ -152,7 +153,9 @@ def run_sweep(
                 disable=not progress,
                 dynamic_ncols=True,
             ) as bar:
-                computed, errors = _execute(runner, specs, store, bar)
+                computed, errors = _execute(
+                    runner, specs, store, bar, loop_names(experiment.compiled_loops)
+                )
     rows = store.load_rows(trials)
     failures = store.load_failures(trials)
     columns = setting_columns(settings)
@@ -203,11 +206,12 @@ def run_sweep(
 
 
 def _execute(
-    runner: Engine, specs: list[ChunkSpec], store: SweepStore, bar: tqdm
+    runner: Engine, specs: list[ChunkSpec], store: SweepStore, bar: tqdm, loops: list[str]
 ) -> tuple[int, list[str]]:
-    """Run the chunks, storing each as it finishes; return trials done and chunk errors."""
+    """Compile the numba ``loops`` on the workers, run the chunks, storing each as it
+    finishes; return trials done and chunk errors."""
     computed, failed, errors = 0, 0, []
-    for spec, outcome in runner.run(specs):
+    for spec, outcome in runner.run(specs, loops):
         if isinstance(outcome, ChunkResult):
             store.commit(outcome)
             computed += len(outcome.tasks)

@@ -445,4 +445,5 @@ EXPERIMENT = Experiment(
     quick_parameters={"duration_s": 3000.0},
     group_by=("method", "interval"),
     report=report,
+    compiled_loops=("wahba", "filters", "vectors", "smoother"),
 )

@@ -45,7 +45,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from attopt.formulations.gyro import SERIES_LIMIT
-from attopt.formulations.kernels import first_call
+from attopt.formulations.kernels import first_call, register_warm_up
 
 Array = NDArray[np.float64]
 
@@ -96,7 +96,10 @@ def quaternion_steps(quaternions: Array, rates: Array, dt: Array) -> Array:
     """Each of the ``(K, 4)`` scalar-last ``quaternions`` carried over the steps ``j`` at its
     own ``rates[i]`` ``(K, k, 3)`` with lengths ``dt`` ``(k,)``: ``q <- exp(-[w_j x] dt_j)
     q``, the increment's quaternion composed on the left
-    (:func:`attopt.solvers.filters.common.propagate_quaternion`)."""
+    (:func:`attopt.solvers.filters.common.propagate_quaternion`).  ``rates`` is copied
+    if it is read-only (one attitude's rates broadcast to ``(1, k, 3)`` are): numba
+    compiles one loop per array type, and a read-only array is another type."""
+    rates = np.require(rates, float, ("C", "W"))
     return first_call(
         _quaternion_steps, "the filters' quaternion propagation loop", quaternions, rates, dt
     )
@@ -251,3 +254,26 @@ def _unscented_prediction(
     folded = np.empty(4)
     perturbed_into(mean[:3], propagated[0], folded)  # (U5)
     return folded, mean, covariance, spread
+
+
+# Warm-ups (attopt.formulations.kernels.WARM_UPS): one step of each loop.
+_IDENTITY = np.array([[0.0, 0.0, 0.0, 1.0]])
+register_warm_up(
+    "filters.covariance_steps",
+    lambda: covariance_steps(np.eye(6), np.zeros((1, 3)), np.ones(1), np.zeros((1, 6, 6))),
+)
+register_warm_up(
+    "filters.quaternion_steps",
+    lambda: quaternion_steps(_IDENTITY, np.zeros((1, 1, 3)), np.ones(1)),
+)
+register_warm_up(
+    "filters.unscented_prediction",
+    lambda: unscented_prediction(
+        np.zeros((13, 6)),
+        _IDENTITY[0],
+        np.zeros(3),
+        np.zeros((1, 3)),
+        np.ones(1),
+        np.zeros((1, 6, 6)),
+    ),
+)

@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import first_call
+from attopt.formulations.kernels import first_call, register_warm_up
 from attopt.solvers.filters.compiled import perturbed_into
 
 Array = NDArray[np.float64]
@@ -280,3 +280,22 @@ def _symmetric_positive(p: Array) -> tuple[Array, bool]:
                 total -= factor[i, k] * factor[j, k]
             factor[i, j] = total / factor[j, j]
     return symmetric, True
+
+
+# Warm-ups (attopt.formulations.kernels.WARM_UPS): a two-row update of a 6-state filter.
+register_warm_up(
+    "filters.error_reset",
+    lambda: perturbed_quaternions(np.zeros((1, 3)), np.array([[0.0, 0.0, 0.0, 1.0]])),
+)
+register_warm_up(
+    "filters.gate",
+    lambda: block_nis(
+        np.zeros(2), np.zeros((6, 2)), np.eye(6), np.ones(2), np.array([[0, 1], [0, 1]])
+    ),
+)
+register_warm_up(
+    "filters.gain",
+    lambda: information_gain(np.eye(6), np.ones((2, 6)), np.ones(2), np.zeros(2)),
+)
+register_warm_up("filters.smallest_variance", lambda: smallest_attitude_variance(np.eye(6)))
+register_warm_up("filters.definiteness", lambda: symmetric_positive(np.eye(6)))

@@ -31,7 +31,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import compiled_loops, first_call
+from attopt.formulations.kernels import compiled_loops, first_call, register_warm_up
 
 Array = NDArray[np.float64]
 
@@ -57,3 +57,6 @@ def downdate(matrix: Array, update: Array) -> None:
         first_call(_downdate, "the offsets' elimination update", matrix, update, m)
     else:
         matrix[:m, :m] -= update.T @ update
+
+
+register_warm_up("smoother.offsets_downdate", lambda: downdate(np.zeros((2, 2)), np.ones((1, 2))))

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import first_call
+from attopt.formulations.kernels import first_call, register_warm_up
 
 Array = NDArray[np.float64]
 
@@ -111,3 +111,20 @@ def _chain_rule(
                     total += difference / (2.0 * step[j]) * jacobian[j, k]
             out[i, k] = -total
     return out
+
+
+# Warm-ups (attopt.formulations.kernels.WARM_UPS): one block of two rows.
+register_warm_up(
+    "smoother.perturbations",
+    lambda: perturbed_predictions(np.ones(2), np.array([0, 1]), 2, 1e-6),
+)
+register_warm_up(
+    "smoother.chain_rule",
+    lambda: chain_rule(
+        np.zeros((4, 2)),
+        np.ones(2),
+        np.ones((2, 2), bool),
+        np.array([[0, 1], [0, 1]]),
+        np.zeros((2, 3)),
+    ),
+)

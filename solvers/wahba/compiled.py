@@ -29,7 +29,7 @@ The helpers are inlined into each method's loop (numba counts the references of 
 array passed to a function that is not, which cost more than a QUEST solve), one loop
 per method.  numba caches the machine code on disk beside this module (``__pycache__``,
 or ``$NUMBA_CACHE_DIR``): the first call of a method on a machine compiles its loop
-(5-10 s, printed on standard error by
+(8-15 s, printed on standard error by
 :func:`~attopt.formulations.kernels.report_compilation`), later processes load it
 (0.01-0.2 s).
 
@@ -46,13 +46,14 @@ Example::
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from attopt.formulations.kernels import first_call
+from attopt.formulations.kernels import first_call, register_warm_up
 from attopt.formulations.vector_observations import (
     BAD_WEIGHT,
     BODY_PARALLEL,
@@ -798,3 +799,13 @@ def _solve_foam(body, reference, weights, present, tolerance, out):
 
 _SOLVE = (_solve_triad, _solve_svd, _solve_q_method, _solve_quest, _solve_foam)
 """The compiled loop of each method, by code."""
+
+
+def _warm_up(method: int) -> Array:
+    """One epoch of two vectors solved by ``method`` (its numba loop compiled or loaded)."""
+    vectors = np.eye(3)[None, :2]
+    return solve_epochs(method, vectors, vectors, np.ones((1, 2)), np.ones((1, 2), bool), 1e-3)
+
+
+for _method, _name in enumerate(NAMES):
+    register_warm_up(f"wahba.{_name}", partial(_warm_up, _method))
