@@ -135,12 +135,19 @@ TOY_WITH_REPORT = dataclasses.replace(TOY, name="toy-report", report=toy_report)
 
 
 def probe_trial(setting: Setting, seed: np.random.SeedSequence) -> list[Row]:
-    """Report the worker's BLAS thread variable and Ctrl-C handling as row columns."""
+    """Report the worker's BLAS thread variable and Ctrl-C handling as row columns, and
+    whether the experiment's numba loop was ready when the trial called it (compiled in
+    this process, or loaded from numba's cache, not compiled by this call)."""
+    from attopt.solvers.smoother import compiled
+
+    misses = sum(compiled._downdate.stats.cache_misses.values())
+    compiled.downdate(np.zeros((2, 2)), np.ones((1, 2)))
     return [
         {
             "method": "probe",
             "omp_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "ignores_sigint": signal.getsignal(signal.SIGINT) is signal.SIG_IGN,
+            "loop_ready": sum(compiled._downdate.stats.cache_misses.values()) == misses,
             "pid": os.getpid(),
             "err_x_deg": 0.0,
             "err_y_deg": 0.0,
@@ -157,4 +164,5 @@ PROBE = Experiment(
     trial=probe_trial,
     default_trials=4,
     quick_trials=4,
+    compiled_loops=("smoother.offsets_downdate",),
 )

@@ -309,12 +309,19 @@ def test_experiment_report_follows_the_generic_report(tmp_path):
     assert (tmp_path / "toy-figure.txt").read_text() == f"{len(result.rows)} rows\n"
 
 
-def test_pool_workers_have_one_blas_thread_and_leave_ctrl_c_to_the_parent(tmp_path, monkeypatch):
+def test_pool_workers_have_one_blas_thread_leave_ctrl_c_and_find_their_loops_compiled(
+    tmp_path, monkeypatch
+):
     monkeypatch.setenv("OMP_NUM_THREADS", "8")
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba"))  # the workers' cache, empty
     handler = signal.getsignal(signal.SIGINT)
-    rows = run_sweep(PROBE, workers=2, out=tmp_path, progress=False, chunk_size=1).rows
+    rows = run_sweep(PROBE, workers=2, out=tmp_path / "out", progress=False, chunk_size=1).rows
     assert len(rows) == 4 and os.getpid() not in set(rows["pid"])
     assert set(rows["omp_threads"]) == {"1"} and rows["ignores_sigint"].all()
+    assert rows["loop_ready"].all()  # compiled by one worker before the first trial
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "numba-dask"))
+    dask = run_sweep(PROBE, engine="dask", workers=2, out=tmp_path / "dask", progress=False)
+    assert dask.rows["loop_ready"].all()
     assert os.environ["OMP_NUM_THREADS"] == "8" and signal.getsignal(signal.SIGINT) is handler
 
 
