@@ -12,7 +12,9 @@ import numpy as np
 import pandas as pd
 import pytest
 from numba.core.registry import CPUDispatcher
+from typer.testing import CliRunner
 
+from attopt.experiments.cli import app
 from attopt.experiments.config import resolve_parameters
 from attopt.experiments.registry import get_experiment
 from attopt.solvers.compilation import LOOP_MODULES, compile_loops, loop_names
@@ -99,3 +101,13 @@ def test_a_pool_compiles_each_loop_in_one_of_its_workers():
         seconds = compile_loops(["smoother"], pool)
     assert list(seconds) == names
     assert all(s >= 0.0 for s in seconds.values())
+
+
+def test_the_compile_command_lists_each_loop_and_rejects_unknown_names():
+    done = CliRunner().invoke(app, ["compile", "smoother", "--workers", "1"])
+    assert done.exit_code == 0, done.output
+    lines = done.output.splitlines()
+    assert [line.split()[0] for line in lines[:-1]] == loop_names(["smoother"])
+    assert lines[-1].startswith("3 loops ready in")
+    unknown = CliRunner().invoke(app, ["compile", "wahba.lost"])
+    assert unknown.exit_code == 2 and "no numba loop named 'wahba.lost'" in unknown.output
