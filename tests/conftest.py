@@ -54,11 +54,13 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     from attopt.solvers.compilation import compile_loop, loop_names
 
     index = int(worker.removeprefix("gw"))
-    for name in loop_names()[index::count]:
-        compile_loop(name)
     done = Path(session.config._tmp_path_factory.getbasetemp()).parent / "numba-warm-up"
-    done.mkdir(exist_ok=True)
-    (done / worker).touch()
+    try:
+        for name in loop_names()[index::count]:
+            compile_loop(name)
+    finally:  # a worker whose share failed does not keep the others waiting
+        done.mkdir(exist_ok=True)
+        (done / worker).touch()
     deadline = time.monotonic() + WARM_UP_WAIT_S
     while len(list(done.iterdir())) < count and time.monotonic() < deadline:
         time.sleep(0.2)
