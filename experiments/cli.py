@@ -291,9 +291,9 @@ def compile_command(
     width = max(len(name) for name in names)
     for name, value in seconds.items():
         typer.echo(f"{name:<{width}}  {value:6.2f} s")
-    typer.echo(
-        f"{len(names)} loops ready in {time.perf_counter() - start:.1f} s on {count} processes"
-    )
+    processes = "process" if count == 1 else "processes"
+    seconds_all = time.perf_counter() - start
+    typer.echo(f"{len(names)} loops ready in {seconds_all:.1f} s on {count} {processes}")
 
 
 class EstimatorKind(StrEnum):
