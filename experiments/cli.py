@@ -293,7 +293,8 @@ def compile_command(
         typer.echo(f"{name:<{width}}  {value:6.2f} s")
     processes = "process" if count == 1 else "processes"
     seconds_all = time.perf_counter() - start
-    typer.echo(f"{len(names)} loops ready in {seconds_all:.1f} s on {count} {processes}")
+    loops_ready = f"{len(names)} loop{'' if len(names) == 1 else 's'} ready"
+    typer.echo(f"{loops_ready} in {seconds_all:.1f} s on {count} {processes}")
 
 
 class EstimatorKind(StrEnum):
