@@ -290,7 +290,7 @@ register_warm_up(
 register_warm_up(
     "filters.gate",
     lambda: block_nis(
-        np.zeros(2), np.zeros((6, 2)), np.eye(6), np.ones(2), np.array([[0, 1], [0, 1]])
+        np.zeros(2), np.zeros((6, 2)), np.eye(6), np.ones(2), np.array([[0, 1], [0, 1]], np.intp)
     ),
 )
 register_warm_up(

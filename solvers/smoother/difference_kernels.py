@@ -116,7 +116,7 @@ def _chain_rule(
 # Warm-ups (attopt.formulations.kernels.WARM_UPS): one block of two rows.
 register_warm_up(
     "smoother.perturbations",
-    lambda: perturbed_predictions(np.ones(2), np.array([0, 1]), 2, 1e-6),
+    lambda: perturbed_predictions(np.ones(2), np.array([0, 1], np.intp), 2, 1e-6),
 )
 register_warm_up(
     "smoother.chain_rule",
@@ -124,7 +124,7 @@ register_warm_up(
         np.zeros((4, 2)),
         np.ones(2),
         np.ones((2, 2), bool),
-        np.array([[0, 1], [0, 1]]),
+        np.array([[0, 1], [0, 1]], np.intp),
         np.zeros((2, 3)),
     ),
 )
