@@ -46,7 +46,11 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     (:func:`attopt.solvers.compilation.loop_names`, starting at the ``k``-th), then waits
     until every worker has done its share, so that no loop is compiled twice on a machine
     that has never run attopt (each worker would otherwise compile nearly all of them as
-    its tests reach them).  Loops already compiled are loaded from numba's cache."""
+    its tests reach them).  Loops already compiled are loaded from numba's cache.  A
+    static split, not the sweep's pool of one task per loop
+    (:func:`attopt.solvers.compilation.compile_loops`): the xdist workers are already
+    the processes, and a pool would start and import two more at every run (5-10 s when
+    every loop is cached)."""
     worker = os.environ.get("PYTEST_XDIST_WORKER")
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     if worker is None or count < 2:

@@ -83,9 +83,9 @@ class LocalEngine(Engine):
         self._processes: list[multiprocessing.process.BaseProcess] = []
 
     def run(self, specs: Sequence[ChunkSpec], loops: Sequence[str] = ()) -> Iterator[Outcome]:
-        """Compile the numba ``loops``, each in one worker
-        (:func:`~attopt.solvers.compilation.compile_loops`), then submit every chunk to the
-        pool and yield outcomes in completion order."""
+        """Compile the numba ``loops``, one task each
+        (:func:`~attopt.solvers.compilation.compile_loop`, taken by whichever worker is
+        free), then submit every chunk to the pool and yield outcomes in completion order."""
         before = set(multiprocessing.active_children())
         # The pool spawns its workers on submit, before they import numpy.
         with _spawning_workers():
