@@ -128,12 +128,28 @@ def _compiled(function: ca.Function) -> ca.Function:
     try:
         return ca.external(function.name(), str(_library(function)))
     except (OSError, RuntimeError) as error:
-        logger.warning(
-            "measurement kernel %s not compiled (%s); using CasADi's interpreter",
-            function.name(),
-            error,
-        )
+        _not_compiled(function, error)
         return function
+
+
+@lru_cache(maxsize=512)
+def kernel_library(function: ca.Function) -> Path | None:
+    """The shared library of ``function`` (built once per machine, module docstring), for
+    callers of its C entry point (:mod:`attopt.formulations.kernel_calls`); ``None`` when
+    it cannot be generated or compiled."""
+    try:
+        return _library(function)
+    except (OSError, RuntimeError) as error:
+        _not_compiled(function, error)
+        return None
+
+
+def _not_compiled(function: ca.Function, error: Exception) -> None:
+    logger.warning(
+        "measurement kernel %s not compiled (%s); using CasADi's interpreter",
+        function.name(),
+        error,
+    )
 
 
 @lru_cache(maxsize=512)

@@ -33,22 +33,26 @@ from attopt.formulations.kernels import WARM_UPS, compiled_loops
 
 LOOP_MODULES = (
     "attopt.solvers.wahba.compiled",
+    "attopt.formulations.kernel_calls",
     "attopt.solvers.filters.compiled",
     "attopt.solvers.filters.update_kernels",
+    "attopt.solvers.filters.vector_update",
     "attopt.formulations.geodesic",
     "attopt.solvers.smoother.difference_kernels",
     "attopt.solvers.smoother.compiled",
 )
-"""The modules that define numba loops (and register their warm-ups)."""
-SLOWEST = "wahba"
-"""The loops that take longest to compile (8-15 s each), handed out first."""
+"""The modules that define numba functions; those with loops of their own register their
+warm-ups (:mod:`attopt.formulations.kernel_calls` has none: its call is compiled into
+the loops that use it)."""
+SLOWEST = ("vectors.mekf_update", "wahba")
+"""The loops that take longest to compile (8-25 s each), handed out first."""
 
 
 def loop_names(selection: Iterable[str] = ("",)) -> list[str]:
     """The registered loops whose name is one of ``selection`` or starts with one of its
     entries and a dot (``"wahba"``: the five Wahba loops; ``""``: every loop), the
-    :data:`SLOWEST` first, each part in alphabetical order.  Raises ``KeyError`` for an
-    entry that names no loop."""
+    :data:`SLOWEST` (names or prefixes) first, each part in alphabetical order.  Raises
+    ``KeyError`` for an entry that names no loop."""
     selection = list(selection)
     for module in LOOP_MODULES if selection else ():
         importlib.import_module(module)
@@ -58,7 +62,8 @@ def loop_names(selection: Iterable[str] = ("",)) -> list[str]:
         if not matches:
             raise KeyError(f"no numba loop named {entry!r}; loops: {', '.join(WARM_UPS)}")
         chosen += [n for n in matches if n not in chosen]
-    return sorted(chosen, key=lambda n: (not n.startswith(SLOWEST + "."), n))
+    slowest = [n for n in chosen if any(n == s or n.startswith(s + ".") for s in SLOWEST)]
+    return sorted(chosen, key=lambda n: (n not in slowest, n))
 
 
 def compile_loop(name: str) -> float:

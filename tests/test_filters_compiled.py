@@ -142,6 +142,7 @@ def test_the_loops_benchmark_prints_both_paths_and_their_agreement(
         "| USQUE prediction",
         "| gate, two vectors",
         "| vector innovation, 13 sigma points",
+        "| MEKF update, two vectors",
     ]
     assert all(float(row.split(" | ")[-1].rstrip(" |")) <= 1e-12 for row in rows)
 

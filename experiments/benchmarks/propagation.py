@@ -1,5 +1,5 @@
 """Benchmark of the filters' compiled loops (:mod:`attopt.solvers.filters.compiled`,
-:mod:`attopt.formulations.geodesic`).
+:mod:`attopt.formulations.geodesic`, :mod:`attopt.solvers.filters.vector_update`).
 
 ``python -m attopt.experiments.benchmarks.propagation [--runs 5] [--steps 10] [--calls
 2000]`` times each loop two ways in the same process and run: the numpy reference
@@ -7,13 +7,16 @@
 :func:`~attopt.solvers.filters.common.quaternion_steps`,
 :func:`~attopt.solvers.filters.usque.unscented_prediction`,
 :func:`~attopt.solvers.filters.common.block_nis_reference`,
-:func:`~attopt.formulations.geodesic.geodesic_reference`) and the compiled loop.  Four
+:func:`~attopt.formulations.geodesic.geodesic_reference`,
+:func:`~attopt.solvers.filters.mekf.update_reference`) and the compiled loop.  Five
 cases: one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a few
 deg/s), the MEKF's (the covariance and one attitude) and USQUE's whole prediction (the
 13 sigma attitudes, their mean and covariance, the process noise over the steps from a
-zero covariance); and two pieces of every update with a Sun and a magnetometer vector,
+zero covariance); two pieces of every update with a Sun and a magnetometer vector,
 the gate's normalised innovations of the two vectors (MEKF: ``F = H^T``, ``W = P``) and
-the unit vectors' innovation at USQUE's 13 sigma points.  It prints the median,
+the unit vectors' innovation at USQUE's 13 sigma points; and the MEKF's whole update
+with those two vectors, given in the orbit frame as ``wahba-mag-sun`` gives them
+(the attitude, bias and covariance compared).  It prints the median,
 minimum and maximum over ``--runs`` of the mean time per prediction (``--calls`` calls
 each), the ratio of the medians, and the largest difference between the two paths'
 outputs.
@@ -29,10 +32,11 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from attopt.formulations.attitude_measurement import ReferencedMeasurement, VectorMeasurement
 from attopt.formulations.geodesic import geodesic_reference, geodesic_rows
 from attopt.formulations.gyro import MEMS_GYRO
 from attopt.solvers.blocks import block_structure
-from attopt.solvers.filters import common, compiled, update_kernels, usque
+from attopt.solvers.filters import common, compiled, mekf, update_kernels, usque
 
 
 def _inputs(steps: int) -> dict[str, np.ndarray]:
@@ -91,7 +95,29 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
             name: (lambda f=f: (f(x["sigma_predictions"], x["measured"]),))
             for name, f in vector_paths.items()
         },
+        "MEKF update, two vectors": _mekf_updates(x),
     }
+
+
+def _mekf_updates(x: dict[str, np.ndarray]) -> dict[str, Callable[[], tuple]]:
+    """The MEKF's update of a Sun and a magnetometer vector in the orbit frame, near the
+    truth (one Gauss-Newton pass): its numpy path and its compiled call."""
+    rng = np.random.default_rng(1)
+    frame, truth = Rotation.random(rng=rng), Rotation.from_quat(x["attitude"][0])
+    reference = x["measured"].reshape(2, 3)
+    body = (truth * frame.inv()).apply(reference) + 1e-3 * rng.normal(size=(2, 3))
+    measurement = ReferencedMeasurement(VectorMeasurement(body, reference, 1e-3), frame)
+    estimate = Rotation.from_rotvec(1e-3 * rng.normal(size=3)) * truth
+    arguments = (estimate, x["bias"], 1e-6 * np.eye(6), measurement, common.FilterOptions())
+
+    def update(path: Callable) -> Callable[[], tuple]:
+        def call() -> tuple:
+            attitude, bias, covariance, _, _ = path(*arguments)
+            return attitude.as_quat(), bias, covariance
+
+        return call
+
+    return {"numpy": update(mekf.update_reference), "compiled": update(mekf.update)}
 
 
 def _time(call: Callable[[], tuple], runs: int, calls: int) -> list[float]:

@@ -49,6 +49,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
 )
 from attopt.solvers.filters.offsets import RowOffsets, shifted
+from attopt.solvers.filters.vector_update import compiled_update
 from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 
@@ -119,7 +120,29 @@ def update(
     offset ``o + delta_o`` in its model (:func:`~attopt.solvers.filters.offsets.shifted`)
     and ``H`` gains the rows' ``dh / d o`` in their offsets' columns; the last item
     returned is the offsets' increment ``delta_o`` (empty without).
+
+    Unit vectors without offsets run as one compiled call
+    (:func:`attopt.solvers.filters.vector_update.compiled_update`); everything else, and
+    every measurement under ``ATTOPT_KERNELS=interpreted``, runs the numpy path,
+    :func:`update_reference`, which is also the compiled call's reference.
     """
+    if offsets is None:
+        compiled = compiled_update(attitude, bias, covariance, measurement, options, MAX_HALVINGS)
+        if compiled is not None:
+            return compiled
+    return update_reference(attitude, bias, covariance, measurement, options, offsets)
+
+
+def update_reference(
+    attitude: Rotation,
+    bias: Array,
+    covariance: Array,
+    measurement: AttitudeMeasurement,
+    options: FilterOptions,
+    offsets: RowOffsets | None = None,
+) -> tuple[Rotation, Array, Array, dict[str, float], Array]:
+    """:func:`update`'s numpy path: any measurement, with or without offsets and the Huber
+    weights (the algorithm is :func:`update`'s docstring)."""
     n_state = covariance.shape[0]
     eye = np.eye(n_state)
     blocks = measurement.blocks
