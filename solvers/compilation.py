@@ -37,6 +37,7 @@ LOOP_MODULES = (
     "attopt.solvers.filters.compiled",
     "attopt.solvers.filters.update_kernels",
     "attopt.solvers.filters.vector_update",
+    "attopt.solvers.filters.vector_unscented_update",
     "attopt.formulations.geodesic",
     "attopt.solvers.smoother.difference_kernels",
     "attopt.solvers.smoother.compiled",
@@ -44,7 +45,7 @@ LOOP_MODULES = (
 """The modules that define numba functions; those with loops of their own register their
 warm-ups (:mod:`attopt.formulations.kernel_calls` has none: its call is compiled into
 the loops that use it)."""
-SLOWEST = ("vectors.mekf_update", "wahba")
+SLOWEST = ("vectors.mekf_update", "vectors.usque_update", "wahba")
 """The loops that take longest to compile (8-25 s each), handed out first."""
 
 

@@ -54,12 +54,16 @@ def test_every_module_with_numba_loops_is_listed():
 
 
 def loops() -> dict[str, CPUDispatcher]:
-    """The numba loops called through ``first_call`` in the loop modules' source, by
-    qualified name (a tuple of loops, as the Wahba solvers' ``_SOLVE``, one by one)."""
+    """The numba loops called through ``first_call`` (or the filters' ``run_loop``, which
+    calls it) in the loop modules' source, by qualified name (a tuple of loops, as the
+    Wahba solvers' ``_SOLVE``, one by one)."""
     found = {}
     for name in LOOP_MODULES:
         module = importlib.import_module(name)
-        for called in re.findall(r"first_call\(\s*(\w+)", Path(module.__file__).read_text()):
+        source = Path(module.__file__).read_text()
+        for called in re.findall(r"(?:first_call|run_loop)\(\s*(\w+)", source):
+            if called == "loop":  # run_loop's own call of the loop it is given
+                continue
             value = getattr(module, called)
             for i, loop in enumerate(value if isinstance(value, tuple) else (value,)):
                 found[f"{name}.{called}[{i}]"] = loop

@@ -143,6 +143,7 @@ def test_the_loops_benchmark_prints_both_paths_and_their_agreement(
         "| gate, two vectors",
         "| vector innovation, 13 sigma points",
         "| MEKF update, two vectors",
+        "| USQUE update, two vectors",
     ]
     assert all(float(row.split(" | ")[-1].rstrip(" |")) <= 1e-12 for row in rows)
 

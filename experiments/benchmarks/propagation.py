@@ -8,14 +8,15 @@
 :func:`~attopt.solvers.filters.usque.unscented_prediction`,
 :func:`~attopt.solvers.filters.common.block_nis_reference`,
 :func:`~attopt.formulations.geodesic.geodesic_reference`,
-:func:`~attopt.solvers.filters.mekf.update_reference`) and the compiled loop.  Five
+:func:`~attopt.solvers.filters.mekf.update_reference`,
+:func:`~attopt.solvers.filters.usque.update_reference`) and the compiled loop.  Six
 cases: one prediction between two epochs (``--steps`` gyro steps of 0.1 s at a few
 deg/s), the MEKF's (the covariance and one attitude) and USQUE's whole prediction (the
 13 sigma attitudes, their mean and covariance, the process noise over the steps from a
 zero covariance); two pieces of every update with a Sun and a magnetometer vector,
 the gate's normalised innovations of the two vectors (MEKF: ``F = H^T``, ``W = P``) and
-the unit vectors' innovation at USQUE's 13 sigma points; and the MEKF's whole update
-with those two vectors, given in the orbit frame as ``wahba-mag-sun`` gives them
+the unit vectors' innovation at USQUE's 13 sigma points; and the MEKF's and USQUE's whole
+updates with those two vectors, given in the orbit frame as ``wahba-mag-sun`` gives them
 (the attitude, bias and covariance compared).  It prints the median,
 minimum and maximum over ``--runs`` of the mean time per prediction (``--calls`` calls
 each), the ratio of the medians, and the largest difference between the two paths'
@@ -28,6 +29,7 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from types import ModuleType
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -65,7 +67,7 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
     offsets, _ = usque.sigma_offsets(x["covariance"])
     usque_arguments = (offsets, x["attitude"][0], x["bias"], x["rates"], x["dt"], x["noise"])
 
-    def mekf(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
+    def prediction(covariance_steps: Callable, quaternion_steps: Callable) -> Callable[[], tuple]:
         return lambda: (
             *covariance_steps(x["covariance"], x["rates"], x["dt"], x["noise"]),
             quaternion_steps(x["attitude"], x["rates"][None], x["dt"]),
@@ -86,7 +88,7 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
     }
     vector_paths = {"numpy": geodesic_reference, "compiled": geodesic_rows}
     return {
-        "MEKF prediction": {name: mekf(*f) for name, f in paths.items()},
+        "MEKF prediction": {name: prediction(*f) for name, f in paths.items()},
         "USQUE prediction": {
             name: (lambda f=f: f(*usque_arguments)) for name, f in usque_paths.items()
         },
@@ -95,13 +97,15 @@ def _cases(x: dict[str, np.ndarray]) -> dict[str, dict[str, Callable[[], tuple]]
             name: (lambda f=f: (f(x["sigma_predictions"], x["measured"]),))
             for name, f in vector_paths.items()
         },
-        "MEKF update, two vectors": _mekf_updates(x),
+        "MEKF update, two vectors": _updates(x, mekf),
+        "USQUE update, two vectors": _updates(x, usque),
     }
 
 
-def _mekf_updates(x: dict[str, np.ndarray]) -> dict[str, Callable[[], tuple]]:
-    """The MEKF's update of a Sun and a magnetometer vector in the orbit frame, near the
-    truth (one Gauss-Newton pass): its numpy path and its compiled call."""
+def _updates(x: dict[str, np.ndarray], module: ModuleType) -> dict[str, Callable[[], tuple]]:
+    """The update of ``module`` (:mod:`~attopt.solvers.filters.mekf` or
+    :mod:`~attopt.solvers.filters.usque`) of a Sun and a magnetometer vector in the orbit
+    frame, near the truth: its numpy path and its compiled call."""
     rng = np.random.default_rng(1)
     frame, truth = Rotation.random(rng=rng), Rotation.from_quat(x["attitude"][0])
     reference = x["measured"].reshape(2, 3)
@@ -117,7 +121,7 @@ def _mekf_updates(x: dict[str, np.ndarray]) -> dict[str, Callable[[], tuple]]:
 
         return call
 
-    return {"numpy": update(mekf.update_reference), "compiled": update(mekf.update)}
+    return {"numpy": update(module.update_reference), "compiled": update(module.update)}
 
 
 def _time(call: Callable[[], tuple], runs: int, calls: int) -> list[float]:

@@ -158,6 +158,7 @@ from attopt.solvers.filters.common import (
     usable_rows,
 )
 from attopt.solvers.filters.offsets import RowOffsets, shifted
+from attopt.solvers.filters.vector_unscented_update import compiled_update
 from attopt.solvers.sequential import OFFSET_DIAGNOSTICS
 
 ALPHA = 0.5
@@ -314,7 +315,30 @@ def update(
     and the first pass's innovation covariance adds the offsets' terms
     (:func:`with_offsets`).  The last item returned is the offsets' increment
     ``delta_o`` (empty without).
+
+    Unit vectors without offsets run as one compiled call
+    (:func:`attopt.solvers.filters.vector_unscented_update.compiled_update`); everything
+    else, and every measurement under ``ATTOPT_KERNELS=interpreted``, runs the numpy
+    path, :func:`update_reference`, which is also the compiled call's reference.
     """
+    if offsets is None:
+        weights = (WEIGHTS, COVARIANCE_WEIGHTS, LAMBDA)
+        compiled = compiled_update(attitude, bias, covariance, measurement, options, weights)
+        if compiled is not None:
+            return compiled
+    return update_reference(attitude, bias, covariance, measurement, options, offsets)
+
+
+def update_reference(
+    attitude: Rotation,
+    bias: Array,
+    covariance: Array,
+    measurement: AttitudeMeasurement,
+    options: FilterOptions,
+    offsets: RowOffsets | None = None,
+) -> tuple[Rotation, Array, Array, dict[str, float], Array]:
+    """:func:`update`'s numpy path: any measurement, with or without offsets and the Huber
+    weights (the algorithm is :func:`update`'s docstring)."""
     counts = {"n_gated": 0.0, "n_nan": 0.0, "n_unpredictable": 0.0, "nis": np.nan, "nis_dof": 0.0}
     counts |= {"n_used": 0.0, "covariance_repairs": 0.0, "update_iterations": 0.0}
     counts["n_downweighted"] = 0.0

@@ -75,6 +75,14 @@ from attopt.solvers.filters.update_kernels import (
 
 Array = NDArray[np.float64]
 Layout = tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]
+"""A vector kernel's parameter sizes (its inputs after the attitude), the rows of ``h``'s
+nonzeros and the rows and columns of its Jacobian's (:func:`_predict`)."""
+Epoch = tuple[Array, Array, Array, Array, NDArray[np.intp], Array]
+"""What a compiled update reads of the epoch: the estimate's quaternion, the covariance,
+the measured vectors, their variances, their block labels and the kernel's parameters."""
+Settings = tuple[bool, float, int, float]
+"""A compiled update's options: whether to gate, the gate's threshold, the most passes and
+the relinearisation fraction (``FilterOptions``)."""
 
 _jit = njit(cache=True, error_model="numpy")
 """numba's compilation, cached on disk, with numpy's float semantics."""
@@ -108,47 +116,11 @@ def compiled_update(
     """:func:`attopt.solvers.filters.mekf.update` of a unit-vector ``measurement``
     without offsets, as one compiled call (module docstring): the same results, or
     ``None`` where this path does not apply and the numpy path must run."""
-    inner = measurement.inner if type(measurement) is ReferencedMeasurement else measurement
-    variances = measurement.noise_covariance
-    if (
-        type(inner) is not VectorMeasurement
-        or variances.ndim != 1
-        or options.huber_threshold is not None
-        or measurement.z.size == 0
-        or not compiled_loops()
-        or not np.isfinite(covariance).all()
-    ):
+    label = "the MEKF's vector update"
+    outcome = run_loop(_update, label, attitude, covariance, measurement, options, max_halvings)
+    if outcome is None:
         return None
-    model = measurement.symbolic_model()
-    call = kernel_call(model.function)
-    if call is None or not call.dense_inputs or model.rows is not None:
-        return None
-    gating = options.gate_probability < 1.0
-    try:
-        outcome = first_call(
-            _update,
-            "the MEKF's vector update",
-            call.function,
-            call.buffers,
-            _layout(call),
-            attitude.as_quat(),
-            np.ascontiguousarray(covariance, dtype=float),
-            measurement.z,
-            np.ascontiguousarray(variances, dtype=float),
-            np.ascontiguousarray(measurement.blocks, dtype=np.intp),
-            np.concatenate([p.ravel(order="F") for p in model.parameters]),
-            gating,
-            _gate_threshold(options.gate_probability) if gating else np.inf,
-            options.max_update_iterations,
-            options.relinearise_fraction,
-            max_halvings,
-        )
-    except np.linalg.LinAlgError:  # numpy's inverse of a matrix LAPACK cannot factor
-        return None  # is NaN or raises: the numpy path decides
     status, quaternion, state, posterior, counts = outcome
-    if status == REFERENCE:
-        return None
-    counts = dict(zip(COUNTS, counts.tolist(), strict=True)) | {"n_downweighted": 0.0}
     if status == NO_ROWS:
         return attitude, bias, covariance, counts, state[STATE_SIZE:]
     if status == NOT_FINITE:
@@ -159,10 +131,79 @@ def compiled_update(
     return estimate, bias + state[3:STATE_SIZE], posterior, counts, state[STATE_SIZE:]
 
 
-def _layout(call: KernelCall) -> Layout:
-    """The sizes of a vector kernel's parameters (its inputs after the attitude), the rows of
-    ``h``'s nonzeros and the rows and columns of its Jacobian's (:func:`_predict`)."""
-    return call.input_sizes[1:], call.outputs[0][0], *call.outputs[1]
+def run_loop(
+    loop: Any,
+    label: str,
+    attitude: Rotation,
+    covariance: Array,
+    measurement: AttitudeMeasurement,
+    options: FilterOptions,
+    *extra: object,
+) -> tuple[int, Array, Array, Array, dict[str, float]] | None:
+    """Call a compiled update ``loop`` (this module's, or
+    :mod:`attopt.solvers.filters.vector_unscented_update`'s) on a measurement it serves
+    (:func:`served`): its outcome, quaternion, error state, posterior and counts (a
+    dictionary in the numpy path's order), or ``None`` where the numpy path must run (not
+    served, a covariance LAPACK cannot factor, an outcome it decides).  ``extra`` follows
+    the arguments the loops share."""
+    inputs = served(measurement, covariance, options)
+    if inputs is None:
+        return None
+    call, layout, parameters = inputs
+    gating = options.gate_probability < 1.0
+    try:
+        status, quaternion, state, posterior, counts = first_call(
+            loop,
+            label,
+            call.function,
+            call.buffers,
+            layout,
+            (
+                attitude.as_quat(),
+                np.ascontiguousarray(covariance, dtype=float),
+                measurement.z,
+                np.ascontiguousarray(measurement.noise_covariance, dtype=float),
+                np.ascontiguousarray(measurement.blocks, dtype=np.intp),
+                parameters,
+            ),
+            (
+                gating,
+                _gate_threshold(options.gate_probability) if gating else np.inf,
+                options.max_update_iterations,
+                options.relinearise_fraction,
+            ),
+            *extra,
+        )
+    except np.linalg.LinAlgError:  # numpy's inverse or Cholesky factor of a matrix LAPACK
+        return None  # cannot factor is NaN, raises or is repaired: the numpy path decides
+    if status == REFERENCE:
+        return None
+    counts = dict(zip(COUNTS, counts.tolist(), strict=True)) | {"n_downweighted": 0.0}
+    return status, quaternion, state, posterior, counts
+
+
+def served(
+    measurement: AttitudeMeasurement, covariance: Array, options: FilterOptions
+) -> tuple[KernelCall, Layout, Array] | None:
+    """Whether the compiled updates serve ``measurement`` (module docstring): its kernel
+    call, the kernel's :data:`Layout` and the parameters' nonzeros (column-major, one
+    after another), or ``None``."""
+    inner = measurement.inner if type(measurement) is ReferencedMeasurement else measurement
+    if (
+        type(inner) is not VectorMeasurement
+        or measurement.noise_covariance.ndim != 1
+        or options.huber_threshold is not None
+        or measurement.z.size == 0
+        or not compiled_loops()
+        or not np.isfinite(covariance).all()
+    ):
+        return None
+    model = measurement.symbolic_model()
+    call = kernel_call(model.function)
+    if call is None or not call.dense_inputs or model.rows is not None:
+        return None
+    layout = call.input_sizes[1:], call.outputs[0][0], *call.outputs[1]
+    return call, layout, np.concatenate([p.ravel(order="F") for p in model.parameters])
 
 
 @lru_cache(maxsize=16)
@@ -176,16 +217,8 @@ def _update(
     kernel: Any,
     buffers: Buffers,
     layout: Layout,
-    quaternion: Array,
-    covariance: Array,
-    z: Array,
-    variances: Array,
-    blocks: NDArray[np.intp],
-    parameters: Array,
-    gating: bool,
-    threshold: float,
-    max_iterations: int,
-    fraction: float,
+    epoch: Epoch,
+    settings: Settings,
     max_halvings: int,
 ) -> tuple[int, Array, Array, Array, Array]:
     """:func:`compiled_update`'s loop: :func:`attopt.solvers.filters.mekf.update`'s
@@ -194,6 +227,8 @@ def _update(
     :data:`COUNTS`, ``covariance_repairs`` 1 where that repair is due).  The matrix
     algebra is written as loops in small functions: numba compiles them in a fraction of
     the time of the equivalent array expressions."""
+    quaternion, covariance, z, variances, blocks, parameters = epoch
+    gating, threshold, max_iterations, fraction = settings
     n, m = covariance.shape[0], z.size
     counts = np.zeros(len(COUNTS))
     counts[3] = np.nan
@@ -345,20 +380,28 @@ def _joseph_reset(
             for i in range(k):
                 total += gain[a, i] * variances[i] * gain[b, i]
             updated[a, b] = total
+    return carried(updated, state)
+
+
+@_jit
+def carried(covariance: Array, state: Array) -> Array:
+    """``T P T^T`` with ``T = blockdiag(J(x), I)``: the covariance of the error about the
+    attitude reset by ``x`` (:func:`attopt.solvers.filters.usque.carried`)."""
+    n = covariance.shape[0]
     carry = _error_jacobian(state)
-    reset = updated.copy()
+    rows = covariance.copy()
     for a in range(3):  # T P: the attitude rows
         for b in range(n):
-            reset[a, b] = (
-                carry[a, 0] * updated[0, b]
-                + carry[a, 1] * updated[1, b]
-                + carry[a, 2] * updated[2, b]
+            rows[a, b] = (
+                carry[a, 0] * covariance[0, b]
+                + carry[a, 1] * covariance[1, b]
+                + carry[a, 2] * covariance[2, b]
             )
-    out = reset.copy()
+    out = rows.copy()
     for a in range(n):  # (T P) T^T: the attitude columns
         for b in range(3):
             out[a, b] = (
-                reset[a, 0] * carry[b, 0] + reset[a, 1] * carry[b, 1] + reset[a, 2] * carry[b, 2]
+                rows[a, 0] * carry[b, 0] + rows[a, 1] * carry[b, 1] + rows[a, 2] * carry[b, 2]
             )
     return out
 
