@@ -11,14 +11,14 @@ each sigma point's prediction is the measurement's compiled CasADi kernel called
 its C entry point (:mod:`attopt.formulations.kernel_calls`), and the gate, gain and
 error reset are the compiled loops of the other filter modules.
 
-It serves the same measurements (a :class:`~attopt.formulations.attitude_measurement.
-VectorMeasurement` with per-vector sigmas, alone or inside a
-:class:`~attopt.formulations.attitude_measurement.ReferencedMeasurement`, without
-offsets or Huber weights); :func:`compiled_update` returns ``None`` for anything else,
-for interpreted kernels, for a covariance whose Cholesky factor does not exist (the
-numpy path repairs it first) and where no C compiler built the kernel, and USQUE then
-runs its numpy path, :func:`attopt.solvers.filters.usque.update_reference`, which stays
-the reference (``tests/test_vector_update.py``).
+It serves the same measurements (:func:`~attopt.solvers.filters.vector_update.served`: a
+``VectorMeasurement`` with per-vector sigmas, alone or inside a
+``ReferencedMeasurement``, without offsets or Huber weights); :func:`compiled_update`
+returns ``None`` for anything else, for interpreted kernels, for a covariance whose
+Cholesky factor does not exist (the numpy path repairs it first) and where no C compiler
+built the kernel, and USQUE then runs its numpy path,
+:func:`attopt.solvers.filters.usque.update_reference`, which stays the reference
+(``tests/test_vector_update.py``).
 
 Example::
 

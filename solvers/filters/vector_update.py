@@ -4,7 +4,7 @@
 measurement and its Jacobian at the estimate, the geodesic innovation, the gate, the
 Gauss-Newton steps on the MAP cost with their backtracking, the information-form gain,
 the Joseph form and the reset.  In numpy that is some forty small array calls and two
-scipy ``Rotation`` objects per iteration: 0.3-0.4 ms an epoch for a magnetometer and a
+scipy ``Rotation`` objects per iteration: 0.4-0.5 ms an epoch for a magnetometer and a
 Sun sensor, most of it Python, paid 6,000 times on a ``wahba-mag-sun`` pass by every
 MEKF and RTS run.  :func:`compiled_update` runs the same algorithm, step for step, as
 one numba call: the measurement model and its AD Jacobian are the measurement's own
@@ -21,9 +21,12 @@ variances (``sigma`` per vector), alone or inside a
 transmitter offsets and without the Huber weights (``FilterOptions.huber_threshold``);
 :func:`compiled_update` returns ``None`` for anything else, for interpreted kernels
 (``ATTOPT_KERNELS=interpreted``) and where no C compiler built the kernel, and the MEKF
-then runs its numpy path, which stays the reference (``tests/test_vector_update.py``: the
-two agree to 1e-12 in attitude, bias and covariance and exactly in the counts, over
-random updates that gate, iterate, backtrack and lose vectors).
+then runs its numpy path, :func:`attopt.solvers.filters.mekf.update_reference`, which
+stays the reference (``tests/test_vector_update.py``: the same counts, and the attitude,
+bias and covariance to round-off as the update's conditioning amplifies it, 1e-14 rad in
+steady state, over random updates that gate, iterate and backtrack).  USQUE's update
+(:mod:`attopt.solvers.filters.vector_unscented_update`) shares this module's pieces:
+:func:`served`, :func:`run_loop` and the small loops.
 
 Example::
 
