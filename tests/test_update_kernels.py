@@ -38,17 +38,31 @@ def _blocks_case(seed: int, k: int, full: bool) -> tuple[np.ndarray, ...]:
     return rng.normal(size=m), factor, weight, noise, labels
 
 
+ROUND_OFF = 1e-13
+"""Relative difference allowed per unit of a block's condition number (about 450 machine
+epsilons; 32,000 random blocks of this test's kinds gave at most 2.7e-15)."""
+
+
 @settings(max_examples=80, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), k=st.sampled_from([3, 6, 7, 13]), full=st.booleans())
 def test_compiled_block_nis_equals_the_numpy_reference(seed: int, k: int, full: bool) -> None:
     """Blocks of mixed sizes in any order, variances or a full ``R``, any factor: the same
-    normalised innovations and sizes, to round-off."""
+    normalised innovations and sizes, to round-off: relative to each block's ``cond(S_b)``
+    times :data:`ROUND_OFF` (the two solve ``S_b`` by elimination in other orders: 1.3e-9
+    relative at a condition number of 6e7)."""
     innovation, factor, weight, noise, labels = _blocks_case(seed, k, full)
     members = common.block_structure(labels).members.members
     nis, sizes = update_kernels.block_nis(innovation, factor, weight, noise, members)
     nis_ref, sizes_ref = common.block_nis_reference(innovation, factor, weight, noise, labels)
     np.testing.assert_array_equal(sizes, sizes_ref)
-    np.testing.assert_allclose(nis, nis_ref, rtol=1e-9)
+    for label in np.unique(labels):
+        rows = np.flatnonzero(labels == label)
+        columns = factor[:, rows]
+        s = columns.T @ weight @ columns + (
+            noise[np.ix_(rows, rows)] if full else np.diag(noise[rows])
+        )
+        tolerance = max(1e-12, ROUND_OFF * np.linalg.cond(s))
+        np.testing.assert_allclose(nis[rows], nis_ref[rows], rtol=tolerance)
 
 
 @pytest.mark.parametrize("enabled", [True, False])

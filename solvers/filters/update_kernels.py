@@ -19,8 +19,9 @@ The numpy functions stay the reference (``ATTOPT_KERNELS=interpreted``,
 :func:`~attopt.solvers.filters.common.linearised` and
 :func:`~attopt.solvers.filters.common.repair_covariance` on that path.  The sums run
 in another order than numpy's BLAS, so the two paths agree to round-off, not bit for
-bit (``tests/test_filters_compiled.py``: 1e-9 relative on the normalised innovations of
-ill-conditioned blocks, 1e-12 on gains and posteriors).  numba caches the machine code
+bit (``tests/test_update_kernels.py``: the normalised innovations within 1e-13 times
+their block's condition number, relative; gains and posteriors within 1e-14 times the
+posterior information's condition number, of their largest entry).  numba caches the machine code
 on disk beside this module, as :mod:`attopt.solvers.filters.compiled`'s loops.
 
 Example::
