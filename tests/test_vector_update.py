@@ -147,9 +147,9 @@ def test_usable_rows_drop_whole_blocks_and_count_them(z, predicted, innovation) 
     z, predicted, innovation = (np.asarray(x, dtype=float) for x in (z, predicted, innovation))
     measurement = SimpleNamespace(z=z, blocks=blocks)
     keep, n_nan, n_unpredictable = usable_rows(measurement, predicted[None], innovation[None])
-    got = vector_update._usable_rows(z, predicted, innovation, blocks)
+    got = vector_update._usable_rows(z, predicted[None], innovation[None], blocks)
     assert got[0].tolist() == keep.tolist() and got[1:] == (n_nan, n_unpredictable)
-    lost = vector_update._lost_rows(innovation, blocks)
+    lost = vector_update._lost_rows(innovation[None], blocks)
     assert lost.tolist() == np.isin(blocks, blocks[~np.isfinite(innovation)]).tolist()
 
 

@@ -67,10 +67,12 @@ from attopt.solvers.filters.vector_update import (
     _count_blocks,
     _gain_step,
     _inverse,
+    _lost_rows,
     _members,
     _perturbed,
     _predict,
     _relinearised,
+    _usable_rows,
     _where,
     carried,
     run_loop,
@@ -142,7 +144,7 @@ def _update(
         predicted, innovations,
     ):  # fmt: skip
         return REFERENCE, quaternion, state, covariance, counts
-    keep, n_nan, n_unpredictable = _usable_points(z, predicted, innovations, blocks)
+    keep, n_nan, n_unpredictable = _usable_rows(z, predicted, innovations, blocks)
     counts[1], counts[2] = n_nan, n_unpredictable
     rows = _where(keep)
     if rows.size == 0:
@@ -175,7 +177,7 @@ def _update(
             ):  # fmt: skip
                 return REFERENCE, quaternion, state, covariance, counts
             used = innovations[:, rows]
-            lost = _lost_columns(used, blocks[rows])
+            lost = _lost_rows(used, blocks[rows])
             if lost.any():  # relinearised: drop blocks the model can no longer predict
                 n_lost = _count_blocks(blocks[rows[lost]])
                 counts[2] += n_lost
@@ -243,43 +245,6 @@ def _sigma_innovations(
             return False
     innovations[:, :] = _geodesic_rows(predicted, z)
     return True
-
-
-@_jit
-def _usable_points(
-    z: Array, predicted: Array, innovations: Array, blocks: NDArray[np.intp]
-) -> tuple[NDArray[np.bool_], float, float]:
-    """:func:`attopt.solvers.filters.common.usable_rows` over the sigma points: whole
-    blocks with a finite measured value and finite predictions and innovations at every
-    point; the counts of blocks left out for each reason."""
-    m = z.size
-    bad_z = np.zeros(m, dtype=np.bool_)
-    bad_h = np.zeros(m, dtype=np.bool_)
-    for i in range(m):
-        for j in range(m):
-            if blocks[j] != blocks[i]:
-                continue
-            if not math.isfinite(z[j]):
-                bad_z[i] = True
-            for p in range(predicted.shape[0]):
-                if not (math.isfinite(predicted[p, j]) and math.isfinite(innovations[p, j])):
-                    bad_h[i] = True
-    unpredictable = bad_h & ~bad_z
-    n_nan = float(_count_blocks(blocks[bad_z]))
-    return ~(bad_z | bad_h), n_nan, float(_count_blocks(blocks[unpredictable]))
-
-
-@_jit
-def _lost_columns(innovations: Array, blocks: NDArray[np.intp]) -> NDArray[np.bool_]:
-    """Per column, whether its block has an innovation that is not finite at some sigma
-    point."""
-    lost = np.zeros(innovations.shape[1], dtype=np.bool_)
-    for j in range(innovations.shape[1]):
-        for p in range(innovations.shape[0]):
-            if not math.isfinite(innovations[p, j]):
-                lost |= blocks == blocks[j]
-                break
-    return lost
 
 
 @_jit

@@ -252,7 +252,9 @@ def _update(
         carry = np.eye(3) if iteration == 0 else _error_jacobian(state)
         counts[7] = iteration + 1
         if iteration == 0:
-            keep, n_nan, n_unpredictable = _usable_rows(z, predicted, innovation, blocks)
+            keep, n_nan, n_unpredictable = _usable_rows(
+                z, predicted.reshape(1, m), innovation.reshape(1, m), blocks
+            )
             counts[1], counts[2] = n_nan, n_unpredictable
             rows = _where(keep)
             accepted = np.ones(rows.size, dtype=np.bool_)
@@ -268,7 +270,7 @@ def _update(
             if rows.size == 0:
                 return NO_ROWS, quaternion, state, covariance, counts
         else:  # relinearised: drop blocks the model can no longer predict
-            lost = _lost_rows(innovation[rows], blocks[rows])
+            lost = _lost_rows(innovation[rows].reshape(1, rows.size), blocks[rows])
             if lost.any():
                 counts[2] += _count_blocks(blocks[rows[lost]])
                 rows = rows[~lost]
@@ -504,36 +506,39 @@ def _error_jacobian(delta: Array) -> Array:
 
 @_jit
 def _usable_rows(
-    z: Array, predicted: Array, innovation: Array, blocks: NDArray[np.intp]
+    z: Array, predicted: Array, innovations: Array, blocks: NDArray[np.intp]
 ) -> tuple[NDArray[np.bool_], float, float]:
-    """:func:`attopt.solvers.filters.common.usable_rows`: the rows of whole blocks with
-    finite values, and the counts of blocks left out for a NaN value and for an
-    unpredictable one."""
+    """:func:`attopt.solvers.filters.common.usable_rows` over the points (one row of
+    ``predicted`` and ``innovations`` for the MEKF, 13 for USQUE's sigma points): whole
+    blocks with a finite measured value and finite predictions and innovations at every
+    point; the counts of blocks left out for each reason."""
     m = z.size
-    bad_z = np.zeros(m, dtype=np.bool_)  # per row: its block has a NaN measured value
-    bad_h = np.zeros(m, dtype=np.bool_)  # ... or a prediction or innovation that is not
+    bad_z = np.zeros(m, dtype=np.bool_)
+    bad_h = np.zeros(m, dtype=np.bool_)
     for i in range(m):
         for j in range(m):
-            if blocks[j] == blocks[i]:
-                if not math.isfinite(z[j]):
-                    bad_z[i] = True
-                if not (math.isfinite(predicted[j]) and math.isfinite(innovation[j])):
+            if blocks[j] != blocks[i]:
+                continue
+            if not math.isfinite(z[j]):
+                bad_z[i] = True
+            for p in range(predicted.shape[0]):
+                if not (math.isfinite(predicted[p, j]) and math.isfinite(innovations[p, j])):
                     bad_h[i] = True
     unpredictable = bad_h & ~bad_z
-    return (
-        ~(bad_z | bad_h),
-        float(_count_blocks(blocks[bad_z])),
-        float(_count_blocks(blocks[unpredictable])),
-    )
+    n_nan = float(_count_blocks(blocks[bad_z]))
+    return ~(bad_z | bad_h), n_nan, float(_count_blocks(blocks[unpredictable]))
 
 
 @_jit
-def _lost_rows(innovation: Array, blocks: NDArray[np.intp]) -> NDArray[np.bool_]:
-    """Per row, whether its block has an innovation that is not finite."""
-    lost = np.zeros(innovation.size, dtype=np.bool_)
-    for i in range(innovation.size):
-        if not math.isfinite(innovation[i]):
-            lost |= blocks == blocks[i]
+def _lost_rows(innovations: Array, blocks: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Per column, whether its block has an innovation that is not finite at some point
+    (a row of ``innovations``)."""
+    lost = np.zeros(innovations.shape[1], dtype=np.bool_)
+    for j in range(innovations.shape[1]):
+        for p in range(innovations.shape[0]):
+            if not math.isfinite(innovations[p, j]):
+                lost |= blocks == blocks[j]
+                break
     return lost
 
 
