@@ -64,6 +64,7 @@ from attopt.formulations.snr_problem import SnrEpoch
 from attopt.solvers.bounds import crb, posterior_bound
 from attopt.solvers.estimator import Estimator, PassEstimator, SnapshotEstimator
 from attopt.solvers.filters import FilterOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.pipeline import Run, run_estimators
 from attopt.solvers.registry import ESTIMATORS, UnknownEstimatorError, estimator, estimators
 from attopt.solvers.results import Solution, Track
@@ -88,6 +89,7 @@ __all__ = [
     "GyroRecord",
     "InvalidObservationError",
     "LinkBudget",
+    "NlpOptions",
     "ParabolicPattern",
     "Pass",
     "PassEstimator",

@@ -1,4 +1,5 @@
-"""The MAP attitude of a snapshot of any mix of measurements: a CasADi NLP solved by IPOPT.
+"""The MAP attitude of a snapshot of any mix of measurements: a CasADi NLP solved by IPOPT
+(or by CasADi's SQP method: ``NlpOptions(solver="sqpmethod")``, :mod:`attopt.solvers.nlpsol`).
 
 Registry name ``map_nlp``.  The loss is
 :func:`attopt.formulations.map_problem.map_loss`: each measurement's own
@@ -31,8 +32,10 @@ converged solve of lowest loss winning.  Diagnostics are those of
 :data:`~attopt.solvers.snr.initialisation.INITIALISATION_DIAGNOSTICS`.
 
 Status.  IPOPT's ``Solve_Succeeded`` and ``Solved_To_Acceptable_Level``
-(flagged ``acceptable = 1``) are accepted; anything else flags the epoch with
-:class:`~attopt.formulations.errors.ConvergenceError` and the status.
+(flagged ``acceptable = 1``), or the SQP method's ``Solve_Succeeded``, are accepted;
+anything else flags the epoch with
+:class:`~attopt.formulations.errors.ConvergenceError` and the solver and status
+(``IPOPT: ...`` or ``SQP: ...``).
 
 Covariance.  The inverse Gauss-Newton Hessian at the estimate: the Fisher
 information of the measurements' AD Jacobians
@@ -66,12 +69,13 @@ from attopt.formulations.snr_model import cramer_rao_bound
 from attopt.formulations.snr_problem import EpochIssue
 from attopt.solvers.bounds import snapshot_information
 from attopt.solvers.estimator import SnapshotEstimator
-from attopt.solvers.ipopt import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, IpoptOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.results import Track
 from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart, solve_in_sequence
 from attopt.solvers.snr.initialisation import (
     INITIALISATION_DIAGNOSTICS,
     LocalResult,
+    increment_solve,
     initialise,
     rival_minimum,
 )
@@ -94,12 +98,12 @@ class StartOptions:
 
 @lru_cache(maxsize=64)
 def map_solver(
-    structure: tuple[tuple[Any, ...], ...], with_prior: bool, options: IpoptOptions
+    structure: tuple[tuple[Any, ...], ...], with_prior: bool, options: NlpOptions
 ) -> ca.Function:
     """IPOPT ``nlpsol`` of the MAP loss of ``structure`` (built once per process)."""
     v, parameters, loss = map_loss(structure, with_prior)
     problem = {"x": v, "p": parameters, "f": loss}
-    return ca.nlpsol(f"map_nlp_{len(structure)}", "ipopt", problem, options.nlpsol_options())
+    return ca.nlpsol(f"map_nlp_{len(structure)}", options.solver, problem, options.nlpsol_options())
 
 
 def has_symbolic_model(kind: type[AttitudeMeasurement]) -> bool:
@@ -132,7 +136,7 @@ class _Epoch:
 class MapNlp(SnapshotEstimator):
     """Registry entry ``map_nlp`` (module docstring)."""
 
-    options: IpoptOptions = field(default_factory=IpoptOptions)
+    options: NlpOptions = field(default_factory=NlpOptions)
     starts: StartOptions = field(default_factory=StartOptions)
     warm_start: WarmStart = field(default_factory=WarmStart)
     name: str = "map_nlp"
@@ -183,7 +187,7 @@ class MapNlp(SnapshotEstimator):
         init = initialise(epoch, self._local_solve, start, None, self.starts.attitudes)
         diagnostics = init.diagnostics()
         if not init.result.converged:
-            return EpochEstimate.failed(f"IPOPT: {init.result.status}", diagnostics)
+            return EpochEstimate.failed(f"{self.options.label}: {init.result.status}", diagnostics)
         attitude = init.result.attitude
         information = snapshot_information(snapshot, attitude)
         if prior is not None:
@@ -203,23 +207,15 @@ class MapNlp(SnapshotEstimator):
         )
 
     def _local_solve(self, epoch: _Epoch, start: Rotation) -> LocalResult:
-        """One IPOPT solve with ``A_ref = start`` and ``v_0 = 0``."""
+        """One solve with ``A_ref = start`` and ``v_0 = 0`` by ``options.solver``
+        (:func:`~attopt.solvers.snr.initialisation.increment_solve`)."""
         terms = [MapTerm.of(m, start) for m in epoch.measurements]
         structure = tuple(term.structure for term in terms)
-        solver = map_solver(structure, epoch.prior is not None, self.options)
-        solution = solver(x0=np.zeros(3), p=parameter_vector(start, terms, epoch.prior))
-        stats = solver.stats()
-        status = str(stats["return_status"])
-        v = solution["x"].full().ravel()
-        loss = float(solution["f"])
-        finite = bool(np.all(np.isfinite(v)) and np.isfinite(loss))
-        return LocalResult(
-            attitude=Rotation.from_mrp(v / 4.0) * start if finite else start,
-            loss=loss if finite else np.nan,
-            converged=finite and status in ACCEPTED_STATUSES,
-            status=status,
-            iterations=int(stats["iter_count"]),
-            acceptable=status == ACCEPTABLE_STATUS,
+        return increment_solve(
+            lambda o: map_solver(structure, epoch.prior is not None, o),
+            self.options,
+            parameter_vector(start, terms, epoch.prior),
+            start,
         )
 
 

@@ -31,8 +31,8 @@ from attopt.formulations.passes import Pass, Prior
 from attopt.formulations.snapshot import Snapshot, StackedMeasurement
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.solvers.bounds import crb, snapshot_information
-from attopt.solvers.ipopt import IpoptOptions
 from attopt.solvers.map_nlp import ESTIMATORS, MAP_NLP, map_solver
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.snapshot_sequence import WarmStart
 from attopt.solvers.snr import NLP
 from attopt.solvers.snr.initialisation import StartSource
@@ -110,21 +110,30 @@ def test_axis_aligned_vectors_are_not_matched_by_a_half_turn(count):
     assert angle(flipped.attitude, half_turn) < 1e-9
 
 
-@settings(max_examples=10, deadline=None)
+SOLVERS = pytest.mark.parametrize(
+    "options", [NlpOptions(), NlpOptions(solver="sqpmethod")], ids=["ipopt", "sqpmethod"]
+)
+"""Both ``nlpsol`` plugins (:mod:`attopt.solvers.nlpsol`; more in tests/test_nlp_solvers.py)."""
+
+
+@SOLVERS
+@settings(max_examples=8, deadline=None)
 @given(attitudes())
-def test_noise_free_euler_angles_and_doas_are_recovered(truth):
-    for measurement in (_euler(truth), _doa(truth)):
-        solution = MAP_NLP.solve(Snapshot.of(measurement))
+def test_noise_free_vectors_euler_angles_and_doas_are_recovered(options, truth):
+    solver = replace(MAP_NLP, options=options)
+    for measurement in (_vectors(truth), _euler(truth), _doa(truth)):
+        solution = solver.solve(Snapshot.of(measurement))
         assert angle(solution.attitude, truth) < 1e-8, type(measurement).__name__
 
 
-def test_noise_free_snrs_are_recovered_with_and_without_a_start():
+@SOLVERS
+def test_noise_free_snrs_are_recovered_with_and_without_a_start(options):
     problem = _epoch(_geometry(np.random.default_rng(40), TRUTH, (9, 9)))
     snapshot = Snapshot.of(SnrMeasurement(problem))
     start = Rotation.from_rotvec([0.05, -0.04, 0.06]) * TRUTH
-    for prior in (start, None):
-        solution = MAP_NLP.solve(snapshot, prior)
-        assert angle(solution.attitude, TRUTH) < 1e-8
+    for solver in (replace(NLP, options=options), replace(MAP_NLP, options=options)):
+        for prior in (start, None):
+            assert angle(solver.solve(snapshot, prior).attitude, TRUTH) < 1e-8
 
 
 def test_noise_free_mix_of_every_type_is_recovered():
@@ -280,10 +289,10 @@ def test_the_loss_is_the_weighted_innovations_and_the_prior_term():
 
 def test_solver_is_built_once_per_structure_and_pickles():
     terms = (MapTerm.of(_vectors(TRUTH), TRUTH).structure,)
-    solver = map_solver(terms, False, IpoptOptions())
-    assert map_solver(terms, False, IpoptOptions()) is solver
+    solver = map_solver(terms, False, NlpOptions())
+    assert map_solver(terms, False, NlpOptions()) is solver
     other = MapTerm.of(_vectors(TRUTH, seed=9), TRUTH).structure
-    assert map_solver((other,), False, IpoptOptions()) is solver  # same types and sizes
+    assert map_solver((other,), False, NlpOptions()) is solver  # same types and sizes
     copy = pickle.loads(pickle.dumps(solver))
     p = parameter_vector(TRUTH, [MapTerm.of(_vectors(TRUTH), TRUTH)])
     np.testing.assert_allclose(
@@ -313,7 +322,7 @@ def test_sequence_warm_starts_and_flags_bad_epochs():
 
 def test_ipopt_failure_is_raised_single_and_flagged_in_a_sequence():
     snapshot = Snapshot.of(_vectors(TRUTH, noise=True))
-    failing = replace(MAP_NLP, options=IpoptOptions(max_iter=1))
+    failing = replace(MAP_NLP, options=NlpOptions(max_iter=1))
     start = Rotation.from_rotvec([0.3, 0.0, 0.0]) * TRUTH
     with pytest.raises(ConvergenceError, match="IPOPT: Maximum_Iterations_Exceeded"):
         failing.solve(snapshot, prior=start)

@@ -17,6 +17,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import norm
 
 from attopt.formulations.attitude_measurement import VectorMeasurement
 from attopt.formulations.conventions import attitude_error, attitude_from_euler321
@@ -35,7 +36,7 @@ from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import cramer_rao_bound, fisher_information, predict_snr, snr_db
 from attopt.formulations.snr_problem import SnrEpoch
 from attopt.formulations.symbolic import NUMPY
-from attopt.solvers.ipopt import IpoptOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.results import Track
 from attopt.solvers.snapshot_sequence import EpochEstimate, WarmStart
 from attopt.solvers.snr import (
@@ -185,7 +186,7 @@ def test_padded_nlp_objective_is_the_eq19_loss():
     expected = 0.5 * np.sum((problem.snr_db - predicted) ** 2 / problem.sigma_db**2)
     padded = pad_epoch(problem, start.as_matrix())
     assert padded.size == 16
-    solver = nlp_solver(LIU2023_HELIX, padded.size, IpoptOptions(max_iter=0))
+    solver = nlp_solver(LIU2023_HELIX, padded.size, NlpOptions(max_iter=0))
     result = solver(x0=np.zeros(3), p=parameter_vector(padded, start.as_matrix()))
     assert float(result["f"]) == pytest.approx(expected, rel=1e-12)
     assert snr_loss(problem.snr_db, predicted, problem.weights) == pytest.approx(
@@ -195,7 +196,7 @@ def test_padded_nlp_objective_is_the_eq19_loss():
 
 
 def test_nlp_is_built_once_per_size_class_and_pickles():
-    options = IpoptOptions()
+    options = NlpOptions()
     assert nlp_solver(LIU2023_HELIX, 16, options) is nlp_solver(LIU2023_HELIX, 16, options)
     rng = np.random.default_rng(3)
     geometry = _geometry(rng, TRUTH, (5, 5))
@@ -508,7 +509,7 @@ def test_ipopt_failure_is_flagged_with_its_status():
     rng = np.random.default_rng(13)
     geometry = _geometry(rng, TRUTH, (10, 10))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=20))
-    solver = NlpSolver(options=IpoptOptions(max_iter=1))
+    solver = NlpSolver(options=NlpOptions(max_iter=1))
     prior = Rotation.from_rotvec([0.1, -0.1, 0.05]) * TRUTH
     with pytest.raises(ConvergenceError, match="IPOPT: Maximum_Iterations_Exceeded"):
         solver.solve(_snapshot(problem), prior=prior)
@@ -524,7 +525,7 @@ def test_ipopt_acceptable_level_is_accepted_and_flagged():
     rng = np.random.default_rng(14)
     geometry = _geometry(rng, TRUTH, (10, 10))
     problem = _epoch(geometry, geometry[3] + rng.normal(size=20))
-    options = IpoptOptions(tol=1e-300, acceptable_tol=1e-3, acceptable_iter=1)
+    options = NlpOptions(tol=1e-300, acceptable_tol=1e-3, acceptable_iter=1)
     solution = NlpSolver(options=options).solve(_snapshot(problem), prior=TRUTH)
     assert solution.diagnostics["acceptable"] == 1.0
     reference = SOLVERS["nlp"].solve(_snapshot(problem), prior=TRUTH)
@@ -781,6 +782,18 @@ def test_far_above_the_threshold_the_widening_changes_nothing_measurable():
     np.testing.assert_allclose(widened.covariance, plain.covariance, rtol=1e-9)
     truncated = SOLVERS["nlp_truncated"]
     assert truncated.models_the_threshold and not SOLVERS["nlp"].models_the_threshold
+
+
+def test_threshold_bias_is_the_truncated_normals_mean_error_in_scipys_numbers():
+    """``sigma phi(a) / (1 - Phi(a))`` as ``scipy.stats.norm`` computes it, bit for bit,
+    from far below the threshold to far above it (and NaN for NaN)."""
+    problem = _epoch(_geometry(np.random.default_rng(21), TRUTH, (6, 6)))
+    a = np.concatenate([np.linspace(-40.0, 40.0, 1001), [np.nan]])
+    predicted = problem.threshold_db - a[:, None] * problem.sigma_db
+    score = (problem.threshold_db - predicted) / problem.sigma_db
+    expected = problem.sigma_db * np.exp(norm.logpdf(score) - norm.logsf(score))
+    np.testing.assert_array_equal(threshold_bias(problem, predicted), expected)
+    assert np.all(np.isfinite(expected[:-1]))
 
 
 def test_the_two_step_method_widens_by_its_own_gain():

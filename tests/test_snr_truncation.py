@@ -30,7 +30,7 @@ from attopt.formulations.snr_truncation import (
     truncated_nll,
 )
 from attopt.formulations.symbolic import CASADI
-from attopt.solvers.ipopt import IpoptOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.snr.fit import fit_at, model_at
 from attopt.solvers.snr.nlp import nlp_solver, parameter_vector
 from attopt.solvers.snr.padding import pad_epoch
@@ -179,7 +179,7 @@ def test_truncated_nlp_objective_gradient_matches_finite_differences():
     a_ref = start.as_matrix()
     padded = pad_epoch(problem, a_ref)
     assert padded.size == 32  # 10 padding rows, which must add nothing
-    solver = nlp_solver(LIU2023_HELIX, padded.size, IpoptOptions(), "truncated_ml")
+    solver = nlp_solver(LIU2023_HELIX, padded.size, NlpOptions(), "truncated_ml")
     p = parameter_vector(padded, a_ref, problem.threshold_db)
     loss, gradient = solver.get_function("nlp_grad_f")(np.zeros(3), p)
     predicted, _ = model_at(problem, start)

@@ -11,7 +11,9 @@ timed (validation, solve, covariance and result assembly included).  The
 table gives the median milliseconds per epoch, the ratio to the NLSE
 (warm-started) measured in the same run, median iterations (IPOPT
 iterations, MINPACK residual evaluations, QUEST Newton steps), failed epochs,
-and the RMS attitude error.  Run with ``python -m attopt.experiments.benchmarks.snr``.
+and the RMS attitude error.  A second table (:func:`solver_floor`) times the two
+``nlpsol`` plugins alone on a 3-variable quadratic: the cost of IPOPT itself.  Run with
+``python -m attopt.experiments.benchmarks.snr``.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 
+import casadi as ca
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -32,7 +35,7 @@ from attopt.formulations.snapshot import Snapshot
 from attopt.formulations.snr_measurement import SnrMeasurement
 from attopt.formulations.snr_model import SNR_SIGMA_DB, predict_snr
 from attopt.formulations.snr_problem import RECEPTION_THRESHOLD_DB, SnrEpoch
-from attopt.solvers.ipopt import IpoptOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.registry import estimator
 from attopt.solvers.results import Solution
 from attopt.solvers.snr.driver import SnrSolver
@@ -129,13 +132,16 @@ def run(n_epochs: int = 300, seed: int = 0, repeats: int = 3) -> list[BenchRow]:
     epochs, truths = _epochs(n_epochs, seed)
     snapshots = [Snapshot.of(SnrMeasurement(epoch)) for epoch in epochs]
     nlse, nlp, deterministic = (estimator(n) for n in ("nlse", "nlp", "deterministic"))
-    lbfgs = estimator("nlp", options=IpoptOptions(hessian_approximation="limited-memory"))
+    lbfgs = estimator("nlp", options=NlpOptions(hessian_approximation="limited-memory"))
+    sqp = estimator("nlp", options=NlpOptions(solver="sqpmethod"))
     variants: list[tuple[str, SnrSolver, bool]] = [
         ("nlse (warm start)", nlse, True),
         ("nlse (two-step start)", nlse, False),
         ("nlp, exact Hessian (warm start)", nlp, True),
         ("nlp, exact Hessian (two-step start)", nlp, False),
         ("nlp, L-BFGS (warm start)", lbfgs, True),
+        ("nlp, SQP method (warm start)", sqp, True),
+        ("nlp, SQP method (two-step start)", sqp, False),
         ("deterministic (two-step, QUEST)", deterministic, False),
     ]
     for _, solver, warm in variants:  # build every cached CasADi function before timing
@@ -191,5 +197,38 @@ def format_table(rows: list[BenchRow]) -> str:
     return "\n".join(lines)
 
 
+def solver_floor(calls: int = 300, repeats: int = 3) -> list[tuple[str, float, int]]:
+    """Milliseconds per ``nlpsol`` call of each solver on a 3-variable quadratic
+    ``|x - p|^2 + 0.1 |x|^4`` (no measurement model: the solvers' own cost), IPOPT
+    stopped after 0 and 1 iterations and run to convergence, and the SQP method; the
+    median of ``repeats`` runs of ``calls`` calls each, and the ratio to converged IPOPT
+    measured in the same run.  Printed and returned as ``(variant, ms, iterations)``."""
+    x, p = ca.SX.sym("x", 3), ca.SX.sym("p", 3)
+    problem = {"x": x, "p": p, "f": ca.sumsqr(x - p) + 0.1 * ca.sumsqr(x) ** 2}
+    variants = [
+        ("IPOPT, stopped at the start", NlpOptions(max_iter=0)),
+        ("IPOPT, stopped after 1 iteration", NlpOptions(max_iter=1)),
+        ("IPOPT, converged", NlpOptions()),
+        ("SQP method, converged", NlpOptions(solver="sqpmethod")),
+    ]
+    rows = []
+    for name, options in variants:
+        solver = ca.nlpsol("floor", options.solver, problem, options.nlpsol_options())
+        runs = []
+        for _ in range(repeats + 1):  # the first run warms up
+            start = time.perf_counter()
+            for _ in range(calls):
+                solver(x0=np.zeros(3), p=[1.0, 2.0, 3.0])
+            runs.append((time.perf_counter() - start) / calls)
+        rows.append((name, 1e3 * float(np.median(runs[1:])), int(solver.stats()["iter_count"])))
+    reference = rows[2][1]
+    print("| solver on a 3-variable quadratic | ms per call | iterations | vs IPOPT converged |")
+    print("|---|---|---|---|")
+    for name, ms, iterations in rows:
+        print(f"| {name} | {ms:.3f} | {iterations} | {ms / reference:.2f}x |")
+    return rows
+
+
 if __name__ == "__main__":
     run()
+    solver_floor()

@@ -27,16 +27,19 @@ than :data:`DISTINCT_MINIMUM_RAD` apart).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import IntEnum
 from typing import TypeVar
 
 import numpy as np
+from casadi import Function
+from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from attopt.formulations.conventions import attitude_from_euler321
 from attopt.formulations.snr_problem import SnrEpoch
+from attopt.solvers.nlpsol import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, NlpOptions
 from attopt.solvers.snr.deterministic import two_step
 
 START_YAWS_DEG = tuple(range(0, 360, 45))
@@ -83,6 +86,44 @@ class LocalResult:
     status: str
     iterations: int
     acceptable: bool = False
+
+
+def increment_solve(
+    solver: Callable[[NlpOptions], Function],
+    options: NlpOptions,
+    parameters: NDArray[np.float64],
+    start: Rotation,
+) -> LocalResult:
+    """One local solve of an NLP in the attitude increment ``v`` about ``start`` from
+    ``v = 0`` (``A = C(v) start``, ``C(v)`` the rotation with MRPs ``v / 4``, pinned in
+    tests/test_snr_model.py; :mod:`attopt.solvers.snr.nlp`) by ``solver(options)``, the
+    NLP's ``nlpsol`` with ``parameters``.  A ``sqpmethod`` solve that stopped without
+    converging after at least one iteration is repeated by IPOPT, whose line search cuts
+    back steps into the regions where the loss is undefined (:mod:`attopt.solvers.nlpsol`);
+    one that stopped at the start (the loss or its derivatives undefined there, where
+    IPOPT stops too) is not."""
+    nlp = solver(options)
+    solution = nlp(x0=np.zeros(3), p=parameters)
+    stats = nlp.stats()
+    status = str(stats["return_status"])
+    v = solution["x"].full().ravel()
+    loss = float(solution["f"])
+    finite = bool(np.all(np.isfinite(v)) and np.isfinite(loss))
+    converged = finite and status in ACCEPTED_STATUSES
+    iterations = int(stats["iter_count"])
+    if not converged and iterations > 0 and options.solver != "ipopt":
+        rescue = increment_solve(solver, replace(options, solver="ipopt"), parameters, start)
+        if rescue.converged:
+            return rescue
+        return replace(rescue, status=f"{rescue.status} (IPOPT, after SQP's {status})")
+    return LocalResult(
+        attitude=Rotation.from_mrp(v / 4.0) * start if finite else start,
+        loss=loss if finite else np.nan,
+        converged=converged,
+        status=status,
+        iterations=iterations,
+        acceptable=status == ACCEPTABLE_STATUS,
+    )
 
 
 Problem = TypeVar("Problem")
@@ -167,6 +208,7 @@ def multistart(
 
 AMBIGUITY_PROBABILITY = 1e-4
 """Tail probability of the chi-square(3) quantile of :func:`rival_minimum` (21.1)."""
+AMBIGUITY_QUANTILE = float(chi2.isf(AMBIGUITY_PROBABILITY, 3))
 
 
 def rival_minimum(
@@ -190,7 +232,7 @@ def rival_minimum(
     of degrees away that fits as well (measured in ``adsb-sky``'s modelled sky: 54 deg
     away with a lower loss, ``2 dL = -0.8``).
     """
-    quantile = float(chi2.isf(AMBIGUITY_PROBABILITY, 3))
+    quantile = AMBIGUITY_QUANTILE
     rivals = []
     for i in range(len(starts)):
         result = local_solve(problem, starts[i])

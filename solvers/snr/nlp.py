@@ -1,5 +1,8 @@
 """The SNR attitude problem as a CasADi NLP solved by IPOPT (Liu et al. 2023 eqs. 19-20, 22).
 
+The same NLP can be solved by CasADi's SQP method instead (``NlpOptions(solver="sqpmethod")``,
+:mod:`attopt.solvers.nlpsol`): the options below are IPOPT's, the default.
+
 Problem.  ``min_v 1/2 sum_k w_k (y_k - f_k(C(v) A_ref))^2`` with ``f_k`` the
 SNR model of Liu et al. 2023 eq. 13 (:func:`attopt.formulations.snr_model.snr_function`),
 ``w_k = 1 / sigma_k^2`` (the ``C`` of eq. 22; 0 for padding rows) and
@@ -59,7 +62,7 @@ patterns differ the rows' antennas (size), and for the truncated objective
 standard deviations (size) and ``tau`` (1), with epochs padded to the buckets
 of :mod:`attopt.solvers.snr.padding`.
 
-IPOPT options (:class:`attopt.solvers.ipopt.IpoptOptions`, shared with the
+IPOPT options (:class:`attopt.solvers.nlpsol.NlpOptions`, shared with the
 MAP NLP).  ``print_level 0``, ``sb yes``, no timing print and no CasADi
 evaluation warnings: silent (IPOPT itself cuts back steps into
 ``cos(alpha) <= 0``, where ``lg cos(alpha)`` is undefined).
@@ -80,9 +83,10 @@ benchmark's 20-observation epochs L-BFGS needed a median 8 iterations
 against 4 and twice the time per epoch.  Multipliers are not computed
 (``calc_lam_x``, ``calc_lam_p`` off): the problem has no constraints.
 
-Status.  Only ``Solve_Succeeded`` converges.  ``Solved_To_Acceptable_Level``
-(IPOPT's relaxed tolerance ``acceptable_tol = 1e-4`` held for 15 iterations)
-is accepted too and flagged with ``acceptable = 1`` in the diagnostics.
+Status (IPOPT's; the SQP method's: :mod:`attopt.solvers.nlpsol`).  Only
+``Solve_Succeeded`` converges.  ``Solved_To_Acceptable_Level`` (IPOPT's relaxed
+tolerance ``acceptable_tol = 1e-4`` held for 15 iterations) is accepted too and
+flagged with ``acceptable = 1`` in the diagnostics.
 Anything else (iteration limit, restoration failure, invalid numbers at the
 start, ...) flags the epoch invalid with the IPOPT status as reason; no
 attitude is returned for it.
@@ -92,7 +96,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -102,7 +105,7 @@ from scipy.spatial.transform import Rotation
 from attopt.formulations.gain_patterns import AntennaPatterns
 from attopt.formulations.snr_model import Pattern, snr_function
 from attopt.formulations.snr_problem import SnrEpoch
-from attopt.solvers.ipopt import ACCEPTABLE_STATUS, ACCEPTED_STATUSES, IpoptOptions
+from attopt.solvers.nlpsol import NlpOptions
 from attopt.solvers.snapshot_sequence import EpochEstimate
 from attopt.solvers.snr.fit import (
     OBJECTIVES,
@@ -113,7 +116,7 @@ from attopt.solvers.snr.fit import (
     standardised_residuals,
     truncated_chi_square,
 )
-from attopt.solvers.snr.initialisation import LocalResult
+from attopt.solvers.snr.initialisation import LocalResult, increment_solve
 from attopt.solvers.snr.one_step import OneStepSolver
 from attopt.solvers.snr.padding import PaddedEpoch, pad_epoch
 
@@ -172,7 +175,7 @@ def parameter_vector(
 def nlp_solver(
     pattern: Pattern,
     size: int,
-    options: IpoptOptions,
+    options: NlpOptions,
     objective: Objective = "least_squares",
 ) -> ca.Function:
     """IPOPT ``nlpsol`` of the ``objective``'s loss for ``size`` rows (built once per process)."""
@@ -188,56 +191,50 @@ def nlp_solver(
     parameters = ca.vertcat(*(ca.vec(symbol) for symbol in p.values()))
     problem = {"x": v, "p": parameters, "f": loss}
     name = f"snr_nlp_{size}" if objective == "least_squares" else f"snr_nlp_{objective}_{size}"
-    return ca.nlpsol(name, "ipopt", problem, options.nlpsol_options())
+    return ca.nlpsol(name, options.solver, problem, options.nlpsol_options())
 
 
 def solve_local(
     problem: SnrEpoch,
     start: Rotation,
-    options: IpoptOptions,
+    options: NlpOptions,
     objective: Objective = "least_squares",
 ) -> LocalResult:
-    """One IPOPT solve of ``objective`` with ``A_ref = start`` and ``v_0 = 0``."""
+    """One solve of ``objective`` with ``A_ref = start`` and ``v_0 = 0`` by ``options.solver``
+    (:func:`~attopt.solvers.snr.initialisation.increment_solve`)."""
     a_ref = start.as_matrix()
     padded = pad_epoch(problem, a_ref)
-    solver = nlp_solver(problem.pattern, padded.size, options, objective)
     threshold = problem.threshold_db if objective == "truncated_ml" else None
-    solution = solver(x0=np.zeros(3), p=parameter_vector(padded, a_ref, threshold))
-    stats = solver.stats()
-    status = str(stats["return_status"])
-    v = solution["x"].full().ravel()
-    loss = float(solution["f"])
-    finite = bool(np.all(np.isfinite(v)) and np.isfinite(loss))
-    # C(v) of increment_matrix is the rotation with MRPs v / 4 (pinned in tests/test_snr_model.py).
-    attitude = Rotation.from_mrp(v / 4.0) * start if finite else start
-    return LocalResult(
-        attitude=attitude,
-        loss=loss if finite else np.nan,
-        converged=finite and status in ACCEPTED_STATUSES,
-        status=status,
-        iterations=int(stats["iter_count"]),
-        acceptable=status == ACCEPTABLE_STATUS,
+    return increment_solve(
+        lambda o: nlp_solver(problem.pattern, padded.size, o, objective),
+        options,
+        parameter_vector(padded, a_ref, threshold),
+        start,
     )
 
 
 @dataclass(frozen=True, repr=False)
 class NlpSolver(OneStepSolver):
-    """Registry entries ``"nlp"`` and ``"nlp_truncated"``: the IPOPT NLP of :attr:`objective`.
+    """Registry entries ``"nlp"`` and ``"nlp_truncated"``: the NLP of :attr:`objective`,
+    solved by IPOPT or CasADi's SQP method (``options.solver``, :mod:`attopt.solvers.nlpsol`).
 
     Initialised by :mod:`attopt.solvers.snr.initialisation`; the loss and covariance
     of the estimate are those of :attr:`objective` (:func:`attopt.solvers.snr.fit.fit_at`).
     """
 
-    options: IpoptOptions = field(default_factory=IpoptOptions)
+    options: NlpOptions = field(default_factory=NlpOptions)
     objective: Objective = "least_squares"
     name: str = "nlp"
     description: str = "CasADi NLP on the MRP increment, IPOPT (Liu et al. 2023 eqs. 19-20, 22)"
-    status_label: ClassVar[str] = "IPOPT"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective {self.objective!r}; expected one of {OBJECTIVES}")
+
+    @property
+    def status_label(self) -> str:  # the base's class constant, here the options' solver
+        return self.options.label
 
     @property
     def models_the_threshold(self) -> bool:
