@@ -37,7 +37,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.special import log_ndtr, ndtri_exp
-from scipy.stats import norm
 
 from attopt.formulations.snr_model import (
     cramer_rao_bound,
@@ -224,7 +223,18 @@ def threshold_bias(problem: SnrEpoch, predicted: Array) -> Array:
     Balakrishnan 1994 eq. 13.134), which Liu et al. 2023 eq. 19 does not model."""
     sigma = np.asarray(problem.sigma_db, dtype=float)
     a = (problem.threshold_db - predicted) / sigma
-    return sigma * np.exp(norm.logpdf(a) - norm.logsf(a))
+    return sigma * np.exp(_log_normal_pdf(a) - log_ndtr(-a))
+
+
+_LOG_SQRT_2PI = np.log(np.sqrt(2 * np.pi))
+
+
+def _log_normal_pdf(x: Array) -> Array:
+    """``log phi(x)`` of the standard normal: the formula of ``scipy.stats.norm.logpdf``
+    (and with ``log_ndtr(-x)`` its ``logsf``), the same numbers, called directly because
+    every SNR epoch evaluates :func:`threshold_bias`, where ``scipy.stats``'s argument
+    handling costs about 250 us a call against 10-17 us."""
+    return -(x**2) / 2.0 - _LOG_SQRT_2PI
 
 
 def least_squares_shifts(
