@@ -29,6 +29,7 @@ predicted ``f_k``, through the same AD Jacobian.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -107,13 +108,28 @@ def objective_loss(
 
 
 def model_at(problem: SnrEpoch, attitude: Rotation) -> tuple[Array, Array]:
-    """Predicted SNR ``(m,)`` and its Jacobian ``(m, 3)`` (dB/rad, body-frame error)."""
+    """Predicted SNR ``(m,)`` and its Jacobian ``(m, 3)`` (dB/rad, body-frame error),
+    read-only.
+
+    An epoch's estimate, its covariance (:func:`fit_at`), its residual test and its
+    threshold bias evaluate the model at the same attitude three or four times: the
+    last evaluation (per thread) is returned again for the same ``problem`` and
+    ``attitude`` objects (both immutable)."""
+    last = getattr(_LAST_MODEL, "value", None)
+    if last is not None and last[0] is problem and last[1] is attitude:
+        return last[2], last[3]
     a = attitude.as_matrix()
     padded = pad_epoch(problem, a)
     snr, jac = snr_jacobian_function(problem.pattern, padded.size)(
         np.zeros(3), a, *padded.model_inputs
     )
-    return snr.full().ravel()[: problem.m], jac.full()[: problem.m]
+    predicted, jacobian = snr.full().ravel()[: problem.m], jac.full()[: problem.m]
+    predicted.flags.writeable = jacobian.flags.writeable = False
+    _LAST_MODEL.value = (problem, attitude, predicted, jacobian)
+    return predicted, jacobian
+
+
+_LAST_MODEL = threading.local()
 
 
 def truncated_chi_square(problem: SnrEpoch, attitude: Rotation) -> float:
