@@ -62,7 +62,8 @@ def _nees(track, truth) -> np.ndarray:
 @pytest.fixture(scope="module")
 def monte_carlo() -> dict[str, np.ndarray]:
     """Final-epoch NEES of each filter over 40 seeded passes (independent across passes;
-    NaN where the filter flags that epoch)."""
+    NaN where the filter flags that epoch); the plain MEKF over the first 10 (it flagged
+    the last epoch of all 40)."""
     estimators = {
         "mekf_offsets": MekfOffsets(offset_timeout_s=3.0),
         "usque_offsets": UsqueOffsets(offset_timeout_s=3.0),
@@ -72,6 +73,8 @@ def monte_carlo() -> dict[str, np.ndarray]:
     for seed in range(40):
         pass_, truth, _ = _offset_pass(seed)
         for name, estimator in estimators.items():
+            if name == "mekf" and seed >= 10:
+                continue
             track = estimator.solve(pass_)
             nees[name].append(float(_nees(track, truth)[-1]) if track.valid[-1] else np.nan)
     return {name: np.array(values) for name, values in nees.items()}
