@@ -100,7 +100,8 @@ class StartOptions:
 def map_solver(
     structure: tuple[tuple[Any, ...], ...], with_prior: bool, options: NlpOptions
 ) -> ca.Function:
-    """IPOPT ``nlpsol`` of the MAP loss of ``structure`` (built once per process)."""
+    """The ``nlpsol`` of the MAP loss of ``structure`` by ``options.solver`` (built once per
+    process)."""
     v, parameters, loss = map_loss(structure, with_prior)
     problem = {"x": v, "p": parameters, "f": loss}
     return ca.nlpsol(f"map_nlp_{len(structure)}", options.solver, problem, options.nlpsol_options())

@@ -178,7 +178,8 @@ def nlp_solver(
     options: NlpOptions,
     objective: Objective = "least_squares",
 ) -> ca.Function:
-    """IPOPT ``nlpsol`` of the ``objective``'s loss for ``size`` rows (built once per process)."""
+    """The ``nlpsol`` of the ``objective``'s loss for ``size`` rows by ``options.solver`` (built
+    once per process)."""
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; expected one of {OBJECTIVES}")
     v = ca.SX.sym("v", 3)
