@@ -9,6 +9,7 @@ solve that stops without converging after at least one iteration is repeated by 
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import replace
 
 import numpy as np
@@ -121,3 +122,18 @@ def test_a_start_where_the_loss_is_undefined_is_not_repeated():
     result = _local(problem, SQP, build, start)
     assert calls == ["sqpmethod"] and not result.converged and result.iterations == 0
     assert not _local(problem, NlpOptions(), start=start).converged
+
+
+@pytest.mark.parametrize("estimator", [NLP, MAP_NLP], ids=lambda e: e.name)
+def test_the_sqp_method_is_deterministic_and_picklable(estimator):
+    """Sweeps ship estimators to worker processes: a pickled SQP estimator solves to the
+    same bits, twice, without a prior (multi-start) and from a start."""
+    sqp = replace(estimator, options=SQP)
+    copy = pickle.loads(pickle.dumps(sqp))
+    assert copy == sqp
+    snapshots = [Snapshot.of(SnrMeasurement(_noisy_snr(seed))) for seed in (7, 8)]
+    tracks = [s.solve_sequence(snapshots) for s in (sqp, copy, sqp)]
+    for track in tracks[1:]:
+        np.testing.assert_array_equal(track.quaternion, tracks[0].quaternion)
+        np.testing.assert_array_equal(track.covariance, tracks[0].covariance)
+    assert tracks[0].valid.all()
