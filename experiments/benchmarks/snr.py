@@ -12,12 +12,15 @@ table gives the median milliseconds per epoch, the ratio to the NLSE
 (warm-started) measured in the same run, median iterations (IPOPT
 iterations, MINPACK residual evaluations, QUEST Newton steps), failed epochs,
 and the RMS attitude error.  A second table (:func:`solver_floor`) times the two
-``nlpsol`` plugins alone on a 3-variable quadratic: the cost of IPOPT itself.  Run with
+``nlpsol`` plugins alone on a 3-variable quadratic: the cost of IPOPT itself; a third
+(:func:`truncated_derivatives`) the truncated likelihood's NLP on whole ``adsb-snr``
+epochs with CasADi's own derivatives and with the compiled ones.  Run with
 ``python -m attopt.experiments.benchmarks.snr``.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, replace
 
@@ -229,6 +232,56 @@ def solver_floor(calls: int = 300, repeats: int = 3) -> list[tuple[str, float, i
     return rows
 
 
+def truncated_derivatives(duration_s: float = 60.0, repeats: int = 3) -> list[tuple[str, float]]:
+    """Milliseconds per IPOPT solve of the truncated likelihood (``nlp_truncated``'s NLP) on
+    the received SNRs of the first ``duration_s`` epochs of ``adsb-snr`` (seed 0; about
+    170 an epoch, padded to 256), started at the true attitude: with CasADi's own
+    derivatives (``ATTOPT_KERNELS=interpreted``) and with the compiled ones
+    (:mod:`attopt.solvers.snr.nlp_derivatives`), alternately, the median over the epochs
+    of each of ``repeats`` runs; the ratio in the same run and the largest difference of
+    the estimates.  Printed and returned as ``(variant, median ms)``."""
+    from attopt.experiments.adsb_snr.experiment import AdsbSnrParameters, trial_pass
+    from attopt.formulations import kernels
+    from attopt.solvers.snr.nlp import solve_local
+
+    scenario, noisy = trial_pass(
+        AdsbSnrParameters(duration_s=duration_s), np.random.SeedSequence(0, spawn_key=(0, 0))
+    )
+    modes = {"CasADi's derivatives": kernels.INTERPRETED, "compiled derivatives": "compiled"}
+    medians: dict[str, list[float]] = {name: [] for name in modes}
+    estimates: dict[str, list[Rotation]] = {}
+    previous = os.environ.get(kernels.KERNELS_ENV)
+    try:
+        for _ in range(repeats + 1):  # the first run builds (and compiles) and warms up
+            for name, mode in modes.items():
+                os.environ[kernels.KERNELS_ENV] = mode
+                seconds, attitudes = [], []
+                for k, epoch in enumerate(noisy.epochs):
+                    start = time.perf_counter()
+                    result = solve_local(epoch, scenario.truth[k], NlpOptions(), "truncated_ml")
+                    seconds.append(time.perf_counter() - start)
+                    attitudes.append(result.attitude)
+                medians[name].append(1e3 * float(np.median(seconds)))
+                estimates[name] = attitudes
+    finally:
+        if previous is None:
+            os.environ.pop(kernels.KERNELS_ENV, None)
+        else:
+            os.environ[kernels.KERNELS_ENV] = previous
+    rows = [(name, float(np.median(runs[1:]))) for name, runs in medians.items()]
+    difference = max(
+        float((a * b.inv()).magnitude()) for a, b in zip(*estimates.values(), strict=True)
+    )
+    print("| truncated-likelihood NLP, IPOPT | median ms per solve (runs) | vs CasADi's |")
+    print("|---|---|---|")
+    for name, ms in rows:
+        runs = " / ".join(f"{m:.2f}" for m in medians[name][1:])
+        print(f"| {name} | {ms:.2f} ({runs}) | {ms / rows[0][1]:.2f}x |")
+    print(f"largest difference of the estimates: {difference:.1e} rad")
+    return rows
+
+
 if __name__ == "__main__":
     run()
     solver_floor()
+    truncated_derivatives()
