@@ -26,21 +26,22 @@ CasADi's plugins.
   IPOPT from the same start
   (:func:`attopt.solvers.snr.initialisation.increment_solve`).
 
-Why a second solver.  IPOPT costs about 1.4 ms per solve however small the problem:
-on a 3-variable quadratic it took 0.30-0.45 ms stopped at the start, 0.8-1.2 ms
-after one iteration and 1.4-1.65 ms for the four it needs, its algorithm objects
-built and MUMPS initialised at every call; the SQP method solved it in 0.12-0.17 ms
-(``python -m attopt.experiments.benchmarks.snr``, ``docs/benchmarks.md``).  On
-20-observation SNR epochs a warm-started local solve took 0.65 ms against 2.2 ms,
-and the 24 multi-starts of 15 epochs 0.32 s against 0.76 s; both converged from 151
-of the 360 starts, to the same minimum from 149.  The estimates agree to the
-stopping tolerance (``tests/test_nlp_solvers.py``).  Where the loss is expensive to
-evaluate the evaluations dominate: over 60 s of ``adsb-snr`` (about 170 SNRs an
-epoch) ``nlp`` took 0.34 s against 1.19 s, but ``nlp_truncated``, whose Hessian costs
-most, 2.2 s against 2.7 s.  The multi-start's basins are not quite IPOPT's, so the
-ambiguity check (:func:`~attopt.solvers.snr.initialisation.rival_minimum`) may find
-a second minimum with one solver and not the other: on that pass IPOPT's found one
-52 deg away at the first epoch, the SQP method's did not (``docs/benchmarks.md``).
+Why a second solver. IPOPT costs about 1.4 ms per solve however small the problem: on a
+3-variable quadratic it took 0.30-0.45 ms stopped at the start, 0.8-1.2 ms after one
+iteration and 1.4-1.65 ms for the four it needs, its algorithm objects built and MUMPS
+initialised at every call; the SQP method solved it in 0.12-0.17 ms (``python -m
+attopt.experiments.benchmarks.snr``, ``docs/benchmarks.md``). On 20-observation SNR
+epochs a warm-started local solve took 0.65 ms against 2.2 ms, and the 24 multi-starts
+of 15 epochs 0.32 s against 0.76 s; both converged from 151 of the 360 starts, to the
+same minimum from 149. The estimates agree to the stopping tolerance
+(``tests/test_nlp_solvers.py``). Where the loss is expensive to evaluate the evaluations
+count: over 60 s of ``adsb-snr`` (about 170 SNRs an epoch) ``nlp`` took 0.34 s against
+1.28 s, but ``nlp_truncated`` 2.4 s against 1.2 s: IPOPT is given the SNR NLP's compiled
+gradient and Hessian (:mod:`attopt.solvers.snr.nlp_derivatives`), the SQP method
+evaluates CasADi's own. The multi-start's basins are not quite IPOPT's, so the ambiguity
+check (:func:`~attopt.solvers.snr.initialisation.rival_minimum`) may find a second
+minimum with one solver and not the other: on that pass IPOPT's found one 52 deg away at
+the first epoch, the SQP method's did not (``docs/benchmarks.md``).
 """
 
 from __future__ import annotations
