@@ -182,7 +182,7 @@ def nlp_solver(
     objective: Objective = "least_squares",
 ) -> ca.Function:
     """The ``nlpsol`` of the ``objective``'s loss for ``size`` rows by ``options.solver`` (built
-    once per process and kernel mode; the truncated likelihood's derivatives compiled:
+    once per process and kernel mode; IPOPT's gradient and Hessian compiled:
     :mod:`attopt.solvers.snr.nlp_derivatives`)."""
     return _nlp_solver(pattern, size, options, objective, compiled_kernels())
 
